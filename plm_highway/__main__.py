@@ -1,0 +1,5 @@
+import sys
+
+from plm_highway.cli import main
+
+sys.exit(main())
