@@ -1,0 +1,113 @@
+"""The track drawn once, from above, as the grayscale ground texture the camera looks at.
+
+Every camera frame is then one perspective warp of this image: drawing the road each frame
+(what highway-env's GrayscaleObservation does) is what makes the stock observation slow.
+"""
+
+from __future__ import annotations
+
+import functools
+import zlib
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from plm_highway.road.geometry import sample_reference
+from plm_highway.road.track import TrackSpec
+
+# Gray levels of the ground (uint8).
+OFFROAD_GRAY = 105
+ASPHALT_GRAY = 60
+MARKING_GRAY = 235
+MARKING_WIDTH_M = 0.2
+DASH_LENGTH_M = 3.0
+DASH_PERIOD_M = 9.0  # 3 m painted, 6 m gap
+TEXTURE_SIGMA_GRAY = 10.0
+
+
+@dataclass(frozen=True)
+class GroundMap:
+    """A top-down grayscale image of the track and its world-to-pixel transform."""
+
+    image: np.ndarray  # (rows, cols) uint8
+    px_per_m: float
+    x_min_m: float
+    y_max_m: float
+
+    @property
+    def world_to_pixel(self) -> np.ndarray:
+        """3x3 affine taking (x, y, 1) in metres (y up) to (col, row, 1) in the image (row down)."""
+        s = self.px_per_m
+        return np.array([[s, 0.0, -s * self.x_min_m], [0.0, -s, s * self.y_max_m], [0.0, 0.0, 1.0]])
+
+    def to_pixels(self, x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
+        return np.stack([(x_m - self.x_min_m) * self.px_per_m, (self.y_max_m - y_m) * self.px_per_m], axis=-1)
+
+
+@functools.lru_cache(maxsize=8)
+def ground_map(track: TrackSpec, px_per_m: float = 10.0, margin_m: float = 60.0) -> GroundMap:
+    """Draw ``track`` (cached: every env on the same track in a process shares one map)."""
+    ref = sample_reference(track, spacing_m=0.25)
+    half_width_m = track.road_half_width_m
+    edges_x = np.concatenate([ref.offset(half_width_m)[0], ref.offset(-half_width_m)[0]])
+    edges_y = np.concatenate([ref.offset(half_width_m)[1], ref.offset(-half_width_m)[1]])
+    x_min_m, x_max_m = edges_x.min() - margin_m, edges_x.max() + margin_m
+    y_min_m, y_max_m = edges_y.min() - margin_m, edges_y.max() + margin_m
+    cols = int(np.ceil((x_max_m - x_min_m) * px_per_m))
+    rows = int(np.ceil((y_max_m - y_min_m) * px_per_m))
+    if max(rows, cols) >= 32767:  # OpenCV's warp limit on source images
+        raise ValueError(f"track {track.name!r}: {cols}x{rows} px map is too large; lower px_per_m")
+    gmap = GroundMap(np.empty((rows, cols), np.uint8), px_per_m, x_min_m, y_max_m)
+
+    rng = np.random.default_rng(zlib.crc32(track.name.encode()))
+    image = _texture(rng, rows, cols, OFFROAD_GRAY, px_per_m)
+    asphalt = np.zeros((rows, cols), np.uint8)
+    _fill_road(asphalt, gmap, ref, half_width_m, track)
+    on_road = asphalt > 127
+    image[on_road] = _texture(rng, rows, cols, ASPHALT_GRAY, px_per_m)[on_road]
+    _draw_markings(image, gmap, ref, track)
+    gmap.image[:] = image
+    gmap.image.flags.writeable = False
+    return gmap
+
+
+def _texture(rng: np.random.Generator, rows: int, cols: int, mean_gray: float, px_per_m: float) -> np.ndarray:
+    # Smooth noise at ~0.5 m scale gives the ground visible motion without fake features; drawn
+    # at 2 px/m and upscaled, because full-resolution float noise would cost gigabytes.
+    scale = max(1, int(round(px_per_m / 2)))
+    noise = rng.standard_normal((rows // scale + 2, cols // scale + 2), dtype=np.float32)
+    noise = cv2.GaussianBlur(noise, (0, 0), sigmaX=0.7)
+    noise *= TEXTURE_SIGMA_GRAY / max(float(noise.std()), 1e-6)
+    noise = cv2.resize(noise, (cols, rows), interpolation=cv2.INTER_LINEAR)
+    return np.clip(mean_gray + noise, 0, 255).astype(np.uint8)
+
+
+def _fill_road(mask: np.ndarray, gmap: GroundMap, ref, half_width_m: float, track: TrackSpec) -> None:
+    # One polygon per segment keeps every polygon simple even on tracks that curl back.
+    for index in range(len(track.segments)):
+        sel = np.flatnonzero(ref.segment_index == index)
+        sel = np.append(sel, min(sel[-1] + 1, len(ref.s_m) - 1))
+        left = gmap.to_pixels(*[a[sel] for a in ref.offset(half_width_m)])
+        right = gmap.to_pixels(*[a[sel] for a in ref.offset(-half_width_m)])
+        polygon = np.concatenate([left, right[::-1]])
+        cv2.fillPoly(mask, [np.round(polygon * 16).astype(np.int32)], 255, lineType=cv2.LINE_AA, shift=4)
+
+
+def _draw_markings(image: np.ndarray, gmap: GroundMap, ref, track: TrackSpec) -> None:
+    thickness_px = max(1, int(round(MARKING_WIDTH_M * gmap.px_per_m)))
+    for boundary in range(track.lanes + 1):
+        lateral_m = track.road_half_width_m - boundary * track.lane_width_m
+        points = gmap.to_pixels(*ref.offset(lateral_m))
+        outer = boundary in (0, track.lanes)
+        painted = np.ones(len(points), bool) if outer else (np.mod(ref.s_m, DASH_PERIOD_M) < DASH_LENGTH_M)
+        for run in _runs(painted):
+            polyline = np.round(points[run] * 16).astype(np.int32)
+            cv2.polylines(image, [polyline], False, MARKING_GRAY, thickness_px, cv2.LINE_AA, shift=4)
+
+
+def _runs(mask: np.ndarray) -> list[slice]:
+    """Contiguous True stretches of ``mask`` as slices."""
+    padded = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    changes = np.flatnonzero(np.diff(padded))
+    return [slice(start, stop) for start, stop in zip(changes[::2], changes[1::2])]

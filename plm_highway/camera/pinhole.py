@@ -1,0 +1,101 @@
+"""A forward-looking pinhole camera on the ego car, rendered by one perspective warp.
+
+The ground is flat, so the map from image pixels to points on the ground is a homography that
+depends only on the camera's mounting (fixed per camera). Per frame only the car's pose changes:
+``frame = warpPerspective(ground_map, world_to_pixel @ pose @ image_to_ground)``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from plm_highway.camera.ground_map import GroundMap
+
+HORIZON_GRAY = 180  # sky and haze beyond the visible range
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    height_px: int = 66
+    width_px: int = 200
+    fov_deg: float = 70.0  # horizontal field of view
+    mount_height_m: float = 1.6
+    pitch_deg: float = 6.0  # downwards
+    forward_offset_m: float = 1.0  # camera ahead of the car's reference point
+    max_range_m: float = 60.0  # ground farther than this is drawn as haze
+
+    @classmethod
+    def from_dict(cls, values: dict) -> CameraConfig:
+        unknown = sorted(set(values) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise ValueError(f"camera config: unknown keys {unknown}; allowed {sorted(cls.__dataclass_fields__)}")
+        config = cls(**values)
+        if config.height_px < 8 or config.width_px < 8:
+            raise ValueError(f"camera config: image {config.height_px}x{config.width_px} is too small")
+        if not 10.0 <= config.fov_deg <= 150.0:
+            raise ValueError(f"camera config: fov_deg={config.fov_deg} outside [10, 150]")
+        if config.mount_height_m <= 0:
+            raise ValueError(f"camera config: mount_height_m={config.mount_height_m} must be positive")
+        return config
+
+    @property
+    def focal_px(self) -> float:
+        return (self.width_px / 2.0) / math.tan(math.radians(self.fov_deg) / 2.0)
+
+
+def image_to_ground(config: CameraConfig) -> np.ndarray:
+    """3x3 homography from pixel (u, v, 1) to (forward_m, left_m, 1) on the ground, car frame.
+
+    A pixel's ray is (a, b, 1) in camera axes (right, down, forward) with a = (u-cx)/f,
+    b = (v-cy)/f; pitching the camera down by theta and intersecting with the ground gives
+    forward = h (cos th - b sin th) / D + offset, left = -h a / D, D = b cos th + sin th.
+    """
+    f = config.focal_px
+    cx, cy = (config.width_px - 1) / 2.0, (config.height_px - 1) / 2.0
+    h = config.mount_height_m
+    th = math.radians(config.pitch_deg)
+    c, s = math.cos(th), math.sin(th)
+    off = config.forward_offset_m
+    denominator = np.array([0.0, c / f, s - cy * c / f])
+    forward = np.array([0.0, -h * s / f, h * c + h * s * cy / f]) + off * denominator
+    left = np.array([-h / f, 0.0, h * cx / f])
+    return np.stack([forward, left, denominator])
+
+
+def ground_rows(config: CameraConfig) -> np.ndarray:
+    """Boolean per image row: True where the row sees ground within ``max_range_m``."""
+    homography = image_to_ground(config)
+    v = np.arange(config.height_px, dtype=float)
+    denominator = homography[2, 1] * v + homography[2, 2]
+    forward_m = (homography[0, 1] * v + homography[0, 2]) / np.where(denominator > 0, denominator, 1.0)
+    return (denominator > 1e-9) & (forward_m <= config.max_range_m)
+
+
+def pose_matrix(x_m: float, y_m: float, heading_rad: float) -> np.ndarray:
+    """3x3 affine from the car frame (forward, left) to the world (x, y)."""
+    c, s = math.cos(heading_rad), math.sin(heading_rad)
+    return np.array([[c, -s, x_m], [s, c, y_m], [0.0, 0.0, 1.0]])
+
+
+class PinholeCamera:
+    """Renders grayscale dashcam frames of a :class:`GroundMap` from a car pose."""
+
+    def __init__(self, ground: GroundMap, config: CameraConfig = CameraConfig()):
+        self.ground = ground
+        self.config = config
+        self._image_to_ground = image_to_ground(config)
+        self._sky_rows = ~ground_rows(config)
+        self._size = (config.width_px, config.height_px)
+
+    def render(self, x_m: float, y_m: float, heading_rad: float) -> np.ndarray:
+        homography = self.ground.world_to_pixel @ pose_matrix(x_m, y_m, heading_rad) @ self._image_to_ground
+        frame = cv2.warpPerspective(
+            self.ground.image, homography, self._size,
+            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE,
+        )
+        frame[self._sky_rows] = HORIZON_GRAY
+        return frame
