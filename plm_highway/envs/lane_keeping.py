@@ -82,7 +82,7 @@ class LaneKeepingCameraEnv(AbstractEnv):
             "camera": {},  # overrides of CameraConfig fields, e.g. {"pitch_deg": 8}
             "map_px_per_m": 10.0,
             "duration_s": None,  # None: until the end of an open track
-            "curvature_preview_s": 0.3,  # look-ahead of the privileged curvature preview
+            "curvature_preview_s": 0.0,  # look-ahead of the privileged curvature preview (0: none; best for the expert)
             # Start pose; reset(options={...}) may override each for one episode.
             "start_arc_length_m": 0.0,
             "start_offset_m": 0.0,
@@ -215,6 +215,7 @@ class LaneKeepingCameraEnv(AbstractEnv):
         vehicle = self.vehicle
         coords = vehicle.coordinates
         speed_mps = float(vehicle.speed)
+        steering_rad = float(vehicle.action.get("steering", 0.0))
         lane_offset_m = self.start_lane_offset_m
         lookup = segment_lookup(self.track)
         segment_index = lookup.segment_index(coords.arc_length_m)
@@ -225,10 +226,13 @@ class LaneKeepingCameraEnv(AbstractEnv):
             "y_m": float(vehicle.position[1]),
             "heading_rad": float(vehicle.heading),
             "speed_mps": speed_mps,
-            "steering": float(vehicle.action.get("steering", 0.0)) / self.config["max_steering_rad"],
+            "steering": steering_rad / self.config["max_steering_rad"],
             "arc_length_m": coords.arc_length_m,
             "lateral_offset_m": coords.lateral_m - lane_offset_m,
             "heading_error_rad": coords.heading_error_rad,
+            # The bicycle's velocity points at heading + beta: tracking this course angle, not the
+            # heading, is what leaves no steady offset in curves.
+            "course_error_rad": coords.heading_error_rad + math.atan(0.5 * math.tan(steering_rad)),
             "curvature_1pm": _lane_curvature(lookup.curvature(coords.arc_length_m), lane_offset_m),
             "curvature_preview_1pm": _lane_curvature(lookup.curvature(preview_s_m), lane_offset_m),
             "segment": self.track.segments[segment_index].direction,

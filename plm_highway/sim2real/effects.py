@@ -1,0 +1,298 @@
+"""The library of physics a kinematic-bicycle simulator leaves out, each a term added to its model.
+
+The simulator (highway-env's kinematic bicycle) turns the commanded front-wheel angle into a yaw rate
+instantly: ``r = v sin(beta) / lr`` with ``beta = atan(lr / L tan(delta))``. Each candidate effect
+inserts one physical term into that chain:
+
+=================== ======================================= =====================================
+effect              term added                              parameters (fixed names)
+=================== ======================================= =====================================
+steering_gain       delta <- gain * delta                   ``gain``
+steering_offset     delta <- delta + offset                 ``offset_rad``
+transport_delay     delta(t) <- delta(t - delay)            ``delay_s``
+actuator_lag        tau delta' = delta_cmd - delta          ``time_constant_s``
+tire_slip           kinematic bicycle -> dynamic single-    ``understeer_gradient_rad_per_mps2``
+                    track with linear tires                 (+ ``cornering_stiffness_front`` /
+                                                            ``_rear`` [N/rad] when mass and
+                                                            yaw inertia are known)
+=================== ======================================= =====================================
+
+Order of the chain: gain and offset (the steering system's calibration), then the delay (a pure
+transport delay of the command), then the first-order actuator, then the vehicle. Gain, offset,
+delay and lag are linear, so their order among themselves does not change the output.
+
+All parameters at their neutral values (gain 1, offset 0, delay 0, lag 0, no tire slip) give the
+simulator's model exactly: the plain model is one point of every candidate's family.
+
+The numerical kernels are compiled with numba: :func:`simulate_yaw_rate` runs one parameter set
+over a recording; :func:`candidate_statistics` runs a whole batch of candidate parameter sets in
+parallel and returns, for each, the sums needed to solve gain and offset in closed form (they enter
+the yaw rate linearly: exactly for the tire model, to first order for the kinematic one).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from plm_highway.vehicle.single_track import (
+    single_track_steady_state,
+    single_track_tustin_step,
+    understeer_gradient,
+)
+
+EFFECT_NAMES = ("transport_delay", "actuator_lag", "tire_slip", "steering_gain", "steering_offset")
+
+# Parameter keys each effect reports (other tools read these names).
+EFFECT_PARAM_KEYS = {
+    "transport_delay": ("delay_s",),
+    "actuator_lag": ("time_constant_s",),
+    "tire_slip": ("understeer_gradient_rad_per_mps2", "cornering_stiffness_front", "cornering_stiffness_rear"),
+    "steering_gain": ("gain",),
+    "steering_offset": ("offset_rad",),
+}
+
+# Free parameters each effect adds to the fit (its complexity).
+EFFECT_DOF = {"transport_delay": 1, "actuator_lag": 1, "tire_slip": 2, "steering_gain": 1, "steering_offset": 1}
+
+EFFECT_FINGERPRINTS = {
+    "transport_delay": "phase lag growing linearly with steering frequency, gain 1, independent of speed",
+    "actuator_lag": "gain rolling off above 1/(2 pi tau), phase lag at most 90 deg",
+    "tire_slip": "yaw gain u/(L + K u^2) falling with speed and lateral acceleration, speed-dependent lag",
+    "steering_gain": "constant ratio between observed and expected yaw rate",
+    "steering_offset": "constant yaw-rate error proportional to speed",
+}
+
+# Below this speed the tire model's axle slip angles divide by ~0; hold it there.
+TIRE_MIN_SPEED_MPS = 0.5
+
+
+@dataclass(frozen=True)
+class EffectParams:
+    """The simulator's model plus every effect; the defaults are the plain simulator.
+
+    ``cf_per_kg``/``cr_per_kg`` are axle cornering stiffness per unit vehicle mass [N/rad/kg]; None
+    means no tire slip (the kinematic bicycle).
+    """
+
+    delay_s: float = 0.0
+    time_constant_s: float = 0.0
+    gain: float = 1.0
+    offset_rad: float = 0.0
+    cf_per_kg: float | None = None
+    cr_per_kg: float | None = None
+
+    @property
+    def has_tire_slip(self) -> bool:
+        return self.cf_per_kg is not None
+
+    def numba_args(self) -> tuple[float, float, float, float, float, float]:
+        cf = 0.0 if self.cf_per_kg is None else float(self.cf_per_kg)
+        cr = 0.0 if self.cr_per_kg is None else float(self.cr_per_kg)
+        return float(self.delay_s), float(self.time_constant_s), float(self.gain), float(self.offset_rad), cf, cr
+
+
+def effect_report(name: str, params: EffectParams, a_m: float, b_m: float, mass_kg: float | None,
+                  inertia_known: bool) -> dict[str, float]:
+    """An effect's parameters under their fixed public names."""
+    if name == "transport_delay":
+        return {"delay_s": params.delay_s}
+    if name == "actuator_lag":
+        return {"time_constant_s": params.time_constant_s}
+    if name == "steering_gain":
+        return {"gain": params.gain}
+    if name == "steering_offset":
+        return {"offset_rad": params.offset_rad}
+    if name == "tire_slip":
+        out = {"understeer_gradient_rad_per_mps2": understeer_gradient(params.cf_per_kg, params.cr_per_kg, a_m, b_m)}
+        if inertia_known and mass_kg is not None:
+            out["cornering_stiffness_front"] = params.cf_per_kg * mass_kg
+            out["cornering_stiffness_rear"] = params.cr_per_kg * mass_kg
+        return out
+    raise KeyError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
+
+
+# ----------------------------------------------------------------------------------------------
+# Kernels (numba). Arrays are per sample of the recording, uniformly spaced by dt.
+
+
+@numba.njit(cache=True)
+def _delayed(steer, delay_samples, out):
+    """``steer`` delayed by a fractional number of samples (Catmull-Rom, C1 in the delay)."""
+    n = steer.shape[0]
+    for k in range(n):
+        s = k - delay_samples
+        if s <= 0.0:
+            out[k] = steer[0]
+            continue
+        i = int(math.floor(s))
+        f = s - i
+        p0 = steer[max(i - 1, 0)]
+        p1 = steer[i]
+        p2 = steer[min(i + 1, n - 1)]
+        p3 = steer[min(i + 2, n - 1)]
+        out[k] = p1 + 0.5 * f * (p2 - p0 + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3 + f * (3.0 * (p1 - p2) + p3 - p0)))
+
+
+@numba.njit(cache=True)
+def _lagged(u, dt, tau, out):
+    """First-order actuator, exact for inputs linear between samples; starts settled."""
+    n = u.shape[0]
+    if tau < 1e-9:
+        for k in range(n):
+            out[k] = u[k]
+        return
+    alpha = math.exp(-dt / tau)
+    c = tau / dt * (1.0 - alpha)
+    out[0] = u[0]
+    for k in range(1, n):
+        out[k] = alpha * out[k - 1] + (1.0 - c) * u[k] + (c - alpha) * u[k - 1]
+
+
+@numba.njit(cache=True)
+def _kinematic_response(delta, speed, a_m, b_m, r_out, slip_out, drdd_out):
+    """Yaw rate, slip and d(yaw rate)/d(delta) of the kinematic bicycle (the simulator)."""
+    ratio = b_m / (a_m + b_m)
+    for k in range(delta.shape[0]):
+        t = math.tan(delta[k])
+        beta = math.atan(ratio * t)
+        slip_out[k] = beta
+        r_out[k] = speed[k] * math.sin(beta) / b_m
+        dbeta = ratio * (1.0 + t * t) / (1.0 + ratio * ratio * t * t)
+        drdd_out[k] = speed[k] * math.cos(beta) * dbeta / b_m
+
+
+@numba.njit(cache=True)
+def _dynamic_response(delta, speed, dt, cf, cr, a_m, b_m, k2, r_out, slip_out):
+    """Yaw rate and slip of the linear-tire single-track model driven by ``delta``."""
+    n = delta.shape[0]
+    u0 = max(speed[0], TIRE_MIN_SPEED_MPS)
+    vy, r = single_track_steady_state(u0, delta[0], cf, cr, a_m, b_m, k2)
+    r_out[0] = r
+    slip_out[0] = math.atan2(vy, u0)
+    for k in range(n - 1):
+        vy, r = single_track_tustin_step(vy, r, speed[k], speed[k + 1], delta[k], delta[k + 1], dt,
+                                         cf, cr, a_m, b_m, k2, TIRE_MIN_SPEED_MPS)
+        r_out[k + 1] = r
+        slip_out[k + 1] = math.atan2(vy, max(speed[k + 1], TIRE_MIN_SPEED_MPS))
+
+
+@numba.njit(cache=True)
+def fir_filter(x, taps, lo, out):
+    """out[k] = sum_j taps[j] * x[k + lo + j], indices clamped at the ends."""
+    n = x.shape[0]
+    m = taps.shape[0]
+    for k in range(n):
+        acc = 0.0
+        for j in range(m):
+            i = min(max(k + lo + j, 0), n - 1)
+            acc += taps[j] * x[i]
+        out[k] = acc
+
+
+@numba.njit(cache=True)
+def simulate_yaw_rate(steer, speed, dt, delay_s, tau_s, gain, offset_rad, cf, cr, a_m, b_m, k2):
+    """Yaw rate [rad/s] and slip angle [rad] at each sample for one parameter set (cf = 0: kinematic)."""
+    n = steer.shape[0]
+    calibrated = gain * steer + offset_rad
+    delayed = np.empty(n)
+    _delayed(calibrated, delay_s / dt, delayed)
+    delta = np.empty(n)
+    _lagged(delayed, dt, tau_s, delta)
+    r = np.empty(n)
+    slip = np.empty(n)
+    if cf > 0.0:
+        _dynamic_response(delta, speed, dt, cf, cr, a_m, b_m, k2, r, slip)
+    else:
+        drdd = np.empty(n)
+        _kinematic_response(delta, speed, a_m, b_m, r, slip, drdd)
+    return r, slip
+
+
+@numba.njit(cache=True, parallel=True)
+def candidate_statistics(steer, speed, dt, delays_s, taus_s, cfs, crs, a_m, b_m, k2, taps, lo, y, weight):
+    """For each candidate b: weighted sums [e.e, e.pa, e.pb, pa.pa, pa.pb, pb.pb].
+
+    ``e`` is the measured signal minus the model's (gain 1, offset 0), ``pa`` and ``pb`` its
+    sensitivities to the gain (minus one) and to the offset; all after the output filter ``taps``.
+    The best gain/offset of a candidate then follow from a 2x2 solve.
+    """
+    n = steer.shape[0]
+    n_cand = delays_s.shape[0]
+    stats = np.zeros((n_cand, 6))
+    ones = np.ones(n)
+    for b in numba.prange(n_cand):
+        delayed = np.empty(n)
+        _delayed(steer, delays_s[b] / dt, delayed)
+        delta = np.empty(n)
+        _lagged(delayed, dt, taus_s[b], delta)
+        r = np.empty(n)
+        slip = np.empty(n)
+        pa = np.empty(n)
+        pb = np.empty(n)
+        if cfs[b] > 0.0:
+            _dynamic_response(delta, speed, dt, cfs[b], crs[b], a_m, b_m, k2, r, slip)
+            _dynamic_response(ones, speed, dt, cfs[b], crs[b], a_m, b_m, k2, pb, slip)
+            for k in range(n):
+                pa[k] = r[k]
+        else:
+            _kinematic_response(delta, speed, a_m, b_m, r, slip, pb)
+            for k in range(n):
+                pa[k] = delta[k] * pb[k]
+        rf = np.empty(n)
+        paf = np.empty(n)
+        pbf = np.empty(n)
+        fir_filter(r, taps, lo, rf)
+        fir_filter(pa, taps, lo, paf)
+        fir_filter(pb, taps, lo, pbf)
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        s3 = 0.0
+        s4 = 0.0
+        s5 = 0.0
+        for k in range(n):
+            w = weight[k]
+            if w == 0.0:
+                continue
+            e = y[k] - rf[k]
+            s0 += w * e * e
+            s1 += w * e * paf[k]
+            s2 += w * e * pbf[k]
+            s3 += w * paf[k] * paf[k]
+            s4 += w * paf[k] * pbf[k]
+            s5 += w * pbf[k] * pbf[k]
+        stats[b, 0] = s0
+        stats[b, 1] = s1
+        stats[b, 2] = s2
+        stats[b, 3] = s3
+        stats[b, 4] = s4
+        stats[b, 5] = s5
+    return stats
+
+
+def profiled_sse(stats: np.ndarray, gain_free: bool, offset_free: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares SSE of each candidate with the gain and/or offset solved; also (gain, offset)."""
+    s0, s1, s2, s3, s4, s5 = (stats[:, i] for i in range(6))
+    n = stats.shape[0]
+    dgain = np.zeros(n)
+    offset = np.zeros(n)
+    tiny = 1e-300
+    if gain_free and offset_free:
+        det = s3 * s5 - s4 * s4
+        ok = np.abs(det) > 1e-12 * np.maximum(s3 * s5, tiny)
+        dgain = np.where(ok, (s5 * s1 - s4 * s2) / np.where(ok, det, 1.0), 0.0)
+        offset = np.where(ok, (s3 * s2 - s4 * s1) / np.where(ok, det, 1.0), 0.0)
+        sse = s0 - dgain * s1 - offset * s2
+    elif gain_free:
+        dgain = s1 / np.maximum(s3, tiny)
+        sse = s0 - dgain * s1
+    elif offset_free:
+        offset = s2 / np.maximum(s5, tiny)
+        sse = s0 - offset * s2
+    else:
+        sse = s0.copy()
+    return np.maximum(sse, 0.0), 1.0 + dgain, offset

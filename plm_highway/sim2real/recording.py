@@ -1,0 +1,457 @@
+"""Recordings: what a car did, in the simulator's units and sign conventions.
+
+File format (CSV with a header row; column order free, unknown columns ignored):
+
+========== ======== ============================================================================
+column     unit     meaning
+========== ======== ============================================================================
+t          s        time, strictly increasing (near-uniform sampling; jitter is resampled)
+steer      rad      front-wheel angle as commanded; positive steers left (raises the heading)
+speed      m/s      speed of the reference point (centre of gravity)
+x, y       m        position of the reference point; world frame x right, y up
+heading    rad      yaw angle, counter-clockwise from +x; may wrap at +-pi
+yaw_rate   rad/s    optional: measured yaw rate (gyro); positive turning left
+lat_accel  m/s^2    optional: measured lateral acceleration; positive to the left
+========== ======== ============================================================================
+
+Optional JSON sidecar with the same stem (``run.csv`` -> ``run.json``) describing the car:
+``wheelbase_m``, ``cg_to_front_m``, ``cg_to_rear_m``, ``mass_kg``, ``yaw_inertia_kgm2``.
+Without it the car is the simulator's own (highway-env: 5 m long, reference point in the middle,
+lf = lr = 2.5 m). With only ``wheelbase_m`` the reference point is taken in the middle, as in the
+simulator; with the wheelbase and one of ``cg_to_front_m``/``cg_to_rear_m`` the other follows.
+
+Bad input raises ``ValueError`` naming the column and file line (line 1 is the header); data that
+is still usable loads with human-readable ``warnings`` attached to the :class:`Recording`.
+:func:`read_sim_log` maps the simulator's own per-step logs (any CSV with columns for time, pose,
+speed and the steering command) onto the same type, so a sim run and a recording compare directly.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from plm_highway.sim2real.atomic import atomic_output, write_text_atomic
+from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE, KinematicBicycleParams
+
+REQUIRED_COLUMNS = ("t", "steer", "speed", "x", "y", "heading")
+OPTIONAL_COLUMNS = ("yaw_rate", "lat_accel")
+SIDECAR_KEYS = ("wheelbase_m", "cg_to_front_m", "cg_to_rear_m", "mass_kg", "yaw_inertia_kgm2")
+
+MIN_DURATION_S = 10.0
+# A front-wheel angle above 1 rad (57 deg) is not a road car's; sustained, it means degrees.
+STEER_DEGREES_THRESHOLD_RAD = 1.0
+STEER_DEGREES_SUSTAINED_S = 0.5
+# Sampling jitter above this fraction of the median interval is resampled onto a uniform grid.
+JITTER_TOLERANCE = 0.05
+# Gaps longer than this many intervals are interpolated but left out of every fit and score.
+GAP_INTERVALS = 5.0
+# Below this speed the slip models are singular and the kinematics trivial: not scored.
+MIN_SCORED_SPEED_MPS = 2.0
+
+
+@dataclass(frozen=True)
+class VehicleGeometry:
+    """The car of a recording; ``mass_kg`` and ``yaw_inertia_kgm2`` are None when unknown."""
+
+    cg_to_front_m: float = HIGHWAY_ENV_VEHICLE.cg_to_front_m
+    cg_to_rear_m: float = HIGHWAY_ENV_VEHICLE.cg_to_rear_m
+    mass_kg: float | None = None
+    yaw_inertia_kgm2: float | None = None
+    source: str = "simulator"
+
+    @property
+    def wheelbase_m(self) -> float:
+        return self.cg_to_front_m + self.cg_to_rear_m
+
+    @property
+    def kinematic(self) -> KinematicBicycleParams:
+        return KinematicBicycleParams(self.cg_to_front_m, self.cg_to_rear_m)
+
+    @property
+    def inertia_known(self) -> bool:
+        return self.mass_kg is not None and self.yaw_inertia_kgm2 is not None
+
+    @property
+    def yaw_inertia_per_kg_m2(self) -> float:
+        """Iz / m; without both numbers, the radius-of-gyration rule Iz / m = a * b."""
+        if self.inertia_known:
+            return float(self.yaw_inertia_kgm2) / float(self.mass_kg)
+        return self.cg_to_front_m * self.cg_to_rear_m
+
+    def sidecar(self) -> dict[str, float]:
+        out = {"wheelbase_m": self.wheelbase_m, "cg_to_front_m": self.cg_to_front_m,
+               "cg_to_rear_m": self.cg_to_rear_m}
+        if self.mass_kg is not None:
+            out["mass_kg"] = self.mass_kg
+        if self.yaw_inertia_kgm2 is not None:
+            out["yaw_inertia_kgm2"] = self.yaw_inertia_kgm2
+        return out
+
+
+SIMULATOR_VEHICLE = VehicleGeometry()
+
+
+@dataclass(frozen=True)
+class Recording:
+    """Uniformly sampled signals of one run (arrays of equal length ``n``)."""
+
+    t_s: np.ndarray
+    steer_rad: np.ndarray
+    speed_mps: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    heading_rad: np.ndarray  # unwrapped (continuous)
+    yaw_rate_radps: np.ndarray | None = None
+    lat_accel_mps2: np.ndarray | None = None
+    vehicle: VehicleGeometry = SIMULATOR_VEHICLE
+    name: str = "recording"
+    # False where a sample was interpolated across a gap or the car is too slow to score.
+    usable: np.ndarray | None = None
+    warnings: tuple[str, ...] = field(default=())
+
+    @property
+    def n(self) -> int:
+        return int(self.t_s.shape[0])
+
+    @property
+    def dt_s(self) -> float:
+        return float((self.t_s[-1] - self.t_s[0]) / (self.n - 1))
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1] - self.t_s[0])
+
+    @property
+    def usable_mask(self) -> np.ndarray:
+        mask = np.ones(self.n, bool) if self.usable is None else self.usable.copy()
+        return mask & (self.speed_mps >= MIN_SCORED_SPEED_MPS)
+
+    def slice(self, start: int, stop: int) -> Recording:
+        """Samples ``start:stop`` (for windows and lessons)."""
+        def cut(a):
+            return None if a is None else a[start:stop].copy()
+        return replace(self, t_s=cut(self.t_s), steer_rad=cut(self.steer_rad), speed_mps=cut(self.speed_mps),
+                       x_m=cut(self.x_m), y_m=cut(self.y_m), heading_rad=cut(self.heading_rad),
+                       yaw_rate_radps=cut(self.yaw_rate_radps), lat_accel_mps2=cut(self.lat_accel_mps2),
+                       usable=cut(self.usable))
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading
+
+
+def _read_columns(path: Path) -> tuple[list[str], dict[str, list[str]]]:
+    with open(path, newline="") as fh:
+        reader = csv.reader(fh)
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration:
+            raise ValueError(f"{path}: the file is empty (expected a CSV header)") from None
+        if len(set(header)) != len(header):
+            dupes = sorted({h for h in header if header.count(h) > 1})
+            raise ValueError(f"{path}: duplicate column(s) {', '.join(dupes)} in the header")
+        columns: dict[str, list[str]] = {h: [] for h in header}
+        for line_no, row in enumerate(reader, start=2):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != len(header):
+                raise ValueError(f"{path}: line {line_no} has {len(row)} fields, the header has {len(header)}")
+            for h, value in zip(header, row):
+                columns[h].append(value)
+    return header, columns
+
+
+def _parse_column(path: Path, name: str, values: list[str], line_numbers: np.ndarray) -> np.ndarray:
+    out = np.empty(len(values))
+    for i, text in enumerate(values):
+        try:
+            out[i] = float(text)
+        except ValueError:
+            raise ValueError(f"{path}: column '{name}' line {line_numbers[i]}: {text!r} is not a number") from None
+    return out
+
+
+def _first_bad(mask: np.ndarray) -> int:
+    return int(np.flatnonzero(mask)[0])
+
+
+def read_sidecar(path: Path) -> tuple[VehicleGeometry, list[str]]:
+    """The car of a recording from its JSON sidecar, and warnings (e.g. unknown keys)."""
+    warnings: list[str] = []
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a JSON object with keys {', '.join(SIDECAR_KEYS)}")
+    unknown = sorted(set(data) - set(SIDECAR_KEYS))
+    if unknown:
+        warnings.append(f"{path.name}: unknown key(s) {', '.join(unknown)} ignored "
+                        f"(known: {', '.join(SIDECAR_KEYS)})")
+    values: dict[str, float] = {}
+    for key in SIDECAR_KEYS:
+        if key not in data or data[key] is None:
+            continue
+        value = data[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+            raise ValueError(f"{path}: '{key}' must be a positive number, got {value!r}")
+        values[key] = float(value)
+    wheelbase = values.get("wheelbase_m")
+    front = values.get("cg_to_front_m")
+    rear = values.get("cg_to_rear_m")
+    if front is not None and rear is not None:
+        if wheelbase is not None and abs(front + rear - wheelbase) > 0.01:
+            raise ValueError(f"{path}: cg_to_front_m + cg_to_rear_m = {front + rear:.3f} m "
+                             f"but wheelbase_m = {wheelbase:.3f} m")
+    elif wheelbase is not None:
+        if front is None and rear is None:
+            front = rear = wheelbase / 2  # the simulator's convention: reference point in the middle
+        elif front is not None:
+            rear = wheelbase - front
+        else:
+            front = wheelbase - rear
+        if front <= 0 or rear <= 0:
+            raise ValueError(f"{path}: the centre of gravity lies outside the wheelbase")
+    elif front is not None or rear is not None:
+        raise ValueError(f"{path}: give wheelbase_m or both cg_to_front_m and cg_to_rear_m")
+    else:
+        front, rear = SIMULATOR_VEHICLE.cg_to_front_m, SIMULATOR_VEHICLE.cg_to_rear_m
+        warnings.append(f"{path.name}: no geometry given; using the simulator's (lf = lr = 2.5 m)")
+    geometry = VehicleGeometry(cg_to_front_m=front, cg_to_rear_m=rear, mass_kg=values.get("mass_kg"),
+                               yaw_inertia_kgm2=values.get("yaw_inertia_kgm2"), source=str(path))
+    return geometry, warnings
+
+
+def _check_times(path: Path, t: np.ndarray, line_numbers: np.ndarray) -> None:
+    steps = np.diff(t)
+    if np.any(steps <= 0):
+        i = _first_bad(steps <= 0) + 1
+        kind = "duplicate" if steps[i - 1] == 0 else "decreasing"
+        raise ValueError(f"{path}: column 't' is not strictly increasing: {kind} time {t[i]:.6g} s on line "
+                         f"{line_numbers[i]} (previous line {line_numbers[i - 1]}: {t[i - 1]:.6g} s)")
+    if t[-1] - t[0] < MIN_DURATION_S:
+        raise ValueError(f"{path}: only {t[-1] - t[0]:.2f} s of data; at least {MIN_DURATION_S:.0f} s are needed "
+                         "to fit and hold out")
+
+
+def _check_steer_units(path: Path, t: np.ndarray, steer: np.ndarray, line_numbers: np.ndarray,
+                       warnings: list[str]) -> None:
+    big = np.abs(steer) > STEER_DEGREES_THRESHOLD_RAD
+    if not big.any():
+        return
+    dt = np.diff(t, append=t[-1] + (t[-1] - t[-2]))
+    seconds = float(dt[big].sum())
+    first = _first_bad(big)
+    if seconds >= STEER_DEGREES_SUSTAINED_S:
+        raise ValueError(f"{path}: column 'steer' looks like degrees: |steer| > {STEER_DEGREES_THRESHOLD_RAD:g} rad "
+                         f"for {seconds:.1f} s (first on line {line_numbers[first]}: {steer[first]:g}); "
+                         "give the front-wheel angle in radians")
+    warnings.append(f"column 'steer' exceeds {STEER_DEGREES_THRESHOLD_RAD:g} rad briefly ({int(big.sum())} rows, "
+                    f"first on line {line_numbers[first]}); kept as radians")
+
+
+def _heading_in_degrees(heading: np.ndarray) -> bool:
+    if np.max(np.abs(heading)) <= math.pi + 0.05:
+        return False
+    as_radians = np.abs(np.diff(np.unwrap(heading))).sum()
+    as_degrees = np.abs(np.diff(np.unwrap(heading, period=360.0))).sum() * math.pi / 180
+    return as_degrees < 0.5 * as_radians
+
+
+def _uniform_grid(t: np.ndarray, warnings: list[str]) -> tuple[np.ndarray, np.ndarray | None]:
+    """A uniform time grid for the samples, and a mask of grid points inside long gaps (or None)."""
+    steps = np.diff(t)
+    dt = float(np.median(steps))
+    if np.max(np.abs(steps - dt)) <= JITTER_TOLERANCE * dt:
+        return t, None
+    n = int(round((t[-1] - t[0]) / dt)) + 1
+    grid = t[0] + dt * np.arange(n)
+    grid[-1] = min(grid[-1], t[-1])
+    gaps = np.flatnonzero(steps > GAP_INTERVALS * dt)
+    usable = np.ones(n, bool)
+    for g in gaps:
+        usable &= ~((grid > t[g]) & (grid < t[g + 1]))
+    message = f"sampling is not uniform (intervals {steps.min():.4g}-{steps.max():.4g} s); resampled at {dt:.4g} s"
+    if len(gaps):
+        message += (f"; {len(gaps)} gap(s) longer than {GAP_INTERVALS * dt:.3g} s (longest {steps.max():.3g} s) "
+                    "are interpolated and left out of every fit and score")
+    warnings.append(message)
+    return grid, (usable if len(gaps) else None)
+
+
+def _heading_jumps(heading: np.ndarray, yaw_rate: np.ndarray | None, t: np.ndarray,
+                   line_numbers: np.ndarray, warnings: list[str]) -> None:
+    if yaw_rate is None:
+        return
+    dt = np.diff(t)
+    mismatch = np.abs(np.diff(heading) - 0.5 * (yaw_rate[1:] + yaw_rate[:-1]) * dt)
+    bad = np.flatnonzero(mismatch > 0.2)
+    if len(bad):
+        i = bad[0] + 1
+        warnings.append(f"heading jumps by {np.diff(heading)[bad[0]]:+.2f} rad on line {line_numbers[i]} "
+                        f"(t={t[i]:.2f} s), not matched by yaw_rate ({len(bad)} such step(s)); "
+                        "heading and position errors there are the recording's, not the model's")
+
+
+def recording_from_arrays(
+    columns: dict[str, np.ndarray],
+    vehicle: VehicleGeometry = SIMULATOR_VEHICLE,
+    name: str = "recording",
+    source: str = "<arrays>",
+    line_numbers: np.ndarray | None = None,
+    warnings: list[str] | None = None,
+) -> Recording:
+    """Validate named columns (the CSV names) and build a uniformly sampled :class:`Recording`."""
+    path = Path(source)
+    warnings = list(warnings or [])
+    missing = [c for c in REQUIRED_COLUMNS if c not in columns]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {', '.join(missing)} "
+                         f"(required: {', '.join(REQUIRED_COLUMNS)}; found: {', '.join(columns) or 'none'})")
+    data = {k: np.asarray(v, dtype=float) for k, v in columns.items() if k in REQUIRED_COLUMNS + OPTIONAL_COLUMNS}
+    n = len(data["t"])
+    if line_numbers is None:
+        line_numbers = np.arange(2, n + 2)
+    if n < 3:
+        raise ValueError(f"{path}: only {n} data row(s)")
+    for name_ in list(data):
+        bad = ~np.isfinite(data[name_])
+        if bad.any():
+            i = _first_bad(bad)
+            what = "NaN" if np.isnan(data[name_][i]) else "infinite"
+            where = f"line {line_numbers[i]}"
+            if name_ in OPTIONAL_COLUMNS:
+                warnings.append(f"column '{name_}' is {what} on {where} ({int(bad.sum())} rows); "
+                                f"the optional column is ignored")
+                del data[name_]
+                continue
+            raise ValueError(f"{path}: column '{name_}' is {what} on {where} ({int(bad.sum())} bad row(s) in all)")
+    t = data["t"]
+    _check_times(path, t, line_numbers)
+    _check_steer_units(path, t, data["steer"], line_numbers, warnings)
+    if _heading_in_degrees(data["heading"]):
+        raise ValueError(f"{path}: column 'heading' looks like degrees (it wraps at +-180); give radians")
+    heading = np.unwrap(data["heading"])
+    if np.any(data["speed"] < 0):
+        i = _first_bad(data["speed"] < 0)
+        warnings.append(f"column 'speed' is negative from line {line_numbers[i]} (reversing); "
+                        "such samples are not scored")
+    _heading_jumps(heading, data.get("yaw_rate"), t, line_numbers, warnings)
+
+    grid, usable = _uniform_grid(t, warnings)
+
+    def on_grid(values: np.ndarray | None) -> np.ndarray | None:
+        if values is None:
+            return None
+        return values if grid is t else np.interp(grid, t, values)
+
+    return Recording(
+        t_s=grid,
+        steer_rad=on_grid(data["steer"]),
+        speed_mps=on_grid(data["speed"]),
+        x_m=on_grid(data["x"]),
+        y_m=on_grid(data["y"]),
+        heading_rad=on_grid(heading),
+        yaw_rate_radps=on_grid(data.get("yaw_rate")),
+        lat_accel_mps2=on_grid(data.get("lat_accel")),
+        vehicle=vehicle,
+        name=name,
+        usable=usable,
+        warnings=tuple(warnings),
+    )
+
+
+def read_recording(path: str | os.PathLike, sidecar: str | os.PathLike | None = None) -> Recording:
+    """Read a recording CSV (and its sidecar ``<stem>.json`` when present); see the module docstring."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    sidecar_path = Path(sidecar) if sidecar is not None else path.with_suffix(".json")
+    warnings: list[str] = []
+    if sidecar_path.is_file():
+        vehicle, sidecar_warnings = read_sidecar(sidecar_path)
+        warnings += sidecar_warnings
+    elif sidecar is not None:
+        raise FileNotFoundError(f"{sidecar_path}: no such sidecar")
+    else:
+        vehicle = SIMULATOR_VEHICLE
+    _, raw = _read_columns(path)
+    missing = [c for c in REQUIRED_COLUMNS if c not in raw]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {', '.join(missing)} "
+                         f"(required: {', '.join(REQUIRED_COLUMNS)}; found: {', '.join(raw) or 'none'})")
+    line_numbers = np.arange(2, len(raw["t"]) + 2)
+    columns = {k: _parse_column(path, k, v, line_numbers) for k, v in raw.items()
+               if k in REQUIRED_COLUMNS + OPTIONAL_COLUMNS}
+    return recording_from_arrays(columns, vehicle=vehicle, name=path.stem, source=str(path),
+                                 line_numbers=line_numbers, warnings=warnings)
+
+
+def read_sim_log(
+    path: str | os.PathLike,
+    *,
+    steer_column: str = "steering",
+    t_column: str = "t",
+    speed_column: str = "speed",
+    x_column: str = "x",
+    y_column: str = "y",
+    heading_column: str = "heading",
+    yaw_rate_column: str | None = None,
+    lat_accel_column: str | None = None,
+    steer_scale: float = 1.0,
+    vehicle: VehicleGeometry = SIMULATOR_VEHICLE,
+) -> Recording:
+    """Map a simulator log (any CSV with a header) onto a :class:`Recording`.
+
+    ``steer_scale`` converts the logged steering command to the front-wheel angle in radians,
+    e.g. ``steer_scale=math.pi / 4`` for a normalised action in [-1, 1] with highway-env's default
+    ``steering_range``. Other columns of the log are ignored.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    _, raw = _read_columns(path)
+    mapping = {"t": t_column, "steer": steer_column, "speed": speed_column, "x": x_column, "y": y_column,
+               "heading": heading_column, "yaw_rate": yaw_rate_column, "lat_accel": lat_accel_column}
+    missing = [f"'{col}' (for {ours})" for ours, col in mapping.items() if col is not None and col not in raw]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; found: {', '.join(raw)}")
+    line_numbers = np.arange(2, len(raw[t_column]) + 2)
+    columns = {ours: _parse_column(path, col, raw[col], line_numbers) for ours, col in mapping.items() if col}
+    columns["steer"] = columns["steer"] * steer_scale
+    return recording_from_arrays(columns, vehicle=vehicle, name=path.stem, source=str(path),
+                                 line_numbers=line_numbers)
+
+
+# ----------------------------------------------------------------------------------------------
+# Writing
+
+
+def write_recording(recording: Recording, path: str | os.PathLike, write_sidecar: bool | None = None) -> Path:
+    """Write the CSV (and the sidecar unless the car is the simulator's), each atomically."""
+    path = Path(path)
+    names = list(REQUIRED_COLUMNS)
+    arrays = [recording.t_s, recording.steer_rad, recording.speed_mps, recording.x_m, recording.y_m,
+              np.angle(np.exp(1j * recording.heading_rad))]
+    formats = ["%.4f", "%.7f", "%.4f", "%.4f", "%.4f", "%.6f"]
+    for name, values, fmt in (("yaw_rate", recording.yaw_rate_radps, "%.6f"),
+                              ("lat_accel", recording.lat_accel_mps2, "%.5f")):
+        if values is not None:
+            names.append(name)
+            arrays.append(values)
+            formats.append(fmt)
+    table = np.column_stack(arrays)
+    with atomic_output(path) as tmp:
+        np.savetxt(tmp, table, delimiter=",", header=",".join(names), comments="", fmt=formats)
+    if write_sidecar is None:
+        write_sidecar = recording.vehicle != SIMULATOR_VEHICLE
+    if write_sidecar:
+        write_text_atomic(path.with_suffix(".json"), json.dumps(recording.vehicle.sidecar(), indent=1) + "\n")
+    return path
