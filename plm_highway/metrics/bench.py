@@ -118,8 +118,9 @@ def _run_metrics(exp, num, repeat: int, skip_reference: bool) -> dict[str, dict]
         return rows
     import similaritymeasures
 
-    _say(f"similaritymeasures {similaritymeasures.__version__}: expect roughly "
-         f"{_reference_eta_s(len(exp)) / 60:.1f} min on a 2-core machine")
+    eta_s = _reference_eta_s(len(exp))
+    eta = f"{eta_s / 60:.0f} min" if eta_s >= 120 else f"{eta_s:.0f} s"
+    _say(f"similaritymeasures {similaritymeasures.__version__}: expect roughly {eta} on a 2-core machine")
     for name in METRICS:
         _say(f"  similaritymeasures {name:<24}", end="")
         ref_s, ref = _fastest_s(lambda name=name: getattr(similaritymeasures, name)(exp, num), 1)

@@ -2,14 +2,15 @@
 
 ``pcm``, ``frechet_dist``, ``area_between_two_curves``, ``curve_length_measure`` and ``dtw`` take
 the same arguments and return the same values as their similaritymeasures namesakes (the tests
-compare them to within 1e-9 relative; most results are bit-identical). The dynamic programs run in
-numba with O(len(num_data)) memory; the rest is the original arithmetic, vectorised.
+compare them to within 1e-9 relative; in practice they are bit-identical). The dynamic programs
+run in numba in O(len(num_data)) memory, plus the matrix dtw returns by default; the rest is the
+original arithmetic, vectorised.
 
-Differences from the original, all on inputs where it returns NaN/inf or fails obscurely:
-curves must be finite 2-D float arrays with at least 2 points (x-y metrics: exactly 2 columns),
-``p`` must be > 0, ``pcm`` refuses an ``exp_data`` with zero x or y range and either function
-of ``pcm`` / ``curve_length_measure`` refuses a zero-length curve where the original divides by zero
-and returns NaN.
+Stricter than the original, by design: curves must be finite 2-D float arrays of at least 2
+points, and the x-y metrics take exactly 2 columns (the original ignores extra columns and gives
+NaN or arbitrary values for non-finite input); ``p`` must be > 0; ``pcm`` refuses an ``exp_data``
+with zero x or y range and ``curve_length_measure`` one of zero length, where the original returns
+NaN. All of these raise ValueError naming the argument.
 """
 
 from __future__ import annotations
@@ -429,10 +430,11 @@ def pcm(exp_data, num_data, norm_seg_length=False) -> float:
     if lc_nj > le_nj:
         xi1, eta1, xi2, eta2 = xi2, eta2, xi1, eta1
         le_nj, le_sum, lc_nj, lc_sum = lc_nj, lc_sum, le_nj, le_sum
-    if lc_nj == 0:
-        raise ValueError("pcm: a curve has zero length (all points coincide)")
     le_sum = le_sum / le_nj
-    lc_sum = lc_sum / lc_nj
+    # num_data collapsed to one point gives 0/0 here; np.interp then returns that point, as in
+    # the original, so the result is still its distance to exp_data
+    with np.errstate(invalid="ignore"):
+        lc_sum = lc_sum / lc_nj
     max_offset = le_nj - lc_nj
     offsets = [0.0] if max_offset == 0.0 else np.linspace(0.0, max_offset, _PCM_N_OFFSETS)
     areas = [_pcm_area_at_offset(xi1, eta1, le_sum, xi2, eta2, lc_sum, offset) for offset in offsets]

@@ -13,7 +13,7 @@ frames at block edges have a neighbour on the other side.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -86,17 +86,13 @@ def split_train_val(
 ) -> tuple[LabelledRows, LabelledRows]:
     """(train, val) by episode or by contiguous time blocks (see module docstring)."""
     groups = _split_groups(rows)
-    unique_groups = np.unique(groups)
+    unique_groups, group_sizes = np.unique(groups, return_counts=True)
     if len(unique_groups) < 2:
         raise ValueError(f"cannot split {len(rows)} rows into train and validation: they form one block")
-    target_rows = val_fraction * len(rows)
-    val_groups, n_val = [], 0
-    for group in rng.permutation(unique_groups):
-        if n_val >= target_rows or len(val_groups) == len(unique_groups) - 1:
-            break
-        val_groups.append(group)
-        n_val += int(np.sum(groups == group))
-    is_val = np.isin(groups, val_groups)
+    order = rng.permutation(len(unique_groups))
+    # Draw whole groups until the validation share is reached, always leaving one for training.
+    n_val_groups = int(np.searchsorted(np.cumsum(group_sizes[order]), val_fraction * len(rows))) + 1
+    is_val = np.isin(groups, unique_groups[order[: min(n_val_groups, len(unique_groups) - 1)]])
     return rows.subset(np.flatnonzero(~is_val)), rows.subset(np.flatnonzero(is_val))
 
 
@@ -104,7 +100,7 @@ def _split_groups(rows: LabelledRows) -> np.ndarray:
     if len(np.unique(rows.episode_id)) >= MIN_EPISODES_FOR_EPISODE_SPLIT:
         return rows.episode_id.astype(np.int64)
     block = np.floor(rows.t_s / SPLIT_BLOCK_S).astype(np.int64)
-    # One id per (episode, block): Cantor-free packing, blocks per episode are far below 2**32.
+    # One id per (episode, block); an episode has far fewer than 2**32 blocks.
     return rows.episode_id.astype(np.int64) * (1 << 32) + block
 
 
@@ -146,7 +142,7 @@ def adjust_gamma(frames: torch.Tensor, gamma: torch.Tensor) -> torch.Tensor:
 
 
 def augment(
-    frames: torch.Tensor, targets: torch.Tensor, augmentation: Augmentation, generator: torch.Generator
+    frames: torch.Tensor, targets: torch.Tensor, augmentation: Augmentation, generator: torch.Generator | None
 ) -> tuple[torch.Tensor, torch.Tensor]:
     n = len(frames)
     flip = torch.rand(n, generator=generator) < augmentation.flip_probability
@@ -173,7 +169,3 @@ def iterate_batches(
         if augmentation is not None:
             batch_frames, targets = augment(batch_frames, targets, augmentation, generator)
         yield Batch(batch_frames, torch.from_numpy(rows.speed_mps[chosen]), targets)
-
-
-def with_targets(rows: LabelledRows, targets: np.ndarray) -> LabelledRows:
-    return replace(rows, targets=targets.astype(np.float32))

@@ -1,0 +1,285 @@
+"""Supervised training of the Base Model and of the TAPM on a frozen BM (paper Section 3.3).
+
+Paper values: MSE, Adam lr 1e-3, batch 32; the original also clipped gradients by value at 1 and
+stopped early after 3 epochs without validation improvement (patience 3), keeping the best
+weights. The TAPM's loss is the MSE averaged over its heads (Keras summed the per-head losses;
+the factor N does not matter to Adam).
+
+Repeatability: one seed drives numpy (balancing, subsetting, split), a torch.Generator (batch
+order, augmentation) and torch's global RNG (weight init, dropout), with deterministic
+algorithms on; the same seed on the same machine and thread count gives bit-identical weights.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+from tqdm import tqdm
+
+from plm_highway.data.dataset import Dataset, read_dataset
+from plm_highway.models.base_model import BaseModel, preset_config
+from plm_highway.models.checkpoints import (
+    KIND_BASE_MODEL,
+    load_base_model,
+    read_description,
+    save_checkpoint,
+    state_fingerprint,
+)
+from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S, TAPM, TAPMConfig
+from plm_highway.training.datasets import (
+    MIN_EPISODES_FOR_EPISODE_SPLIT,
+    SPLIT_BLOCK_S,
+    Augmentation,
+    Batch,
+    LabelledRows,
+    at_most,
+    balanced,
+    bm_rows,
+    iterate_batches,
+    split_train_val,
+    tapm_rows,
+)
+from plm_highway.training.labels import save_balance_figure
+
+BALANCE_FIGURE_NAME = "steering_balance.png"
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    epochs: int = 50
+    batch_size: int = 32
+    learning_rate: float = 1e-3
+    patience_epochs: int = 3
+    val_fraction: float = 0.2
+    seed: int = 0
+    max_samples: int | None = None
+    # The original capped each of 35 bins at 2,000 samples (115k -> 67k); None disables balancing.
+    balance_max_per_bin: int | None = 2000
+    grad_clip_value: float | None = 1.0
+    augmentation: Augmentation | None = field(default_factory=Augmentation)
+    show_progress: bool = True
+
+
+@dataclass
+class FitResult:
+    epochs_run: int
+    best_epoch: int
+    best_val_loss: float
+    stopped_early: bool
+    train_loss_history: list[float]
+    val_loss_history: list[float]
+
+
+@contextlib.contextmanager
+def deterministic(seed: int) -> Iterator[None]:
+    """Seed torch's global RNG and force deterministic algorithms for the block."""
+    previous = torch.are_deterministic_algorithms_enabled()
+    torch.use_deterministic_algorithms(True)
+    torch.manual_seed(seed)
+    try:
+        yield
+    finally:
+        torch.use_deterministic_algorithms(previous)
+
+
+def freeze(model: torch.nn.Module) -> torch.nn.Module:
+    """No gradients and eval mode (dropout off); the caller must not put it back in train mode."""
+    return model.requires_grad_(False).eval()
+
+
+def bm_loss(bm: BaseModel) -> Callable[[Batch], torch.Tensor]:
+    def loss(batch: Batch) -> torch.Tensor:
+        return F.mse_loss(bm(batch.frames, batch.speed_mps), batch.targets[:, 0])
+
+    return loss
+
+
+def tapm_loss(tapm: TAPM, frozen_bm: BaseModel) -> Callable[[Batch], torch.Tensor]:
+    def loss(batch: Batch) -> torch.Tensor:
+        with torch.no_grad():
+            z_o, z_v = frozen_bm.encode(batch.frames, batch.speed_mps)
+            a_bm = frozen_bm.steering_from_features(z_o, z_v)
+        return F.mse_loss(tapm(a_bm, z_o, z_v), batch.targets)
+
+    return loss
+
+
+def fit(
+    model: torch.nn.Module,
+    loss_fn: Callable[[Batch], torch.Tensor],
+    frames: np.ndarray,
+    train_rows: LabelledRows,
+    val_rows: LabelledRows,
+    config: TrainConfig,
+    name: str,
+) -> FitResult:
+    """Adam on the trainable parameters with early stopping; leaves ``model`` at its best epoch."""
+    optimizer = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=config.learning_rate)
+    generator = torch.Generator().manual_seed(config.seed)
+    train_history: list[float] = []
+    val_history: list[float] = []
+    best_state, best_val_loss, best_epoch = None, math.inf, 0
+    for epoch in range(1, config.epochs + 1):
+        train_history.append(_train_epoch(model, loss_fn, optimizer, frames, train_rows, config, generator, f"{name} {epoch}/{config.epochs}"))
+        val_history.append(evaluate(model, loss_fn, frames, val_rows, config.batch_size))
+        improved = val_history[-1] < best_val_loss
+        if improved:
+            best_state = {key: value.clone() for key, value in model.state_dict().items()}
+            best_val_loss, best_epoch = val_history[-1], epoch
+        if config.show_progress:
+            tqdm.write(
+                f"{name} epoch {epoch}: train loss {train_history[-1]:.5f}, val loss {val_history[-1]:.5f}"
+                + (" (best)" if improved else "")
+            )
+        if epoch - best_epoch >= config.patience_epochs:
+            break
+    if best_state is not None:
+        model.load_state_dict(best_state)
+    model.eval()
+    return FitResult(
+        epochs_run=len(train_history),
+        best_epoch=best_epoch,
+        best_val_loss=best_val_loss,
+        stopped_early=len(train_history) < config.epochs,
+        train_loss_history=train_history,
+        val_loss_history=val_history,
+    )
+
+
+def _train_epoch(model, loss_fn, optimizer, frames, rows, config: TrainConfig, generator, description: str) -> float:
+    model.train()
+    total_loss, n_samples = 0.0, 0
+    batches = iterate_batches(frames, rows, config.batch_size, generator, config.augmentation)
+    progress = tqdm(
+        batches, total=math.ceil(len(rows) / config.batch_size), desc=description, leave=False,
+        disable=not config.show_progress,
+    )
+    for batch in progress:
+        optimizer.zero_grad(set_to_none=True)
+        loss = loss_fn(batch)
+        loss.backward()
+        if config.grad_clip_value is not None:
+            torch.nn.utils.clip_grad_value_(model.parameters(), config.grad_clip_value)
+        optimizer.step()
+        total_loss += float(loss) * len(batch.targets)
+        n_samples += len(batch.targets)
+        progress.set_postfix(loss=f"{total_loss / n_samples:.5f}", refresh=False)
+    return total_loss / max(n_samples, 1)
+
+
+def evaluate(model, loss_fn, frames: np.ndarray, rows: LabelledRows, batch_size: int) -> float:
+    """Mean per-sample loss over ``rows`` in eval mode, in row order, without augmentation."""
+    model.eval()
+    total_loss, n_samples = 0.0, 0
+    with torch.no_grad():
+        for batch in iterate_batches(frames, rows, batch_size):
+            total_loss += float(loss_fn(batch)) * len(batch.targets)
+            n_samples += len(batch.targets)
+    return total_loss / max(n_samples, 1)
+
+
+def prepare_rows(
+    rows: LabelledRows, config: TrainConfig, rng: np.random.Generator, figure_path: Path | None
+) -> tuple[LabelledRows, LabelledRows, dict]:
+    """Balance, subset and split ``rows``; returns (train, val, counts for the summary)."""
+    steering_before = rows.steering
+    rows = balanced(rows, config.balance_max_per_bin, rng)
+    if figure_path is not None:
+        save_balance_figure(steering_before, rows.steering, figure_path)
+    n_balanced = len(rows)
+    rows = at_most(rows, config.max_samples, rng)
+    train_rows, val_rows = split_train_val(rows, config.val_fraction, rng)
+    counts = {
+        "rows_labelled": len(steering_before),
+        "rows_after_balancing": n_balanced,
+        "rows_used": len(rows),
+        "rows_train": len(train_rows),
+        "rows_val": len(val_rows),
+    }
+    return train_rows, val_rows, counts
+
+
+def train_base_model(
+    data_dir: str | Path, out_dir: str | Path, preset: str = "default", config: TrainConfig = TrainConfig(), command: str = ""
+) -> dict:
+    """Train a BM on the dataset at ``data_dir``; writes ``out_dir/model.pt`` + ``model.json``; returns the description."""
+    dataset = read_dataset(data_dir)
+    model_config = preset_config(preset)
+    _check_frame_size(dataset, model_config.image_size_px, f"preset {preset!r}")
+    out_dir = Path(out_dir)
+    rng = np.random.default_rng(config.seed)
+    train_rows, val_rows, counts = prepare_rows(bm_rows(dataset), config, rng, out_dir / BALANCE_FIGURE_NAME)
+    with deterministic(config.seed):
+        bm = BaseModel(model_config)
+        result = fit(bm, bm_loss(bm), dataset.frames, train_rows, val_rows, config, "BM")
+    description = {
+        "preset": preset,
+        "image_size_px": list(model_config.image_size_px),
+        "training": _training_summary(data_dir, dataset, config, result, counts, command),
+    }
+    save_checkpoint(out_dir, bm, description)
+    return description
+
+
+def train_tapm(
+    data_dir: str | Path,
+    out_dir: str | Path,
+    bm_path: str | Path,
+    config: TrainConfig = TrainConfig(),
+    delta_grid_s: tuple[float, ...] = DEFAULT_DELTA_GRID_S,
+    command: str = "",
+) -> dict:
+    """Train a TAPM on the frozen BM at ``bm_path``; writes ``out_dir/model.pt`` + ``model.json``."""
+    bm = freeze(load_base_model(bm_path))
+    bm_description = read_description(bm_path, KIND_BASE_MODEL)
+    dataset = read_dataset(data_dir)
+    _check_frame_size(dataset, bm.config.image_size_px, f"the BM at {bm_path}")
+    tapm_config = TAPMConfig(image_feature_dim=bm.image_feature_dim, delta_grid_s=delta_grid_s)
+    rng = np.random.default_rng(config.seed)
+    rows = tapm_rows(dataset, tapm_config.delta_grid_s)
+    train_rows, val_rows, counts = prepare_rows(rows, config, rng, Path(out_dir) / BALANCE_FIGURE_NAME)
+    with deterministic(config.seed):
+        tapm = TAPM(tapm_config)
+        result = fit(tapm, tapm_loss(tapm, bm), dataset.frames, train_rows, val_rows, config, "TAPM")
+    description = {
+        "preset": bm_description.get("preset"),
+        "image_size_px": list(bm.config.image_size_px),
+        "delta_grid_s": list(tapm_config.delta_grid_s),
+        "bm_checkpoint": str(Path(bm_path).resolve()),
+        "bm_fingerprint": state_fingerprint(bm),
+        "training": _training_summary(data_dir, dataset, config, result, counts, command),
+    }
+    save_checkpoint(out_dir, tapm, description)
+    return description
+
+
+def _check_frame_size(dataset: Dataset, image_size_px: tuple[int, int], owner: str) -> None:
+    frame_size_px = tuple(dataset.frames.shape[1:])
+    if frame_size_px != tuple(image_size_px):
+        raise ValueError(
+            f"dataset frames are {frame_size_px[0]}x{frame_size_px[1]} px but {owner} expects "
+            f"{image_size_px[0]}x{image_size_px[1]} px (collect with the matching camera preset)"
+        )
+
+
+def _training_summary(data_dir, dataset: Dataset, config: TrainConfig, result: FitResult, counts: dict, command: str) -> dict:
+    return {
+        "command": command,
+        "data_dir": str(Path(data_dir).resolve()),
+        "data_manifest": str((Path(data_dir) / "manifest.json").resolve()),
+        "data_seed": dataset.manifest.get("seed"),
+        "config": asdict(config),
+        "validation_split": (
+            f"by episode if >= {MIN_EPISODES_FOR_EPISODE_SPLIT} episodes, else by {SPLIT_BLOCK_S:g} s blocks"
+        ),
+        **counts,
+        **asdict(result),
+        "threads": torch.get_num_threads(),
+    }
