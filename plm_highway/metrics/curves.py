@@ -454,13 +454,12 @@ def resample_by_arc_length(xy, spacing_m: float) -> np.ndarray:
     spacing_m = float(spacing_m)
     if not (math.isfinite(spacing_m) and spacing_m > 0):
         raise ValueError(f"spacing_m: must be a positive finite number, got {spacing_m}")
-    seg_m = np.sqrt(np.sum(np.diff(curve, axis=0) ** 2, axis=1))
-    moving = seg_m > 0
-    curve = curve[np.concatenate(([True], moving))]
-    arc_m = np.concatenate(([0.0], np.cumsum(seg_m[moving])))
+    arc_m = np.concatenate(([0.0], np.cumsum(np.sqrt(np.sum(np.diff(curve, axis=0) ** 2, axis=1)))))
     total_m = arc_m[-1]
     if total_m == 0:
         raise ValueError("xy: curve has zero length (all points coincide)")
+    kept = _drop_repeated_points(arc_m)
+    curve, arc_m = curve[kept], arc_m[kept]
     n_gaps = math.floor(total_m / spacing_m)
     if n_gaps + 2 > _MAX_RESAMPLED_POINTS:
         raise ValueError(f"spacing_m: {spacing_m} m on a {total_m:.6g} m curve gives too many points")
@@ -471,5 +470,17 @@ def resample_by_arc_length(xy, spacing_m: float) -> np.ndarray:
     else:
         stations_m = np.append(stations_m, total_m)
     out = np.column_stack([np.interp(stations_m, arc_m, curve[:, k]) for k in range(curve.shape[1])])
-    out[-1] = curve[-1]
+    out[0], out[-1] = curve[0], curve[-1]
     return out
+
+
+def _drop_repeated_points(arc_m: np.ndarray) -> np.ndarray:
+    """Indices of points that advance along the curve, always with the first and last point.
+
+    Zero-length segments would give np.interp repeated abscissae. A repeated end point is kept and
+    its twin before it dropped, so that the end stays exactly the input's (its twin may differ by
+    less than the squared-distance underflow).
+    """
+    kept = np.flatnonzero(np.concatenate(([True], np.diff(arc_m) > 0)))
+    kept[-1] = len(arc_m) - 1  # arc_m[-1] > 0, so kept[-1] is never the first point
+    return kept

@@ -40,7 +40,7 @@ import numpy as np
 
 from plm_highway.vehicle.single_track import (
     single_track_steady_state,
-    single_track_tustin_step,
+    single_track_tustin_map,
     understeer_gradient,
 )
 
@@ -166,16 +166,32 @@ def _kinematic_response(delta, speed, a_m, b_m, r_out, slip_out, drdd_out):
 
 
 @numba.njit(cache=True)
-def _dynamic_response(delta, speed, dt, cf, cr, a_m, b_m, k2, r_out, slip_out):
-    """Yaw rate and slip of the linear-tire single-track model driven by ``delta``."""
-    n = delta.shape[0]
-    u0 = max(speed[0], TIRE_MIN_SPEED_MPS)
-    vy, r = single_track_steady_state(u0, delta[0], cf, cr, a_m, b_m, k2)
-    r_out[0] = r
-    slip_out[0] = math.atan2(vy, u0)
+def tire_maps(speed, dt, cf, cr, a_m, b_m, k2):
+    """Per-sample affine maps of the tire model (see ``single_track_tustin_map``) and the settled
+    start per unit steering: (maps [n-1, 8], start [2])."""
+    n = speed.shape[0]
+    maps = np.empty((n - 1, 8))
     for k in range(n - 1):
-        vy, r = single_track_tustin_step(vy, r, speed[k], speed[k + 1], delta[k], delta[k + 1], dt,
-                                         cf, cr, a_m, b_m, k2, TIRE_MIN_SPEED_MPS)
+        m = single_track_tustin_map(speed[k], speed[k + 1], dt, cf, cr, a_m, b_m, k2, TIRE_MIN_SPEED_MPS)
+        for j in range(8):
+            maps[k, j] = m[j]
+    start = np.empty(2)
+    start[0], start[1] = single_track_steady_state(max(speed[0], TIRE_MIN_SPEED_MPS), 1.0, cf, cr, a_m, b_m, k2)
+    return maps, start
+
+
+@numba.njit(cache=True)
+def _run_tire_maps(maps, start, delta, speed, r_out, slip_out):
+    """Yaw rate and slip of the tire model driven by ``delta`` through precomputed maps."""
+    n = delta.shape[0]
+    vy = start[0] * delta[0]
+    r = start[1] * delta[0]
+    r_out[0] = r
+    slip_out[0] = math.atan2(vy, max(speed[0], TIRE_MIN_SPEED_MPS))
+    for k in range(n - 1):
+        m = maps[k]
+        vy, r = (m[0] * vy + m[1] * r + m[4] * delta[k] + m[6] * delta[k + 1],
+                 m[2] * vy + m[3] * r + m[5] * delta[k] + m[7] * delta[k + 1])
         r_out[k + 1] = r
         slip_out[k + 1] = math.atan2(vy, max(speed[k + 1], TIRE_MIN_SPEED_MPS))
 
@@ -185,6 +201,10 @@ def fir_filter(x, taps, lo, out):
     """out[k] = sum_j taps[j] * x[k + lo + j], indices clamped at the ends."""
     n = x.shape[0]
     m = taps.shape[0]
+    if m == 1 and lo == 0:
+        for k in range(n):
+            out[k] = taps[0] * x[k]
+        return
     for k in range(n):
         acc = 0.0
         for j in range(m):
@@ -205,7 +225,8 @@ def simulate_yaw_rate(steer, speed, dt, delay_s, tau_s, gain, offset_rad, cf, cr
     r = np.empty(n)
     slip = np.empty(n)
     if cf > 0.0:
-        _dynamic_response(delta, speed, dt, cf, cr, a_m, b_m, k2, r, slip)
+        maps, start = tire_maps(speed, dt, cf, cr, a_m, b_m, k2)
+        _run_tire_maps(maps, start, delta, speed, r, slip)
     else:
         drdd = np.empty(n)
         _kinematic_response(delta, speed, a_m, b_m, r, slip, drdd)
@@ -213,17 +234,40 @@ def simulate_yaw_rate(steer, speed, dt, delay_s, tau_s, gain, offset_rad, cf, cr
 
 
 @numba.njit(cache=True, parallel=True)
-def candidate_statistics(steer, speed, dt, delays_s, taus_s, cfs, crs, a_m, b_m, k2, taps, lo, y, weight):
+def tire_tables(speed, dt, cfs, crs, a_m, b_m, k2, taps, lo):
+    """Maps, settled starts and filtered unit-steering responses for a set of tire candidates."""
+    n = speed.shape[0]
+    n_tire = cfs.shape[0]
+    maps_all = np.empty((n_tire, n - 1, 8))
+    start_all = np.empty((n_tire, 2))
+    unit_all = np.empty((n_tire, n))
+    ones = np.ones(n)
+    for i in numba.prange(n_tire):
+        maps, start = tire_maps(speed, dt, cfs[i], crs[i], a_m, b_m, k2)
+        maps_all[i] = maps
+        start_all[i] = start
+        r = np.empty(n)
+        slip = np.empty(n)
+        _run_tire_maps(maps, start, ones, speed, r, slip)
+        out = np.empty(n)
+        fir_filter(r, taps, lo, out)
+        unit_all[i] = out
+    return maps_all, start_all, unit_all
+
+
+@numba.njit(cache=True, parallel=True)
+def candidate_statistics(steer, speed, dt, delays_s, taus_s, tire_index, maps_all, start_all, unit_all,
+                         a_m, b_m, taps, lo, y, weight):
     """For each candidate b: weighted sums [e.e, e.pa, e.pb, pa.pa, pa.pb, pb.pb].
 
     ``e`` is the measured signal minus the model's (gain 1, offset 0), ``pa`` and ``pb`` its
     sensitivities to the gain (minus one) and to the offset; all after the output filter ``taps``.
-    The best gain/offset of a candidate then follow from a 2x2 solve.
+    The best gain/offset of a candidate then follow from a 2x2 solve. ``tire_index[b]`` < 0 means
+    the kinematic bicycle, otherwise a row of the tables from :func:`tire_tables`.
     """
     n = steer.shape[0]
     n_cand = delays_s.shape[0]
     stats = np.zeros((n_cand, 6))
-    ones = np.ones(n)
     for b in numba.prange(n_cand):
         delayed = np.empty(n)
         _delayed(steer, delays_s[b] / dt, delayed)
@@ -233,21 +277,23 @@ def candidate_statistics(steer, speed, dt, delays_s, taus_s, cfs, crs, a_m, b_m,
         slip = np.empty(n)
         pa = np.empty(n)
         pb = np.empty(n)
-        if cfs[b] > 0.0:
-            _dynamic_response(delta, speed, dt, cfs[b], crs[b], a_m, b_m, k2, r, slip)
-            _dynamic_response(ones, speed, dt, cfs[b], crs[b], a_m, b_m, k2, pb, slip)
-            for k in range(n):
-                pa[k] = r[k]
+        ti = tire_index[b]
+        if ti >= 0:
+            _run_tire_maps(maps_all[ti], start_all[ti], delta, speed, r, slip)
         else:
             _kinematic_response(delta, speed, a_m, b_m, r, slip, pb)
             for k in range(n):
                 pa[k] = delta[k] * pb[k]
         rf = np.empty(n)
-        paf = np.empty(n)
-        pbf = np.empty(n)
         fir_filter(r, taps, lo, rf)
-        fir_filter(pa, taps, lo, paf)
-        fir_filter(pb, taps, lo, pbf)
+        if ti >= 0:
+            paf = rf
+            pbf = unit_all[ti]
+        else:
+            paf = np.empty(n)
+            pbf = np.empty(n)
+            fir_filter(pa, taps, lo, paf)
+            fir_filter(pb, taps, lo, pbf)
         s0 = 0.0
         s1 = 0.0
         s2 = 0.0

@@ -36,6 +36,7 @@ from plm_highway.sim2real.effects import (
     candidate_statistics,
     effect_report,
     profiled_sse,
+    tire_tables,
 )
 from plm_highway.sim2real.recording import Recording
 from plm_highway.sim2real.replay import FitSignal, filtered, model_yaw_rate
@@ -105,10 +106,20 @@ class FitProblem:
         return filtered(self.signal, r)
 
     def batch_statistics(self, delays, taus, cfs, crs, weight: np.ndarray) -> np.ndarray:
+        """Closed-form statistics for a batch of candidates (see ``effects.candidate_statistics``)."""
+        tires, tire_index = np.unique(np.column_stack([cfs, crs]), axis=0, return_inverse=True)
+        tire_index = tire_index.ravel().astype(np.int64)
+        if tires[0, 0] > 0:
+            maps, starts, units = tire_tables(self.speed, self.dt, np.ascontiguousarray(tires[:, 0]),
+                                              np.ascontiguousarray(tires[:, 1]), self.a, self.b, self.k2,
+                                              self.signal.taps, self.signal.lo)
+        else:
+            tire_index[:] = -1
+            maps, starts, units = np.zeros((1, 1, 8)), np.zeros((1, 2)), np.zeros((1, 1))
         return candidate_statistics(
             self.steer, self.speed, self.dt, np.ascontiguousarray(delays, float), np.ascontiguousarray(taus, float),
-            np.ascontiguousarray(cfs, float), np.ascontiguousarray(crs, float), self.a, self.b, self.k2,
-            self.signal.taps, self.signal.lo, self.y, weight.astype(float),
+            tire_index, maps, starts, units, self.a, self.b, self.signal.taps, self.signal.lo, self.y,
+            weight.astype(float),
         )
 
 

@@ -108,39 +108,74 @@ def single_track_steady_state(u_mps, delta_rad, cf_per_kg, cr_per_kg, a_m, b_m, 
 
 
 @numba.njit(cache=True)
-def single_track_tustin_step(vy, r, u0_mps, u1_mps, delta0_rad, delta1_rad, dt_s,
-                             cf_per_kg, cr_per_kg, a_m, b_m, k2_m2, u_min_mps):
-    """Advance (vy, r) over one sample with the trapezoidal rule, sub-stepping stiff intervals.
+def _fastest_mode(a11, a12, a21, a22):
+    """|lambda|max of a 2x2 matrix (the stiffness that limits the step)."""
+    half_trace = 0.5 * (a11 + a22)
+    det = a11 * a22 - a12 * a21
+    disc = half_trace * half_trace - det
+    if disc >= 0.0:
+        return abs(half_trace) + math.sqrt(disc)
+    return math.sqrt(max(det, 0.0))
 
-    The steering and the speed are interpolated linearly across the sample (first-order hold).
-    Returns the new (vy, r).
+
+@numba.njit(cache=True)
+def single_track_tustin_map(u0_mps, u1_mps, dt_s, cf_per_kg, cr_per_kg, a_m, b_m, k2_m2, u_min_mps):
+    """One sample of the trapezoidal rule as an affine map: x1 = Phi x0 + Pa delta0 + Pb delta1.
+
+    Steering and speed are interpolated linearly across the sample (first-order hold); intervals
+    that are stiff against ``dt`` (low speed) are sub-stepped so that dt * |lambda| <= 0.5, where
+    the trapezoidal rule neither blows up nor rings. Returns (phi11, phi12, phi21, phi22, pa1, pa2,
+    pb1, pb2).
     """
     u_mid = max(0.5 * (u0_mps + u1_mps), u_min_mps)
     a11, a12, a21, a22, _, _ = single_track_matrices(u_mid, cf_per_kg, cr_per_kg, a_m, b_m, k2_m2)
-    # The trapezoidal rule is stable for any step but rings when dt * |lambda| is large; keep it <= 0.5.
-    rho = max(abs(a11) + abs(a12), abs(a21) + abs(a22))
-    n_sub = min(max(int(math.ceil(dt_s * rho / 0.5)), 1), 400)
+    n_sub = min(max(int(math.ceil(dt_s * _fastest_mode(a11, a12, a21, a22) / 0.5)), 1), 400)
     h = dt_s / n_sub
+    f11, f12, f21, f22 = 1.0, 0.0, 0.0, 1.0
+    pa1, pa2, pb1, pb2 = 0.0, 0.0, 0.0, 0.0
+    p11, p12, p21, p22, pba1, pba2 = single_track_matrices(max(u0_mps, u_min_mps), cf_per_kg, cr_per_kg,
+                                                           a_m, b_m, k2_m2)
     for i in range(n_sub):
         f0 = i / n_sub
         f1 = (i + 1) / n_sub
-        u_a = max(u0_mps + (u1_mps - u0_mps) * f0, u_min_mps)
         u_b = max(u0_mps + (u1_mps - u0_mps) * f1, u_min_mps)
-        d_a = delta0_rad + (delta1_rad - delta0_rad) * f0
-        d_b = delta0_rad + (delta1_rad - delta0_rad) * f1
-        p11, p12, p21, p22, pb1, pb2 = single_track_matrices(u_a, cf_per_kg, cr_per_kg, a_m, b_m, k2_m2)
-        q11, q12, q21, q22, qb1, qb2 = single_track_matrices(u_b, cf_per_kg, cr_per_kg, a_m, b_m, k2_m2)
-        # (I - h/2 A_b) x_next = (I + h/2 A_a) x + h/2 (B_a d_a + B_b d_b)
-        rhs1 = vy + 0.5 * h * (p11 * vy + p12 * r + pb1 * d_a + qb1 * d_b)
-        rhs2 = r + 0.5 * h * (p21 * vy + p22 * r + pb2 * d_a + qb2 * d_b)
+        q11, q12, q21, q22, pbb1, pbb2 = single_track_matrices(u_b, cf_per_kg, cr_per_kg, a_m, b_m, k2_m2)
+        # (I - h/2 A_b) x1 = (I + h/2 A_a) x0 + h/2 (B_a d_a + B_b d_b)
         m11 = 1.0 - 0.5 * h * q11
         m12 = -0.5 * h * q12
         m21 = -0.5 * h * q21
         m22 = 1.0 - 0.5 * h * q22
         det = m11 * m22 - m12 * m21
-        vy = (m22 * rhs1 - m12 * rhs2) / det
-        r = (-m21 * rhs1 + m11 * rhs2) / det
-    return vy, r
+        i11, i12, i21, i22 = m22 / det, -m12 / det, -m21 / det, m11 / det
+        n11 = 1.0 + 0.5 * h * p11
+        n12 = 0.5 * h * p12
+        n21 = 0.5 * h * p21
+        n22 = 1.0 + 0.5 * h * p22
+        s11 = i11 * n11 + i12 * n21
+        s12 = i11 * n12 + i12 * n22
+        s21 = i21 * n11 + i22 * n21
+        s22 = i21 * n12 + i22 * n22
+        ga1 = 0.5 * h * (i11 * pba1 + i12 * pba2)
+        ga2 = 0.5 * h * (i21 * pba1 + i22 * pba2)
+        gb1 = 0.5 * h * (i11 * pbb1 + i12 * pbb2)
+        gb2 = 0.5 * h * (i21 * pbb1 + i22 * pbb2)
+        # Compose: the sub-step's inputs are (1 - f) delta0 + f delta1.
+        f11, f12, f21, f22 = s11 * f11 + s12 * f21, s11 * f12 + s12 * f22, s21 * f11 + s22 * f21, s21 * f12 + s22 * f22
+        pa1, pa2 = (s11 * pa1 + s12 * pa2 + ga1 * (1.0 - f0) + gb1 * (1.0 - f1),
+                    s21 * pa1 + s22 * pa2 + ga2 * (1.0 - f0) + gb2 * (1.0 - f1))
+        pb1, pb2 = s11 * pb1 + s12 * pb2 + ga1 * f0 + gb1 * f1, s21 * pb1 + s22 * pb2 + ga2 * f0 + gb2 * f1
+        p11, p12, p21, p22, pba1, pba2 = q11, q12, q21, q22, pbb1, pbb2
+    return f11, f12, f21, f22, pa1, pa2, pb1, pb2
+
+
+@numba.njit(cache=True)
+def single_track_tustin_step(vy, r, u0_mps, u1_mps, delta0_rad, delta1_rad, dt_s,
+                             cf_per_kg, cr_per_kg, a_m, b_m, k2_m2, u_min_mps):
+    """Advance (vy, r) over one sample with the trapezoidal rule (see :func:`single_track_tustin_map`)."""
+    f11, f12, f21, f22, pa1, pa2, pb1, pb2 = single_track_tustin_map(u0_mps, u1_mps, dt_s, cf_per_kg, cr_per_kg,
+                                                                     a_m, b_m, k2_m2, u_min_mps)
+    return (f11 * vy + f12 * r + pa1 * delta0_rad + pb1 * delta1_rad,
+            f21 * vy + f22 * r + pa2 * delta0_rad + pb2 * delta1_rad)
 
 
 @numba.njit(cache=True)
