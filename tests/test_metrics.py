@@ -158,6 +158,18 @@ def test_results_are_plain_floats_and_inputs_untouched():
     np.testing.assert_array_equal(num, num_before)
 
 
+def test_dtw_with_a_callable_metric_matches_reference():
+    exp, num = smooth_pair(30, seed=6)
+
+    def manhattan(u, v):
+        return float(np.abs(u - v).sum())
+
+    distance, matrix = pm.dtw(exp, num, manhattan)
+    ref_distance, ref_matrix = sm.dtw(exp, num, manhattan)
+    assert_matches(matrix, ref_matrix)
+    assert_matches(distance, ref_distance)
+
+
 def test_accepts_lists_and_integer_arrays_like_the_original():
     exp = [[0, 0], [1, 2], [3, 3], [4, 1]]
     num = np.array([[0, 1], [2, 2], [4, 2]])
@@ -206,6 +218,11 @@ def test_resampling_a_straight_line_keeps_spacing_and_length():
 def test_resampling_an_exact_multiple_does_not_duplicate_the_end():
     out = pm.resample_by_arc_length([[0.0, 0.0], [10.0, 0.0]], 2.5)
     np.testing.assert_allclose(out[:, 0], [0, 2.5, 5, 7.5, 10])
+
+
+def test_resampling_a_curve_much_shorter_than_the_spacing_keeps_both_ends():
+    out = pm.resample_by_arc_length([[5e-39, 0.0], [0.0, 0.0]], 1.0)
+    np.testing.assert_array_equal(out, [[5e-39, 0.0], [0.0, 0.0]])
 
 
 def test_resampling_a_circle_preserves_length():
@@ -284,7 +301,8 @@ def test_dtsi_penalty_edges():
 
     values = modified_offset_m([0.7, 0.7071, 1.15, 1.2, -1.2])
     np.testing.assert_allclose(
-        values, [0.0, 5.256 * (0.2 * 0.7071**4 - 0.1 * 0.7071**2), 5.256 * (0.2 * 1.15**4 - 0.1 * 1.15**2), 1.2, 1.2]
+        values,
+        [0.0, 5.256 * (0.2 * 0.7071**4 - 0.1 * 0.7071**2), 5.256 * (0.2 * 1.15**4 - 0.1 * 1.15**2), 1.2, 1.2],
     )
 
 
@@ -335,7 +353,9 @@ def test_xy_metrics_reject_bad_curves(name, exp, num, message):
 
 def test_nan_message_lists_at_most_ten_rows():
     bad = np.full((30, 2), np.nan)
-    with pytest.raises(ValueError, match=r"exp_data: 60 NaN values at rows \[0, 1, .*, 9, \.\.\. \(30 rows in all\)\]"):
+    with pytest.raises(
+        ValueError, match=r"exp_data: 60 NaN values at rows \[0, 1, .*, 9, \.\.\. \(30 rows in all\)\]"
+    ):
         pm.frechet_dist(bad, GOOD)
 
 

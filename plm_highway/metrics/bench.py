@@ -150,7 +150,9 @@ def _format_table(table: dict[str, dict]) -> str:
     def num(value, fmt: str) -> str:
         return "-" if value is None else format(value, fmt)
 
-    header = f"{'metric':<26}{'similaritymeasures s':>21}{'plm_highway s':>15}{'speed-up':>11}{'max rel diff':>14}"
+    header = (
+        f"{'metric':<26}{'similaritymeasures s':>21}{'plm_highway s':>15}{'speed-up':>11}{'max rel diff':>14}"
+    )
     lines = [header, "-" * len(header)]
     for name, row in table.items():
         if name in COMBINED and name == next(iter(COMBINED)):

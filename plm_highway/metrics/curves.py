@@ -274,7 +274,7 @@ def _inline_metric(metric, kwargs: dict) -> tuple[int, float] | None:
 
 
 def _get_length(x: np.ndarray, y: np.ndarray, norm_seg_length: bool):
-    """similaritymeasures.get_length, vectorised: (segments with a leading 0, total, cumulative)."""
+    """similaritymeasures.get_length, vectorised: (total length, cumulative length per point)."""
     x_scale = y_scale = 1.0
     if norm_seg_length:
         # the original substitutes 1e-15 for a zero scale instead of failing
@@ -282,8 +282,8 @@ def _get_length(x: np.ndarray, y: np.ndarray, norm_seg_length: bool):
         y_scale = np.max(np.abs(y)) or 1e-15
     seg = np.zeros(len(x))
     seg[1:] = np.sqrt((np.diff(x) / x_scale) ** 2 + (np.diff(y) / y_scale) ** 2)
-    # a sequential cumsum and a pairwise sum over the padded array: the original's rounding
-    return seg, np.sum(seg), np.cumsum(seg)
+    # a sequential cumsum and a pairwise sum over the zero-padded array: the original's rounding
+    return np.sum(seg), np.cumsum(seg)
 
 
 def _normalise_to_exp(exp: np.ndarray, num: np.ndarray):
@@ -408,8 +408,8 @@ def curve_length_measure(exp_data, num_data) -> float:
     exp, num = _curve_pair(exp_data, num_data, n_dims=2)
     x_e, y_e = exp[:, 0], exp[:, 1]
     x_c, y_c = num[:, 0], num[:, 1]
-    _, exp_length, exp_cum = _get_length(x_e, y_e, True)
-    _, num_length, num_cum = _get_length(x_c, y_c, True)
+    exp_length, exp_cum = _get_length(x_e, y_e, True)
+    num_length, num_cum = _get_length(x_c, y_c, True)
     if exp_length == 0:
         raise ValueError("exp_data: curve has zero length (all points coincide)")
     matched_cum = exp_cum * (num_length / exp_length)
@@ -424,8 +424,8 @@ def pcm(exp_data, num_data, norm_seg_length=False) -> float:
     """Partial Curve Mapping area (Witowski and Stander 2012), as similaritymeasures."""
     exp, num = _curve_pair(exp_data, num_data, n_dims=2)
     xi1, eta1, xi2, eta2 = _normalise_to_exp(exp, num)
-    _, le_nj, le_sum = _get_length(xi1, eta1, norm_seg_length)
-    _, lc_nj, lc_sum = _get_length(xi2, eta2, norm_seg_length)
+    le_nj, le_sum = _get_length(xi1, eta1, norm_seg_length)
+    lc_nj, lc_sum = _get_length(xi2, eta2, norm_seg_length)
     # the original slides the shorter curve (by normalised length) along the longer one
     if lc_nj > le_nj:
         xi1, eta1, xi2, eta2 = xi2, eta2, xi1, eta1
@@ -465,7 +465,7 @@ def resample_by_arc_length(xy, spacing_m: float) -> np.ndarray:
         raise ValueError(f"spacing_m: {spacing_m} m on a {total_m:.6g} m curve gives too many points")
     stations_m = spacing_m * np.arange(n_gaps + 1)
     # a last station within rounding of the end would duplicate the end point
-    if total_m - stations_m[-1] <= 1e-9 * spacing_m:
+    if n_gaps >= 1 and total_m - stations_m[-1] <= 1e-9 * spacing_m:
         stations_m[-1] = total_m
     else:
         stations_m = np.append(stations_m, total_m)
