@@ -61,7 +61,9 @@ def collect(track: str = "train", episodes: int = 200, episode_seconds: float = 
     for episode_id in tqdm(range(episodes), desc="collect", unit="episode", disable=not progress):
         displaced = rng.random() < displaced_fraction
         options = {
-            "start_arc_length_m": float(rng.uniform(0.0, max(usable_length_m, unwrapped.track.length_m * 0.99))),
+            # Open tracks: start early enough to drive the whole episode before the end of the road.
+            "start_arc_length_m": float(rng.uniform(
+                0.0, unwrapped.track.length_m if unwrapped.track.closed else usable_length_m)),
             "start_offset_m": float(rng.uniform(-max_offset_m, max_offset_m)) if displaced else 0.0,
             "start_heading_error_rad": float(np.radians(rng.uniform(-max_heading_error_deg, max_heading_error_deg)))
             if displaced else 0.0,

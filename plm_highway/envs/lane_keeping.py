@@ -37,6 +37,7 @@ from plm_highway.road.geometry import reference_pose_at, segment_lookup
 from plm_highway.road.track import TrackSpec, load_track, parse_track
 
 PAPER_CAMERA = {"height_px": 160, "width_px": 160}  # the original PLM-Net input size
+START_KEYS = ("start_arc_length_m", "start_offset_m", "start_heading_error_rad")  # per-episode reset options
 
 
 @dataclass(frozen=True)
@@ -96,7 +97,7 @@ class LaneKeepingCameraEnv(AbstractEnv):
     # -- gymnasium API ---------------------------------------------------------------------------
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        self._start_overrides = {k: v for k, v in (options or {}).items() if k.startswith("start_")}
+        self._start_overrides = {k: v for k, v in (options or {}).items() if k in START_KEYS}
         unknown = sorted(set(options or {}) - set(self._start_overrides) - {"config"})
         if unknown:
             raise ValueError(f"reset options: unknown keys {unknown}")
@@ -144,7 +145,7 @@ class LaneKeepingCameraEnv(AbstractEnv):
         self.road = Road(network=self.built.network, np_random=self.np_random, record_history=False)
 
     def _make_vehicles(self) -> None:
-        start = {key: self.config[key] for key in ("start_arc_length_m", "start_offset_m", "start_heading_error_rad")}
+        start = {key: self.config[key] for key in START_KEYS}
         start.update(self._start_overrides)
         arc_length_m = float(start["start_arc_length_m"])
         x_m, y_m, road_heading = reference_pose_at(self.track, arc_length_m)

@@ -162,9 +162,11 @@ def _number(text: str, spec: str, what: str, positive: bool = False) -> float:
 
 
 def _range(text: str, spec: str, what: str) -> tuple[float, float]:
-    low, sep, high = text.partition("-")
-    if not sep:
+    # Split at the first '-' that is not a sign (leading, or an exponent's as in 1e-05).
+    split = next((i for i, char in enumerate(text) if char == "-" and i > 0 and text[i - 1] not in "eE"), None)
+    if split is None:
         raise ValueError(f"latency spec {spec!r}: {what} {text!r} must look like LO-HI")
+    low, high = text[:split], text[split + 1:]
     return _number(low, spec, f"{what} start"), _number(high, spec, f"{what} end")
 
 
