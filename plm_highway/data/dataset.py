@@ -12,8 +12,9 @@ A dataset is a directory:
 Rows are in time order within each episode. An *episode* is one continuous stretch of driving:
 a perturbation that teleports the car starts a new episode, so a future-action look-up by time
 never crosses a discontinuity. ``steering`` is the expert's normalised label for the frame
-(positive turns left); ``executed_steering`` is what the car actually received (label plus the
-recovery perturbation, if any).
+(positive turns left); ``executed_steering`` is what the car actually received. The shipped collector
+perturbs by displacing the car at episode starts, so the two are equal in its datasets; the column
+is kept for collectors that perturb the steering itself.
 """
 
 from __future__ import annotations

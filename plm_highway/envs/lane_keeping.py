@@ -22,7 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from gymnasium import spaces
-from highway_env import utils
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import ContinuousAction
 from highway_env.envs.common.observation import ObservationType

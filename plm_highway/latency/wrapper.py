@@ -14,6 +14,7 @@ the wrapper delivers the oldest snapshot (taken at reset) and reports its true, 
 from __future__ import annotations
 
 import bisect
+import copy
 import math
 from collections import deque
 
@@ -35,7 +36,8 @@ class LatencyWrapper(gymnasium.Wrapper):
 
     def __init__(self, env: gymnasium.Env, profile: LatencyProfile | str | float, max_latency_s: float = 1.0):
         super().__init__(env)
-        self.profile = parse_profile(profile)
+        # A private copy: two wrappers given one profile object must not share its random state.
+        self.profile = copy.deepcopy(parse_profile(profile))
         self.max_latency_s = float(max_latency_s)
         if self.profile.max_latency_s > self.max_latency_s + TIME_EPS_S:
             raise ValueError(

@@ -1,6 +1,6 @@
 """Build a :class:`TrackSpec` into a highway-env ``RoadNetwork``.
 
-Each segment becomes one road edge (arcs of 170 degrees or more are split, because
+Each segment becomes one road edge (arcs of more than 170 degrees are split, because
 ``CircularLane.local_coordinates`` wraps at pi) holding ``lanes`` parallel lanes. Lane 0 is the
 leftmost lane. In this project's y-up world a left arc is highway-env's ``clockwise=True``
 (the phase grows, which is counter-clockwise when y points up), and a lane's positive lateral
