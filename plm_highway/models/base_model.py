@@ -180,6 +180,4 @@ def _mlp(in_features: int, dropout: float) -> nn.Sequential:
 
 def count_parameters(module: nn.Module, trainable: bool | None = None) -> int:
     """All parameters, or only the trainable (``True``) / frozen (``False``) ones."""
-    return sum(
-        p.numel() for p in module.parameters() if trainable is None or p.requires_grad == trainable
-    )
+    return sum(p.numel() for p in module.parameters() if trainable is None or p.requires_grad == trainable)

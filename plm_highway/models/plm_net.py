@@ -28,15 +28,14 @@ class PLMNetOutput(NamedTuple):
     n_clamped: int  # samples whose latency was above the last grid value
 
 
-def validate_latency(latency_s: torch.Tensor) -> None:
-    bad = torch.isnan(latency_s) | (latency_s < 0)
-    if bool(bad.any()):
-        first = float(latency_s.reshape(-1)[bad.reshape(-1)][0])
-        raise ValueError(f"latency_s: must be a number >= 0 s, got {first}")
-
-
-def count_clamped(latency_s: torch.Tensor, delta_ref_s: torch.Tensor) -> int:
-    return int((latency_s > delta_ref_s[-1]).sum())
+def check_latency(latency_s: torch.Tensor, last_grid_s: float) -> int:
+    """Raise ValueError on NaN or negative latency; return how many latencies exceed the grid."""
+    # One reduction covers both checks: a NaN propagates into the minimum, which then fails ">= 0".
+    low, high = latency_s.aminmax()
+    if not float(low) >= 0:
+        bad = torch.isnan(latency_s) | (latency_s < 0)
+        raise ValueError(f"latency_s: must be a number >= 0 s, got {float(latency_s[bad][0])}")
+    return 0 if float(high) <= last_grid_s else int((latency_s > last_grid_s).sum())
 
 
 def interpolate_actions(latency_s, delta_ref_s, a_ref):
@@ -53,37 +52,46 @@ def interpolate_actions(latency_s, delta_ref_s, a_ref):
     latency_t = torch.as_tensor(latency_s, dtype=dtype)
     scalar_input = latency_t.dim() == 0
     latency_t = latency_t.reshape(-1)
-    validate_latency(latency_t)
-    _validate_reference(delta_ref_t, a_ref_t)
+    _validate_reference(delta_ref_t, a_ref_t, len(latency_t))
+    check_latency(latency_t, float(delta_ref_t[-1]))
     result = interpolate_batch(latency_t, delta_ref_t, a_ref_t.expand(len(latency_t), -1))
     if scalar_input:
         result = result[0]
     return result.numpy() if as_numpy else result
 
 
-def interpolate_batch(latency_s: torch.Tensor, delta_ref_s: torch.Tensor, a_ref: torch.Tensor) -> torch.Tensor:
+def interpolate_batch(
+    latency_s: torch.Tensor, delta_ref_s: torch.Tensor, a_ref: torch.Tensor
+) -> torch.Tensor:
     """Vectorised Algorithm 1 on validated inputs: latency (B,), delta_ref (M,), a_ref (B, M) -> (B,)."""
-    latency = torch.minimum(latency_s, delta_ref_s[-1])  # above the grid: the last head
-    # Segment [lo, hi] with delta_ref[lo] < latency <= delta_ref[hi]; latency 0 falls in the first.
-    hi = torch.searchsorted(delta_ref_s, latency).clamp_(1, len(delta_ref_s) - 1)
-    lo = hi - 1
-    delta_lo = delta_ref_s[lo]
-    weight = (latency - delta_lo) / (delta_ref_s[hi] - delta_lo)
-    a_lo = a_ref.gather(1, lo.unsqueeze(1)).squeeze(1)
-    a_hi = a_ref.gather(1, hi.unsqueeze(1)).squeeze(1)
-    value = a_lo + weight * (a_hi - a_lo)
+    latency = latency_s.clamp(max=delta_ref_s[-1])  # above the grid: the last head
+    # Segment [lo, lo + 1] with delta_ref[lo] < latency <= delta_ref[lo + 1] (latency 0 falls in the
+    # first): searching the interior grid points gives lo directly, with no clamping.
+    lo = torch.searchsorted(delta_ref_s[1:-1], latency)
+    # Both neighbours in one take/gather each: at batch size 1 the op count is the cost.
+    neighbours = torch.stack((lo, lo + 1), dim=1)
+    delta_lo, delta_hi = delta_ref_s.take(neighbours).unbind(1)
+    a_lo, a_hi = a_ref.gather(1, neighbours).unbind(1)
+    weight = (latency - delta_lo) / (delta_hi - delta_lo)
     # Rounding must not step outside the neighbours, and a grid point returns its action bit-exactly.
-    value = torch.minimum(torch.maximum(value, torch.minimum(a_lo, a_hi)), torch.maximum(a_lo, a_hi))
-    return torch.where(weight >= 1, a_hi, value)
+    value = (a_lo + weight * (a_hi - a_lo)).clamp(
+        min=torch.minimum(a_lo, a_hi), max=torch.maximum(a_lo, a_hi)
+    )
+    return torch.where(latency == delta_hi, a_hi, value)
 
 
-def _validate_reference(delta_ref_s: torch.Tensor, a_ref: torch.Tensor) -> None:
-    if delta_ref_s.dim() != 1 or len(delta_ref_s) < 2:
+def _validate_reference(delta_ref_s: torch.Tensor, a_ref: torch.Tensor, n_latencies: int) -> None:
+    n_ref = len(delta_ref_s)
+    if delta_ref_s.dim() != 1 or n_ref < 2:
         raise ValueError(f"delta_ref_s: expected at least 2 latencies, got shape {tuple(delta_ref_s.shape)}")
     if not bool((delta_ref_s[1:] > delta_ref_s[:-1]).all()):
         raise ValueError(f"delta_ref_s: must be strictly increasing, got {delta_ref_s.tolist()}")
-    if a_ref.shape[-1] != len(delta_ref_s) or a_ref.dim() > 2:
-        raise ValueError(f"a_ref: expected (B, {len(delta_ref_s)}) or ({len(delta_ref_s)},), got {tuple(a_ref.shape)}")
+    if (
+        a_ref.dim() not in (1, 2)
+        or a_ref.shape[-1] != n_ref
+        or (a_ref.dim() == 2 and len(a_ref) != n_latencies)
+    ):
+        raise ValueError(f"a_ref: expected ({n_latencies}, {n_ref}) or ({n_ref},), got {tuple(a_ref.shape)}")
 
 
 class PLMNet(nn.Module):
@@ -100,20 +108,23 @@ class PLMNet(nn.Module):
         self.tapm = tapm
         delta_ref_s = torch.tensor((0.0, *tapm.config.delta_grid_s), dtype=torch.float32)
         self.register_buffer("delta_ref_s", delta_ref_s, persistent=False)
+        # The last grid value as the float32 the interpolation compares with, so counting agrees with it.
+        self.last_grid_s = float(delta_ref_s[-1])
 
     def train(self, mode: bool = True) -> PLMNet:
         super().train(mode)
         self.bm.eval()
         return self
 
-    def forward(
-        self, frames: torch.Tensor, speed_mps: torch.Tensor, latency_s: torch.Tensor
-    ) -> PLMNetOutput:
+    def forward(self, frames: torch.Tensor, speed_mps: torch.Tensor, latency_s: torch.Tensor) -> PLMNetOutput:
         """Frames uint8 (B, H, W), speed (B,), latency (B,) in s -> :class:`PLMNetOutput`."""
         latency_s = latency_s.to(torch.float32).reshape(-1)
-        validate_latency(latency_s)
+        if len(latency_s) != len(frames):
+            raise ValueError(
+                f"latency_s: expected one latency per frame ({len(frames)}), got {len(latency_s)}"
+            )
+        n_clamped = check_latency(latency_s, self.last_grid_s)
         z_o, z_v = self.bm.encode(frames, speed_mps)  # the one convolution pass
         a_bm = self.bm.steering_from_features(z_o, z_v)
         a_ref = torch.cat([a_bm.unsqueeze(1), self.tapm(a_bm, z_o, z_v)], dim=1)
-        steering = interpolate_batch(latency_s, self.delta_ref_s, a_ref)
-        return PLMNetOutput(steering, a_ref, count_clamped(latency_s, self.delta_ref_s))
+        return PLMNetOutput(interpolate_batch(latency_s, self.delta_ref_s, a_ref), a_ref, n_clamped)

@@ -14,6 +14,7 @@ would cost more than the arithmetic.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -51,7 +52,7 @@ def validate_delta_grid(delta_grid_s: tuple[float, ...]) -> None:
         raise ValueError("delta_grid_s: at least one latency is needed")
     if not all(math.isfinite(d) and d > 0 for d in delta_grid_s):
         raise ValueError(f"delta_grid_s: latencies must be finite and > 0 s, got {list(delta_grid_s)}")
-    if any(later <= earlier for earlier, later in zip(delta_grid_s, delta_grid_s[1:])):
+    if any(later <= earlier for earlier, later in itertools.pairwise(delta_grid_s)):
         raise ValueError(f"delta_grid_s: latencies must be strictly increasing, got {list(delta_grid_s)}")
 
 

@@ -23,17 +23,28 @@ def configure(parser: argparse.ArgumentParser) -> None:
             default=",".join(f"{d:g}" for d in DEFAULT_DELTA_GRID_S),
             help="TAPM latencies in seconds, comma separated (default: %(default)s)",
         )
-        parser.add_argument("--preset", choices=PRESET_CHOICES, help="optional: check that the BM has this preset")
+        parser.add_argument(
+            "--preset", choices=PRESET_CHOICES, help="optional: check that the BM has this preset"
+        )
     else:
-        parser.add_argument("--preset", choices=PRESET_CHOICES, default="default", help="model input size preset")
+        parser.add_argument(
+            "--preset", choices=PRESET_CHOICES, default="default", help="model input size preset"
+        )
     parser.add_argument("--epochs", type=int, default=50, help="maximum epochs (early stopping, patience 3)")
-    parser.add_argument("--max-samples", type=int, help="use at most N samples (seeded subset), for fast runs")
+    parser.add_argument(
+        "--max-samples", type=int, help="use at most N samples (seeded subset), for fast runs"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
-        "--balance-max-per-bin", type=int, default=2000, help="steering histogram cap per bin (35 bins); 0 disables"
+        "--balance-max-per-bin",
+        type=int,
+        default=2000,
+        help="steering histogram cap per bin (35 bins); 0 disables",
     )
     parser.add_argument("--no-augment", action="store_true", help="disable flip and brightness augmentation")
-    parser.add_argument("--threads", type=int, help="torch intra-op threads (default: the CPUs this process may use)")
+    parser.add_argument(
+        "--threads", type=int, help="torch intra-op threads (default: the CPUs this process may use)"
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bars or per-epoch lines")
 
 
@@ -57,7 +68,9 @@ def run(args: argparse.Namespace) -> int:
         description = train_base_model(args.data, args.out, args.preset, config, command)
     else:
         _check_bm_preset(args.bm, args.preset)
-        description = train_tapm(args.data, args.out, args.bm, config, parse_delta_grid(args.delta_grid), command)
+        description = train_tapm(
+            args.data, args.out, args.bm, config, parse_delta_grid(args.delta_grid), command
+        )
     training = description["training"]
     print(
         json.dumps(
@@ -105,7 +118,9 @@ def _check_bm_preset(bm_path: str, preset: str | None) -> None:
 
     bm_preset = read_description(bm_path, KIND_BASE_MODEL).get("preset")
     if bm_preset != preset:
-        raise ValueError(f"--preset {preset} given, but the BM at {bm_path} was trained with preset {bm_preset!r}")
+        raise ValueError(
+            f"--preset {preset} given, but the BM at {bm_path} was trained with preset {bm_preset!r}"
+        )
 
 
 def _positive(option: str, value: int) -> int:

@@ -50,7 +50,9 @@ def bm_rows(dataset: Dataset) -> LabelledRows:
 def tapm_rows(dataset: Dataset, horizons_s: tuple[float, ...]) -> LabelledRows:
     """D_TAPM: rows with the expert's future steering at each horizon; rows without a future dropped."""
     steps = dataset.steps
-    labels, has_future = future_steering_labels(steps["episode_id"], steps["t_s"], steps["steering"], horizons_s)
+    labels, has_future = future_steering_labels(
+        steps["episode_id"], steps["t_s"], steps["steering"], horizons_s
+    )
     rows = np.flatnonzero(has_future)
     return _rows(dataset, rows, labels[rows])
 
@@ -123,12 +125,13 @@ class Batch:
     targets: torch.Tensor  # (B, K) float32
 
 
-def flip_horizontally(frames: torch.Tensor, targets: torch.Tensor, flip: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def flip_horizontally(
+    frames: torch.Tensor, targets: torch.Tensor, flip: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Mirror the flagged frames once and negate every label of those rows once.
 
     A mirrored road turns the other way, now and at every future horizon. (The original code
-    flipped once per label column, so with an even number of columns the image ended up unflipped
-    and labels disagreed with each other.)
+    applied its flip once per label column, which corrupted the labels.)
     """
     frames = torch.where(flip.view(-1, 1, 1), frames.flip(-1), frames)
     targets = torch.where(flip.view(-1, 1), -targets, targets)
@@ -160,7 +163,11 @@ def iterate_batches(
     augmentation: Augmentation | None = None,
 ) -> Iterator[Batch]:
     """Batches in random order when a generator is given (else in row order), read frame by batch."""
-    order = torch.randperm(len(rows), generator=generator).numpy() if generator is not None else np.arange(len(rows))
+    order = (
+        torch.randperm(len(rows), generator=generator).numpy()
+        if generator is not None
+        else np.arange(len(rows))
+    )
     for start in range(0, len(rows), batch_size):
         chosen = order[start : start + batch_size]
         # Fancy indexing a memmap reads only these frames.

@@ -8,6 +8,9 @@ rounding of the timestamps); it only blends when a collector runs at another rat
 frame. Rows whose t + max(delta) lies beyond their episode's last sample are dropped, never
 padded: there is no truthful label for them. The original built labels by frame offsets, which
 breaks as soon as the frame rate varies.
+
+Labels are the expert's ``steering`` column (what the expert wanted in that state), never
+``executed_steering`` (which includes the collector's recovery perturbations).
 """
 
 from __future__ import annotations
@@ -78,7 +81,9 @@ def balance_by_histogram(
     return np.sort(np.concatenate(kept))
 
 
-def save_balance_figure(before: np.ndarray, after: np.ndarray, path: str | Path, n_bins: int = BALANCE_BINS) -> Path:
+def save_balance_figure(
+    before: np.ndarray, after: np.ndarray, path: str | Path, n_bins: int = BALANCE_BINS
+) -> Path:
     """Steering histograms before (left) and after (right) balancing, like the paper's Figure 8."""
     from matplotlib.figure import Figure  # no pyplot: no global state, no GUI backend needed
 

@@ -1,0 +1,184 @@
+"""Training BM and TAPM end to end on small synthetic datasets (plm_highway.training)."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from plm_highway import cli
+from plm_highway.data.dataset import read_dataset
+from plm_highway.models.base_model import BaseModel
+from plm_highway.models.checkpoints import load_base_model, load_plm_net
+from plm_highway.models.tapm import TAPM, TAPMConfig
+from plm_highway.training.datasets import bm_rows, split_train_val, tapm_rows
+from plm_highway.training.synthetic import make_synthetic_dataset
+from plm_highway.training.train import (
+    TrainConfig,
+    deterministic,
+    fit,
+    freeze,
+    tapm_loss,
+    train_base_model,
+)
+
+TINY = TrainConfig(epochs=1, max_samples=96, show_progress=False)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def threads_per_worker():
+    """Share the cores among pytest-xdist workers: oversubscribed torch threads spin and crawl."""
+    previous = torch.get_num_threads()
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    torch.set_num_threads(max(1, len(os.sched_getaffinity(0)) // workers))
+    yield
+    torch.set_num_threads(previous)
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory):
+    return make_synthetic_dataset(
+        tmp_path_factory.mktemp("data") / "synthetic", n_episodes=6, steps_per_episode=30
+    )
+
+
+@pytest.fixture(scope="module")
+def trained_bm_dir(data_dir, tmp_path_factory):
+    out_dir = tmp_path_factory.mktemp("bm")
+    train_base_model(data_dir, out_dir, config=TINY)
+    return out_dir
+
+
+def test_train_bm_and_tapm_through_the_cli_and_reload_them(data_dir, tmp_path, capsys):
+    common = [
+        "--data",
+        str(data_dir),
+        "--epochs",
+        "2",
+        "--max-samples",
+        "128",
+        "--seed",
+        "3",
+        "--quiet",
+        "--threads",
+        str(torch.get_num_threads()),
+    ]
+    assert cli.main(["train", "bm", "--out", str(tmp_path / "bm"), *common]) == 0
+    assert (
+        cli.main(["train", "tapm", "--out", str(tmp_path / "tapm"), "--bm", str(tmp_path / "bm"), *common])
+        == 0
+    )
+    printed = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert all(np.isfinite(summary["best_val_loss"]) for summary in printed)
+
+    plm_net = load_plm_net(tmp_path / "bm", tmp_path / "tapm")
+    frames = torch.from_numpy(np.array(read_dataset(data_dir).frames[:3]))
+    with torch.inference_mode():
+        output = plm_net(frames, torch.full((3,), 16.7), torch.tensor([0.0, 0.2, 0.3]))
+    assert output.a_ref.shape == (3, 6) and torch.all(output.steering.abs() <= 1)
+
+    tapm_document = json.loads((tmp_path / "tapm" / "model.json").read_text())
+    assert tapm_document["preset"] == "default" and tapm_document["image_size_px"] == [66, 200]
+    assert tapm_document["delta_grid_s"] == [0.15, 0.2, 0.25, 0.3, 0.35]
+    training = tapm_document["training"]
+    assert training["epochs_run"] == 2 and training["data_seed"] == 0 and training["config"]["seed"] == 3
+    assert training["data_manifest"].endswith("manifest.json")
+    assert training["command"].startswith("plm-highway train tapm --data")
+    assert (tmp_path / "bm" / "steering_balance.png").is_file()
+
+
+def test_same_seed_gives_bit_identical_weights_and_another_seed_does_not(data_dir, tmp_path):
+    def trained_state(name, seed):
+        train_base_model(data_dir, tmp_path / name, config=TrainConfig(**{**TINY.__dict__, "seed": seed}))
+        return load_base_model(tmp_path / name).state_dict()
+
+    first, again, other = trained_state("a", 0), trained_state("b", 0), trained_state("c", 1)
+    assert all(torch.equal(first[key], again[key]) for key in first)
+    assert not all(torch.equal(first[key], other[key]) for key in first)
+
+
+def test_bm_stays_frozen_and_in_eval_mode_while_the_tapm_trains(data_dir, trained_bm_dir):
+    dataset = read_dataset(data_dir)
+    bm = freeze(load_base_model(trained_bm_dir))
+    before = {key: value.clone() for key, value in bm.state_dict().items()}
+    bm_modes = []
+    bm.register_forward_pre_hook(lambda module, _: bm_modes.append(module.training))
+    bm.mlp[2].register_forward_pre_hook(lambda module, _: bm_modes.append(module.training))  # a dropout layer
+    train_rows, val_rows = split_train_val(tapm_rows(dataset, (0.15, 0.25)), 0.2, np.random.default_rng(0))
+    tapm = TAPM(TAPMConfig(image_feature_dim=bm.image_feature_dim, delta_grid_s=(0.15, 0.25)))
+    tapm_modes = []
+    tapm.register_forward_pre_hook(lambda module, _: tapm_modes.append(module.training))
+    tapm_before = tapm.heads_out.weight.detach().clone()
+
+    fit(tapm, tapm_loss(tapm, bm), dataset.frames, train_rows, val_rows, TINY, "TAPM")
+
+    assert all(torch.equal(before[key], value) for key, value in bm.state_dict().items())
+    assert bm_modes and not any(bm_modes)
+    assert True in tapm_modes  # the TAPM itself did train with dropout on
+    assert not torch.equal(tapm_before, tapm.heads_out.weight)
+
+
+def test_early_stopping_after_three_epochs_without_improvement(data_dir):
+    dataset = read_dataset(data_dir)
+    train_rows, val_rows = split_train_val(bm_rows(dataset), 0.2, np.random.default_rng(0))
+    train_rows, val_rows = train_rows.subset(np.arange(32)), val_rows.subset(np.arange(32))
+    config = TrainConfig(epochs=10, learning_rate=0.0, show_progress=False)  # the val loss never improves
+    with deterministic(0):
+        bm = BaseModel()
+        result = fit(
+            bm,
+            lambda batch: torch.nn.functional.mse_loss(
+                bm(batch.frames, batch.speed_mps), batch.targets[:, 0]
+            ),
+            dataset.frames,
+            train_rows,
+            val_rows,
+            config,
+            "BM",
+        )
+    assert (result.best_epoch, result.epochs_run, result.stopped_early) == (1, 4, True)
+    assert len(set(result.val_loss_history)) == 1
+
+
+def test_train_bm_rejects_a_dataset_from_another_camera(data_dir, tmp_path, capsys):
+    code = cli.main(
+        ["train", "bm", "--data", str(data_dir), "--out", str(tmp_path), "--preset", "paper", "--quiet"]
+    )
+    assert code == cli.EXIT_BAD_INPUT
+    assert "dataset frames are 66x200 px but preset 'paper' expects 160x160 px" in capsys.readouterr().err
+
+
+def test_train_tapm_checks_the_bm_preset_when_given(data_dir, trained_bm_dir, tmp_path, capsys):
+    code = cli.main(
+        [
+            "train",
+            "tapm",
+            "--data",
+            str(data_dir),
+            "--out",
+            str(tmp_path),
+            "--bm",
+            str(trained_bm_dir),
+            "--preset",
+            "paper",
+            "--quiet",
+        ]
+    )
+    assert code == cli.EXIT_BAD_INPUT
+    assert "trained with preset 'default'" in capsys.readouterr().err
+
+
+def test_train_reports_a_missing_dataset(tmp_path, capsys):
+    assert cli.main(["train", "bm", "--data", str(tmp_path / "none"), "--out", str(tmp_path), "--quiet"]) == 2
+    assert "no dataset manifest" in capsys.readouterr().err
+
+
+def test_delta_grid_option_is_parsed_and_checked():
+    from plm_highway.training.cli import parse_delta_grid
+
+    assert parse_delta_grid("0.1, 0.2,0.3") == (0.1, 0.2, 0.3)
+    with pytest.raises(ValueError, match="--delta-grid"):
+        parse_delta_grid("0.1,fast")
