@@ -1,16 +1,30 @@
-"""Policies by name, for the command line: ``expert``, ``bm`` (Base Model), ``plm`` (PLM-Net)."""
+"""Policies by name, for the command line: ``expert``, ``bm`` (Base Model), ``plm`` (PLM-Net).
+
+Model policies load a checkpoint pair (Base Model + TAPM). ``--checkpoints DIR`` accepts the two
+layouts the project writes: ``DIR/bm/`` + ``DIR/tapm/`` (each ``model.pt`` + ``model.json``, as
+``plm-highway train bm|tapm --out`` writes them) or ``DIR/bm_default.*`` + ``DIR/tapm_default.*``
+(how they are shipped in ``plm_highway/checkpoints``). Without a directory the shipped pair is used.
+PLM-Net is always the Base Model of the same pair plus its TAPM, so the mitigated run differs
+from the baseline run only by the TAPM.
+"""
 
 from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from pathlib import Path
 
 from plm_highway.expert import ExpertPolicy
 
 POLICY_NAMES = ("expert", "bm", "plm")
+SHIPPED_PRESET = "default"
 
 
 class VisionPolicy:
     """Adapts a model policy ``(frame, speed_mps, latency_s) -> steering`` to ``(frame, info)``.
 
-    The latency it is told is the *measured* age of the observation, as PLM-Net is deployed.
+    The latency it is told is the *measured* age of the observation, as PLM-Net is deployed, plus
+    ``latency_bias_s`` (a wrong latency estimate; clipped at 0).
     """
 
     def __init__(self, model_policy, latency_bias_s: float = 0.0):
@@ -22,11 +36,62 @@ class VisionPolicy:
 
     @property
     def clamped_count(self) -> int:
-        return int(getattr(self.model_policy, "clamped_count", 0))
+        """Steps whose latency was above the TAPM grid (PLM-Net used its last head)."""
+        return int(getattr(self.model_policy, "clamped_latency_count", 0))
 
     def __call__(self, frame, info) -> float:
         latency_s = max(0.0, info["observation_age_s"] + self.latency_bias_s)
         return float(self.model_policy(frame, info["speed_mps"], latency_s))
+
+
+@contextlib.contextmanager
+def single_threaded_inference() -> Iterator[None]:
+    """Run torch on one thread inside the block (restored after).
+
+    Closed-loop driving evaluates one frame at a time: a second thread gains nothing on so small a
+    batch, and on a busy machine the thread hand-offs made each step 3-30x slower in our measurements.
+    """
+    try:
+        import torch
+    except ImportError:  # expert-only installs
+        yield
+        return
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
+
+
+def checkpoint_pair(checkpoint_dir=None) -> tuple[Path, Path]:
+    """(BM, TAPM) checkpoint paths in ``checkpoint_dir`` (see the module docstring), or the shipped pair.
+
+    Raises FileNotFoundError naming what is missing and how to get it.
+    """
+    if checkpoint_dir is None:
+        from plm_highway.models.shipped import shipped_checkpoint_dir, shipped_checkpoint_paths
+
+        bm_path, tapm_path = shipped_checkpoint_paths(SHIPPED_PRESET)
+        missing = [f.name for w in (bm_path, tapm_path) for f in (w, w.with_suffix(".json")) if not f.is_file()]
+        if missing:
+            raise FileNotFoundError(
+                f"no shipped checkpoints in {shipped_checkpoint_dir()} (missing {', '.join(missing)}); "
+                f"pass --checkpoints DIR with bm/ and tapm/ from 'plm-highway train bm|tapm --out'"
+            )
+        return bm_path, tapm_path
+    directory = Path(checkpoint_dir)
+    if not directory.is_dir():
+        raise FileNotFoundError(f"--checkpoints {str(directory)!r}: no such directory")
+    layouts = ((directory / "bm", directory / "tapm"),
+               (directory / f"bm_{SHIPPED_PRESET}.pt", directory / f"tapm_{SHIPPED_PRESET}.pt"))
+    for bm_path, tapm_path in layouts:
+        if (bm_path / "model.pt").is_file() or (bm_path.suffix == ".pt" and bm_path.is_file()):
+            return bm_path, tapm_path
+    raise FileNotFoundError(
+        f"--checkpoints {str(directory)!r}: expected bm/model.pt and tapm/model.pt (from 'plm-highway train') "
+        f"or bm_{SHIPPED_PRESET}.pt and tapm_{SHIPPED_PRESET}.pt (the shipped layout)"
+    )
 
 
 def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0):
@@ -35,9 +100,9 @@ def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0):
         return ExpertPolicy()
     if name not in POLICY_NAMES:
         raise ValueError(f"--policy {name!r}: expected one of {list(POLICY_NAMES)}")
-    from plm_highway.models import policies, shipped
+    from plm_highway.models import checkpoints, policies
 
+    bm_path, tapm_path = checkpoint_pair(checkpoint_dir)
     if name == "bm":
-        bm = shipped.load_shipped_base_model(checkpoint_dir)
-        return VisionPolicy(policies.BaseModelPolicy(bm))
-    return VisionPolicy(policies.PLMNetPolicy(shipped.load_shipped_plm_net(checkpoint_dir)), latency_bias_s)
+        return VisionPolicy(policies.BaseModelPolicy(checkpoints.load_base_model(bm_path)))
+    return VisionPolicy(policies.PLMNetPolicy(checkpoints.load_plm_net(bm_path, tapm_path)), latency_bias_s)

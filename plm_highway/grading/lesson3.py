@@ -1,0 +1,178 @@
+"""Graded checks for Lesson 3, "Measuring mitigation".
+
+Students write the steering errors (MAE, MSE, RMSE) and PLM-Net's reduction, the discrete Frechet
+distance and arc-length resampling, drive the three runs of the paper's Table 3 and measure them.
+Every check calls the student's code first, so that a stub fails fast with "not implemented yet".
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from plm_highway.grading.checks import call_student, expect_close, expect_true, graded
+
+TABLE_3_LATENCY = "const:0.2"
+RUNS = ("reference", "baseline", "mitigated")
+LESSON_SPACING_M = 1.0  # the lesson resamples every 1 m so that a pure-Python Frechet stays quick
+
+
+def _random_curves(seed: int, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    t_p, t_q = np.sort(rng.uniform(0, 10, n)), np.sort(rng.uniform(0, 10, m))
+    return (np.column_stack([t_p, np.sin(t_p) + rng.normal(0, 0.1, n)]),
+            np.column_stack([t_q, np.sin(t_q) + 0.3 + rng.normal(0, 0.1, m)]))
+
+
+@graded(points=2)
+def check_steering_errors(steering_errors) -> None:
+    """MAE, MSE and RMSE of one steering series against another, over their common length."""
+    reference = np.array([0.0, 0.1, -0.2, 0.3])
+    other = np.array([0.1, 0.1, 0.0, -0.1])
+    result = call_student(steering_errors, reference, other, what="steering_errors(reference, other)")
+    expect_true(isinstance(result, dict) and {"mae", "mse", "rmse"} <= set(result),
+                f"steering_errors must return a dict with keys 'mae', 'mse', 'rmse', received {result!r}")
+    # differences 0.1, 0, 0.2, -0.4: MAE = 0.7 / 4, MSE = (0.01 + 0.04 + 0.16) / 4, RMSE = sqrt(MSE)
+    expect_close("MAE", 0.175, result["mae"], atol=1e-12, hint="mean of |other - reference|")
+    expect_close("MSE", 0.0525, result["mse"], atol=1e-12, hint="mean of (other - reference)^2")
+    expect_close("RMSE", np.sqrt(0.0525), result["rmse"], atol=1e-12, hint="square root of the MSE")
+    same = call_student(steering_errors, reference, reference, what="steering_errors(reference, reference)")
+    expect_close("MAE of a series against itself", 0.0, same["mae"], atol=0)
+    short = call_student(steering_errors, np.array([0.0, 0.1, 0.2, 0.3, 0.4]), np.array([0.5, 0.1, 0.2]),
+                         what="steering_errors with a shorter run")
+    expect_close("MAE when the other run is shorter (it left the road)", 0.5 / 3, short["mae"], atol=1e-12,
+                 hint="compare over the common length: the first min(len(reference), len(other)) steps")
+
+
+@graded(points=1)
+def check_reduction(reduction_pct) -> None:
+    """PLM-Net's error reduction against the baseline's, in %."""
+    cases = [((0.1915, 0.0726), 100 * (1 - 0.0726 / 0.1915), "the paper's Table 3 MAE: 62.1%"),
+             ((0.2, 0.2), 0.0, "equal errors"), ((0.1, 0.2), -100.0, "a mitigation that doubles the error"),
+             ((0.0, 0.0), 0.0, "a zero baseline error: define the reduction as 0")]
+    for (baseline, mitigated), expected, what in cases:
+        received = call_student(reduction_pct, baseline, mitigated, what="reduction_pct(baseline, mitigated)")
+        expect_close(f"reduction_pct({baseline}, {mitigated}) ({what})", expected, received, atol=1e-9,
+                     hint="100 * (1 - mitigated / baseline), and 0.0 when the baseline error is 0")
+
+
+@graded(points=3)
+def check_frechet(discrete_frechet) -> None:
+    """The discrete Frechet distance, by hand on small curves and against the kit's on random ones."""
+    from plm_highway.metrics import frechet_dist
+
+    line = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+    cases = [
+        (line, line, 0.0, "a curve against itself"),
+        (line, line + [0.0, 0.3], 0.3, "a copy 0.3 m to the side"),
+        (line, line[::-1], 2.0, "the same points in reverse order (the ends must be coupled)"),
+        (line[[0, 2]], np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 0.0]]), np.sqrt(2.0),
+         "a detour: (1, 1) is sqrt(2) from both ends of the other curve"),
+    ]
+    for p, q, expected, what in cases:
+        received = call_student(discrete_frechet, p, q, what="discrete_frechet(p, q)")
+        expect_close(f"Frechet distance for {what}", expected, received, atol=1e-12,
+                     hint="dynamic programming: ca[i, j] = max(d(p_i, q_j), min(ca[i-1, j], ca[i, j-1], ca[i-1, j-1]))")
+    for seed, (n, m) in enumerate([(7, 7), (12, 30), (40, 9)]):
+        p, q = _random_curves(seed, n, m)
+        received = call_student(discrete_frechet, p, q, what="discrete_frechet(p, q)")
+        expect_close(f"Frechet distance of random curves with {n} and {m} points", frechet_dist(p, q), received,
+                     atol=1e-9, hint="the first row and column can only be reached along the row / column")
+
+
+@graded(points=2)
+def check_resample(resample) -> None:
+    """Arc-length resampling: a point every ``spacing_m`` along the polyline, plus its end."""
+    from plm_highway.metrics import resample_by_arc_length
+
+    corner = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
+    expected = [[0.0, 0.0], [0.5, 0.0], [1.0, 0.0], [1.0, 0.5], [1.0, 1.0]]
+    expect_close("resample(corner, 0.5)", expected, call_student(resample, corner, 0.5, what="resample(xy, spacing_m)"),
+                 atol=1e-12, hint="walk along the polyline: the corner is 1 m from the start")
+    segment = np.array([[0.0, 0.0], [1.0, 0.0]])
+    expect_close("resample(a 1 m segment, 0.4)", [[0.0, 0.0], [0.4, 0.0], [0.8, 0.0], [1.0, 0.0]],
+                 call_student(resample, segment, 0.4, what="resample(xy, spacing_m)"), atol=1e-12,
+                 hint="keep the last point even when the last gap is shorter than the spacing")
+    repeated = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+    expect_close("resample with a repeated point", [[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]],
+                 call_student(resample, repeated, 1.0, what="resample(xy, spacing_m)"), atol=1e-12,
+                 hint="drop points that repeat the previous one before interpolating (np.interp needs increasing x)")
+    for seed in range(3):
+        xy, _ = _random_curves(seed, 25, 2)
+        spacing_m = (0.3, 0.7, 1.1)[seed]
+        expect_close(f"resample(random curve {seed}, {spacing_m})", resample_by_arc_length(xy, spacing_m),
+                     call_student(resample, xy, spacing_m, what="resample(xy, spacing_m)"), atol=1e-9,
+                     hint="np.interp of each coordinate against the cumulative arc length")
+
+
+@functools.lru_cache(maxsize=4)
+def kit_table_3_runs(max_steps: int | None, checkpoints: str | None, latency: str = TABLE_3_LATENCY) -> dict:
+    """The three runs of Table 3 driven by the kit (what a correct ``drive_table_3`` returns)."""
+    from plm_highway.evaluation.closed_loop import drive
+    from plm_highway.evaluation.policies import make_policy
+
+    return {
+        "reference": drive("reference", make_policy("bm", checkpoints), "test", "const:0", 0, max_steps=max_steps),
+        "baseline": drive("baseline", make_policy("bm", checkpoints), "test", latency, 0, max_steps=max_steps),
+        "mitigated": drive("mitigated", make_policy("plm", checkpoints), "test", latency, 0, max_steps=max_steps),
+    }
+
+
+@graded(points=3)
+def check_table_3(drive_table_3, steering_errors, reduction_pct, max_steps=None, checkpoints=None) -> dict:
+    """The student's three runs are the paper's (BM without latency, BM and PLM-Net with 0.2 s, one
+    seed) and their Table 3 numbers equal the kit's. Returns the student's runs."""
+    from plm_highway.evaluation.steering import steering_comparison
+
+    logs = call_student(drive_table_3, TABLE_3_LATENCY, max_steps=max_steps, checkpoints=checkpoints,
+                        what="drive_table_3(latency, max_steps, checkpoints)")
+    expect_true(isinstance(logs, dict) and set(logs) == set(RUNS),
+                f"drive_table_3 must return {{'reference': ..., 'baseline': ..., 'mitigated': ...}}, received "
+                f"{sorted(logs) if isinstance(logs, dict) else type(logs).__name__}")
+    expected = kit_table_3_runs(max_steps, None if checkpoints is None else str(checkpoints))
+    hints = {"reference": "the Base Model ('bm') with latency 'const:0'",
+             "baseline": f"the Base Model ('bm') with latency {TABLE_3_LATENCY!r}",
+             "mitigated": f"PLM-Net ('plm') with latency {TABLE_3_LATENCY!r}"}
+    for name in RUNS:
+        theirs, ours = logs[name].columns["steering"], expected[name].columns["steering"]
+        expect_true(len(theirs) == len(ours) and np.allclose(theirs, ours, atol=1e-6),
+                    f"the {name!r} run's steering differs from the expected run", hint=f"{hints[name]}, seed 0, "
+                    "track 'test', the same max_steps for every run")
+    kit = steering_comparison(logs)
+    reference = logs["reference"].columns["steering"]
+    for run in ("baseline", "mitigated"):
+        errors = call_student(steering_errors, reference, logs[run].columns["steering"], what="steering_errors")
+        for metric in ("mae", "mse", "rmse"):
+            expect_close(f"{metric.upper()} of the {run} run", kit[run][metric], errors[metric], atol=1e-9)
+    received = call_student(reduction_pct, kit["baseline"]["mae"], kit["mitigated"]["mae"], what="reduction_pct")
+    expect_close("MAE reduction", kit["mae_reduction_pct"], received, atol=1e-9)
+    return logs
+
+
+@graded(points=2)
+def check_trajectory_frechet(discrete_frechet, resample, max_steps=None, checkpoints=None) -> dict:
+    """Each Table 3 run's Frechet distance to the lane centre, both curves resampled every 1 m,
+    equals the kit's. Returns {run: Frechet distance in m}."""
+    from plm_highway.evaluation.trajectory import LaneCentre
+    from plm_highway.metrics import frechet_dist, resample_by_arc_length
+    from plm_highway.road.track import load_track
+
+    call_student(resample, np.array([[0.0, 0.0], [1.0, 0.0]]), 0.5, what="resample(xy, spacing_m)")
+    call_student(discrete_frechet, np.zeros((2, 2)), np.ones((2, 2)), what="discrete_frechet(p, q)")
+    logs = kit_table_3_runs(max_steps, None if checkpoints is None else str(checkpoints))
+    centre = LaneCentre(load_track("test"))
+    values = {}
+    for name in RUNS:
+        c = logs[name].columns
+        path = np.column_stack([c["x_m"], c["y_m"]])
+        lane = centre.between(float(c["arc_length_m"].min()), float(c["arc_length_m"].max()))
+        expected = frechet_dist(resample_by_arc_length(lane, LESSON_SPACING_M),
+                                resample_by_arc_length(path, LESSON_SPACING_M))
+        received = call_student(discrete_frechet, call_student(resample, lane, LESSON_SPACING_M, what="resample"),
+                                call_student(resample, path, LESSON_SPACING_M, what="resample"),
+                                what="discrete_frechet")
+        expect_close(f"Frechet distance of the {name!r} run to the lane centre [m]", expected, received, atol=1e-9,
+                     hint="resample the lane centre and the path with the same spacing, lane centre first")
+        values[name] = float(received)
+    return values

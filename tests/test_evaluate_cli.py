@@ -1,0 +1,160 @@
+"""``plm-highway evaluate``: the JSON (runs, steering, trajectory), the CSV logs, and bad input."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from tiny_models import tiny_checkpoints
+
+from plm_highway import cli
+from plm_highway.evaluation import cli as evaluate_cli
+from plm_highway.evaluation.closed_loop import LOG_COLUMNS, RunLog
+from plm_highway.evaluation.trajectory import METRICS, PARTS, RESAMPLE_SPACING_M
+
+RUN_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_m", "lateral_offset_m", "segment")
+
+
+@pytest.fixture(scope="session")
+def checkpoints(tmp_path_factory):
+    return tiny_checkpoints(tmp_path_factory)
+
+
+def read_csv(path) -> list[dict]:
+    with open(path, newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+@pytest.mark.slow
+def test_plm_evaluation_writes_json_with_trajectory_and_csv_logs(checkpoints, tmp_path, capsys):
+    out = tmp_path / "eval" / "result.json"
+    code = cli.main(["evaluate", "--policy", "plm", "--latency", "const:0.2", "--max-steps", "180",
+                     "--checkpoints", str(checkpoints), "--json", str(out)])
+    assert code == 0
+    result = json.loads(out.read_text())
+    assert json.loads(capsys.readouterr().out) == result
+    assert result["latency"] == "const:0.2" and result["policy"] == "plm"
+    runs = ("reference", "baseline", "mitigated")
+    assert list(result["runs"]) == list(runs)
+    for run in runs:
+        assert result["runs"][run]["steps"] <= 180
+    steering = result["steering"]
+    for key in ("mae_reduction_pct", "mse_reduction_pct", "rmse_reduction_pct"):
+        assert isinstance(steering[key], float)
+    assert steering["baseline"]["mae"] > 0  # the same BM, fed 0.2 s old frames, steers differently
+    # trajectory: {part: {run: {metric: value}}}
+    trajectory = result["trajectory"]
+    assert list(trajectory) == list(PARTS)
+    for part in PARTS:
+        assert list(trajectory[part]) == list(runs)
+        for run in runs:
+            assert list(trajectory[part][run]) == list(METRICS)
+    for run in runs:
+        assert trajectory["full"][run]["frechet_dist"] >= 0
+        assert trajectory["right"][run]["frechet_dist"] is None  # 180 steps (150 m) never reach a right turn
+    assert trajectory["straight"]["reference"]["pcm"] is None  # the first straight heads east: PCM undefined
+    assert result["trajectory_method"]["resample_spacing_m"] == RESAMPLE_SPACING_M
+    # one CSV per run with every logged column, and the runs side by side
+    for run in runs:
+        rows = read_csv(out.with_name(f"result_{run}.csv"))
+        assert tuple(rows[0]) == LOG_COLUMNS and set(RUN_COLUMNS) <= set(rows[0])
+        assert len(rows) == result["runs"][run]["steps"]
+        assert float(rows[0]["t_s"]) == 0.0 and rows[0]["segment"] == "straight"
+    combined = read_csv(out.with_name("result_steps.csv"))
+    for run in runs:
+        for column in RUN_COLUMNS[1:]:
+            assert f"{run}_{column}" in combined[0]
+    assert {row["baseline_latency_s"] for row in combined} == {"0.2"}
+    mitigated_log = read_csv(out.with_name("result_mitigated.csv"))
+    assert [row["steering"] for row in mitigated_log] == [row["mitigated_steering"] for row in combined][:len(mitigated_log)]
+
+
+def test_expert_evaluation_has_trajectory_for_both_runs(tmp_path):
+    result, _ = evaluate_cli.evaluate("test", "const:0.25", "expert", max_steps=60)
+    assert set(result["trajectory"]["full"]) == {"reference", "baseline"}
+    assert "steering" not in result
+    # the expert starts centred and drives straight: both stay within centimetres of the lane centre
+    assert result["trajectory"]["full"]["reference"]["frechet_dist"] < 0.05
+
+
+def _bad_track(tmp_path):
+    path = tmp_path / "bad_track.json"
+    path.write_text(json.dumps({"name": "bad", "segments": [{"type": "straight", "length_m": 100},
+                                                            {"type": "arc", "radius_m": 3, "angle_deg": 90,
+                                                             "direction": "left"}]}))
+    return path
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--latency", "const:abc"], "'const:abc'"),
+    (["--latency", "wobble:0.2"], "expected one of"),
+    (["--latency", "const:2"], "beyond the buffer"),
+    (["--checkpoints", "{tmp}/no_such_dir"], "no such directory"),
+    (["--track", "{bad_track}"], "segment 1: field 'radius_m'"),
+    (["--track", "{tmp}/missing.json"], "neither a shipped track"),
+    (["--max-steps", "0"], "--max-steps 0"),
+])
+def test_bad_input_exits_2_and_writes_nothing(tmp_path, capsys, arguments, message):
+    bad_track = _bad_track(tmp_path)
+    out_dir = tmp_path / "out"
+    arguments = [a.format(tmp=tmp_path, bad_track=bad_track) for a in arguments]
+    code = cli.main(["evaluate", "--policy", "plm", *arguments, "--json", str(out_dir / "r.json")])
+    assert code == 2
+    assert message in capsys.readouterr().err
+    assert not out_dir.exists()
+
+
+def test_checkpoint_dir_without_checkpoints_is_bad_input(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    assert cli.main(["evaluate", "--checkpoints", str(tmp_path / "empty"), "--json", str(tmp_path / "r.json")]) == 2
+    assert "expected bm/model.pt and tapm/model.pt" in capsys.readouterr().err
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_a_run_with_nan_positions_fails_cleanly_without_partial_output(tmp_path, capsys, monkeypatch):
+    real_drive = evaluate_cli.drive
+
+    def drive_with_nan(name, *args, **kwargs):
+        log = real_drive(name, *args, **kwargs)
+        if name == "baseline":
+            columns = dict(log.columns)
+            columns["x_m"] = columns["x_m"].copy()
+            columns["x_m"][5] = np.nan
+            log = RunLog(log.name, columns, log.left_road, log.completed_fraction, log.extras)
+        return log
+
+    monkeypatch.setattr(evaluate_cli, "drive", drive_with_nan)
+    out = tmp_path / "out" / "r.json"
+    assert cli.main(["evaluate", "--policy", "expert", "--max-steps", "40", "--json", str(out)]) == 2
+    assert "path_xy: 1 NaN value at row [5]" in capsys.readouterr().err
+    assert not out.parent.exists()
+
+
+def test_the_installed_command_exits_2_on_a_bad_latency(tmp_path):
+    completed = subprocess.run([sys.executable, "-m", "plm_highway", "evaluate", "--latency", "const:-1",
+                                "--json", str(tmp_path / "r.json")], check=False, capture_output=True, text=True,
+                               timeout=300)
+    assert completed.returncode == 2
+    assert "const:-1" in completed.stderr and "Traceback" not in completed.stderr
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_any_track_file_works_and_a_closed_track_is_driven_for_one_lap(tmp_path):
+    ring = tmp_path / "ring.json"
+    ring.write_text(json.dumps({"name": "ring", "closed": True, "segments": [
+        {"type": "straight", "length_m": 30}, {"type": "arc", "radius_m": 30, "angle_deg": 180, "direction": "left"},
+        {"type": "straight", "length_m": 30}, {"type": "arc", "radius_m": 30, "angle_deg": 180, "direction": "left"}]}))
+    out = tmp_path / "ring_result.json"
+    assert cli.main(["evaluate", "--track", str(ring), "--policy", "expert", "--latency", "const:0.1",
+                     "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    lap_m = 2 * 30 + 2 * np.pi * 30
+    assert result["track"] == str(ring)
+    assert result["runs"]["reference"]["steps"] == int(np.ceil(lap_m / 16.7 * 20)) + 1  # one lap, then stop
+    assert result["trajectory_method"]["parts"]["left"]["segments"] == [1, 3]
+    assert result["trajectory"]["right"]["reference"]["frechet_dist"] is None  # no right turn on this track
+    assert 0 < result["trajectory"]["full"]["baseline"]["frechet_dist"] < 1.0

@@ -1,0 +1,187 @@
+"""``plm-highway reproduce``: the paper's numbers as transcribed, the report and figures, bad input."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+from tiny_models import tiny_checkpoints
+
+from plm_highway import cli
+from plm_highway.evaluation import paper_results as paper
+from plm_highway.evaluation import reproduce
+from plm_highway.evaluation.steering import reduction_pct
+
+TABLE_NAMES = ["Table 3", "Table 4", "Table 5", "Table 6", "Table A1", "Table A2", "Table A3", "Table A4",
+               "Table A5", "Table A6"]
+
+
+@pytest.fixture(scope="session")
+def checkpoints(tmp_path_factory):
+    return tiny_checkpoints(tmp_path_factory)
+
+
+# ---------------------------------------------------------------------------------------------
+# the transcription, spot-checked by hand against the paper's text
+# ---------------------------------------------------------------------------------------------
+
+
+def test_steering_tables_as_printed():
+    assert paper.steering("const:0.2", "baseline") == {"mae": 0.1915, "mse": 0.0716, "rmse": 0.2676}  # Table 3
+    assert paper.steering("const:0.2", "mitigated") == {"mae": 0.0726, "mse": 0.0125, "rmse": 0.1119}
+    assert paper.steering("steps:0.0-0.35:1.0", "baseline")["mae"] == 0.3336  # Table 5
+    assert paper.steering("const:0.15", "mitigated") == {"mae": 0.053122, "mse": 0.00691402, "rmse": 0.0831506}  # A1
+    assert paper.steering("const:0.25", "baseline")["mse"] == 0.18581  # A3: "0.3347270.185810.431057"
+    assert paper.steering("const:0.3", "mitigated")["rmse"] == 0.10375  # A5: "0.07106740.01076410.10375"
+
+
+def test_trajectory_rows_as_split_by_hand():
+    # "1.192.1764658.150.3491253.210.034", the reference row of every table
+    reference = (1.19, 2.176, 4658.15, 0.349, 1253.21, 0.034)
+    for setting in paper.SETTINGS.values():
+        assert setting["trajectory"]["full"]["reference"] == reference
+    # "0.6741.571.8160.0581.8850.01" (Table 4, left turn, PLM-Net)
+    assert paper.SETTINGS["const:0.2"]["trajectory"]["left"]["mitigated"] == (0.674, 1.5, 71.816, 0.05, 81.885, 0.01)
+    # "0.7463.971285.6410.08169.8750.113" (Table A2, right turn, BM with latency)
+    assert paper.SETTINGS["const:0.15"]["trajectory"]["right"]["baseline"] == (0.746, 3.971, 285.641, 0.08, 169.875,
+                                                                                 0.113)
+    # "8.07718.91725,958.22.097459.150.36" (Table A4, full track, BM with latency)
+    assert paper.SETTINGS["const:0.25"]["trajectory"]["full"]["baseline"] == (8.077, 18.917, 25958.2, 2.09, 7459.15,
+                                                                                0.36)
+    # "1.2359.11321.130.2545.0150.482" (Table A6, right turn, BM with latency)
+    assert paper.SETTINGS["const:0.3"]["trajectory"]["right"]["baseline"] == (1.235, 9.1, 1321.13, 0.2, 545.015, 0.482)
+    # "21.4281.31912.0970.03249.840.014" (Table 6, straight, PLM-Net)
+    assert paper.trajectory("steps:0.0-0.35:1.0", "straight", "mitigated") == dict(
+        zip(paper.TRAJECTORY_METRICS, (21.428, 1.319, 12.097, 0.032, 49.84, 0.014)))
+    assert paper.trajectory("const:0.1", "full", "baseline") is None
+
+
+def test_transcription_agrees_with_the_percentages_stated_in_the_text():
+    for setting, target in paper.TARGETS["mae_reduction_pct"].items():
+        base, mit = paper.steering(setting, "baseline"), paper.steering(setting, "mitigated")
+        assert round(reduction_pct(base["mae"], mit["mae"]), 1) == target, setting
+    for setting in ("const:0.2", "steps:0.0-0.35:1.0"):
+        stated = paper.SETTINGS[setting]["stated_in_text"]
+        base, mit = paper.steering(setting, "baseline"), paper.steering(setting, "mitigated")
+        for metric in ("mse", "rmse"):
+            assert round(reduction_pct(base[metric], mit[metric]), 1) == stated[f"{metric}_reduction_pct"]
+        full = paper.SETTINGS[setting]["trajectory"]["full"]
+        for run in ("baseline", "mitigated"):  # "PCM ... increased by 238.7%", etc.
+            increase = 100 * (full[run][0] / full["reference"][0] - 1)
+            assert round(increase, 1) == stated["full_pcm_increase_pct"][run]
+    frechet = paper.SETTINGS["steps:0.0-0.35:1.0"]["trajectory"]["full"]
+    assert round(100 * (frechet["baseline"][1] / frechet["reference"][1] - 1), 1) == 254.9
+    assert round(100 * (frechet["mitigated"][1] / frechet["reference"][1] - 1), 1) == 66.2
+
+
+def test_settings_labels_and_tags():
+    assert reproduce.split_settings(["const:0.2,steps:0.0-0.35:1.0", "const:0.2"]) == ["const:0.2", "steps:0.0-0.35:1.0"]
+    assert reproduce.paper_key("const:0.20") == "const:0.2" and reproduce.paper_key("const:0.1") is None
+    assert reproduce.setting_tag("const:0.2") == "0.20s" and reproduce.setting_tag("steps:0.0-0.35:1.0") == "time_varying"
+    assert reproduce.setting_label("const:0.1") == "0.10 s"
+
+
+# ---------------------------------------------------------------------------------------------
+# the whole command, on a short horizon with tiny models
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_reproduce_writes_report_tables_and_figures(checkpoints, tmp_path, capsys):
+    out = tmp_path / "figures" / "reproduce"
+    code = cli.main(["reproduce", "--out", str(out), "--checkpoints", str(checkpoints), "--max-steps", "40",
+                     "--sweep", "--sweep-max", "0.1", "--sweep-step", "0.1"])
+    assert code == 0
+    printed = capsys.readouterr()
+    assert "report:" in printed.out and "reproduce" in printed.err  # the tqdm bar
+    report = (out / "report.md").read_text()
+    for name in TABLE_NAMES:
+        assert f"### {name}:" in report, name
+    for heading in ("## Targets", "## Generalisation", "### The `unseen` track", "## Beyond the paper", "## Methods"):
+        assert heading in report
+    assert report.count("| **met** |") + report.count("| **missed** |") == 2 * 2 * 5  # 2 targets x 5 settings x 2 tracks
+    assert "Figure 9: steering over time" in report and "Figure 14: trajectories against the lane centre" in report
+    for tag in ("0.15s", "0.20s", "0.25s", "0.30s", "time_varying"):
+        for kind in ("steering", "trajectories", "comparison"):
+            assert (out / f"{tag}_{kind}.png").stat().st_size > 10_000
+            assert f"]({tag}_{kind}.png)" in report
+    for kind in ("steering", "trajectories", "comparison"):
+        assert (out / f"unseen_time_varying_{kind}.png").is_file()
+    assert (out / "sweep.png").is_file()
+    results = json.loads((out / "results.json").read_text())
+    assert list(results["settings"]) == list(reproduce.DEFAULT_SETTINGS)
+    assert list(results["generalisation"]) == ["unseen"]
+    assert {row["policy"] for row in results["sweep"]["rows"]} == {"bm", "plm", "plm_bias-0.05", "plm_bias+0.05"}
+    # the reference is one run, shared by every setting
+    steps = {r["runs"]["reference"]["steps"] for r in results["settings"].values()}
+    assert steps == {40}
+    with open(out / "steering_tables.csv", newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    table3 = {(r["run"], r["metric"]): r for r in rows if r["track"] == "test" and r["setting"] == "const:0.2"}
+    assert table3[("baseline", "mae")]["paper"] == "0.1915" and table3[("mitigated", "mae")]["paper"] == "0.0726"
+    assert float(table3[("reduction_pct", "mae")]["paper"]) == pytest.approx(62.1, abs=0.05)
+    ours = results["settings"]["const:0.2"]["steering"]
+    assert float(table3[("reduction_pct", "mae")]["ours"]) == pytest.approx(ours["mae_reduction_pct"], rel=1e-5)
+    with open(out / "trajectory_tables.csv", newline="") as handle:
+        trajectory_rows = list(csv.DictReader(handle))
+    assert len([r for r in trajectory_rows if r["track"] == "test"]) == 5 * 4 * 4 * 6  # settings x parts x rows x metrics
+    assert list(tmp_path.joinpath("figures").iterdir()) == [out]  # no temporary directory left behind
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--settings", "const:0.2", "const:zero"], "'const:zero'"),
+    (["--checkpoints", "{tmp}/nowhere"], "no such directory"),
+    (["--track", "{bad_track}"], "field 'lanes'"),
+    (["--generalise", "{tmp}/missing.json"], "neither a shipped track"),
+    (["--max-steps", "-3"], "--max-steps -3"),
+    (["--sweep", "--sweep-step", "0"], "sweep: step"),
+])
+def test_bad_input_exits_2_before_any_run(tmp_path, capsys, arguments, message, monkeypatch):
+    bad_track = tmp_path / "bad.json"
+    bad_track.write_text(json.dumps({"name": "bad", "lanes": 9, "segments": [{"type": "straight", "length_m": 50}]}))
+    monkeypatch.setattr(reproduce, "drive", _no_drive)
+    out = tmp_path / "out"
+    arguments = [a.format(tmp=tmp_path, bad_track=bad_track) for a in arguments]
+    assert cli.main(["reproduce", "--out", str(out), *arguments]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def _no_drive(*args, **kwargs):
+    raise AssertionError("bad input must be refused before any run starts")
+
+
+def test_a_failing_run_leaves_previous_outputs_untouched(checkpoints, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "report.md").write_text("previous report\n")
+    real_drive = reproduce.drive
+    calls = []
+
+    def failing_drive(name, *args, **kwargs):
+        calls.append(name)
+        if len(calls) == 3:
+            raise ValueError("latency spec 'const:0.2': simulated failure in the third run")
+        return real_drive(name, *args, **kwargs)
+
+    monkeypatch.setattr(reproduce, "drive", failing_drive)
+    code = cli.main(["reproduce", "--out", str(out), "--checkpoints", str(checkpoints), "--max-steps", "20",
+                     "--settings", "const:0.2", "--generalise", "--no-progress"])
+    assert code == 2
+    assert "simulated failure" in capsys.readouterr().err
+    assert [p.name for p in tmp_path.iterdir()] == ["out"] and [p.name for p in out.iterdir()] == ["report.md"]
+    assert (out / "report.md").read_text() == "previous report\n"
+
+
+@pytest.mark.slow
+def test_reproduce_on_the_unseen_track(checkpoints, tmp_path):
+    out = tmp_path / "unseen"
+    assert cli.main(["reproduce", "--track", "unseen", "--out", str(out), "--checkpoints", str(checkpoints),
+                     "--max-steps", "30", "--settings", "const:0.2", "--no-progress"]) == 0
+    report = (out / "report.md").read_text()
+    assert report.startswith("# Reproducing PLM-Net on the `unseen` track")
+    assert "on the `unseen` track they are shown for orientation only" in report
+    assert "## Generalisation" not in report  # no extra tracks unless asked for
+    assert "### Table 3:" in report and (out / "0.20s_comparison.png").is_file()
+    assert reproduce.output_dir(None, "unseen", "unseen") == reproduce.DEFAULT_OUT / "unseen"
