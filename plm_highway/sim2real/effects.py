@@ -33,6 +33,8 @@ the yaw rate linearly: exactly for the tire model, to first order for the kinema
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numba
@@ -128,7 +130,7 @@ def _delayed(steer, delay_samples, out):
         if s <= 0.0:
             out[k] = steer[0]
             continue
-        i = int(math.floor(s))
+        i = math.floor(s)
         f = s - i
         p0 = steer[max(i - 1, 0)]
         p1 = steer[i]
@@ -153,16 +155,21 @@ def _lagged(u, dt, tau, out):
 
 
 @numba.njit(cache=True)
-def _kinematic_response(delta, speed, a_m, b_m, r_out, slip_out, drdd_out):
-    """Yaw rate, slip and d(yaw rate)/d(delta) of the kinematic bicycle (the simulator)."""
+def _kinematic_response(delta, speed, a_m, b_m, r_out, slip_out, drdd_out, with_slip):
+    """Yaw rate, slip and d(yaw rate)/d(delta) of the kinematic bicycle (the simulator).
+
+    ``r = v sin(beta) / lr`` with ``tan(beta) = lr/L tan(delta)``, written with one tangent and
+    one square root (sin and cos of an arctangent are algebraic); the slip itself only on demand.
+    """
     ratio = b_m / (a_m + b_m)
     for k in range(delta.shape[0]):
         t = math.tan(delta[k])
-        beta = math.atan(ratio * t)
-        slip_out[k] = beta
-        r_out[k] = speed[k] * math.sin(beta) / b_m
-        dbeta = ratio * (1.0 + t * t) / (1.0 + ratio * ratio * t * t)
-        drdd_out[k] = speed[k] * math.cos(beta) * dbeta / b_m
+        ct = ratio * t
+        inv_norm = 1.0 / math.sqrt(1.0 + ct * ct)  # cos(beta)
+        r_out[k] = speed[k] * ct * inv_norm / b_m
+        if with_slip:
+            slip_out[k] = math.atan(ct)
+        drdd_out[k] = speed[k] * inv_norm * ratio * (1.0 + t * t) * inv_norm * inv_norm / b_m
 
 
 @numba.njit(cache=True)
@@ -181,19 +188,21 @@ def tire_maps(speed, dt, cf, cr, a_m, b_m, k2):
 
 
 @numba.njit(cache=True)
-def _run_tire_maps(maps, start, delta, speed, r_out, slip_out):
-    """Yaw rate and slip of the tire model driven by ``delta`` through precomputed maps."""
+def _run_tire_maps(maps, start, delta, speed, r_out, slip_out, with_slip):
+    """Yaw rate (and slip) of the tire model driven by ``delta`` through precomputed maps."""
     n = delta.shape[0]
     vy = start[0] * delta[0]
     r = start[1] * delta[0]
     r_out[0] = r
-    slip_out[0] = math.atan2(vy, max(speed[0], TIRE_MIN_SPEED_MPS))
+    if with_slip:
+        slip_out[0] = math.atan2(vy, max(speed[0], TIRE_MIN_SPEED_MPS))
     for k in range(n - 1):
         m = maps[k]
         vy, r = (m[0] * vy + m[1] * r + m[4] * delta[k] + m[6] * delta[k + 1],
                  m[2] * vy + m[3] * r + m[5] * delta[k] + m[7] * delta[k + 1])
         r_out[k + 1] = r
-        slip_out[k + 1] = math.atan2(vy, max(speed[k + 1], TIRE_MIN_SPEED_MPS))
+        if with_slip:
+            slip_out[k + 1] = math.atan2(vy, max(speed[k + 1], TIRE_MIN_SPEED_MPS))
 
 
 @numba.njit(cache=True)
@@ -214,8 +223,11 @@ def fir_filter(x, taps, lo, out):
 
 
 @numba.njit(cache=True)
-def simulate_yaw_rate(steer, speed, dt, delay_s, tau_s, gain, offset_rad, cf, cr, a_m, b_m, k2):
-    """Yaw rate [rad/s] and slip angle [rad] at each sample for one parameter set (cf = 0: kinematic)."""
+def simulate_yaw_rate(steer, speed, dt, delay_s, tau_s, gain, offset_rad, cf, cr, a_m, b_m, k2, with_slip=True):
+    """Yaw rate [rad/s] and slip angle [rad] at each sample for one parameter set (cf = 0: kinematic).
+
+    Without ``with_slip`` the slip array is left uninitialised (fits only need the yaw rate).
+    """
     n = steer.shape[0]
     calibrated = gain * steer + offset_rad
     delayed = np.empty(n)
@@ -226,49 +238,36 @@ def simulate_yaw_rate(steer, speed, dt, delay_s, tau_s, gain, offset_rad, cf, cr
     slip = np.empty(n)
     if cf > 0.0:
         maps, start = tire_maps(speed, dt, cf, cr, a_m, b_m, k2)
-        _run_tire_maps(maps, start, delta, speed, r, slip)
+        _run_tire_maps(maps, start, delta, speed, r, slip, with_slip)
     else:
         drdd = np.empty(n)
-        _kinematic_response(delta, speed, a_m, b_m, r, slip, drdd)
+        _kinematic_response(delta, speed, a_m, b_m, r, slip, drdd, with_slip)
     return r, slip
 
 
-@numba.njit(cache=True, parallel=True)
-def tire_tables(speed, dt, cfs, crs, a_m, b_m, k2, taps, lo):
-    """Maps, settled starts and filtered unit-steering responses for a set of tire candidates."""
+@numba.njit(cache=True, nogil=True)
+def _tire_tables_into(speed, dt, cfs, crs, a_m, b_m, k2, taps, lo, first, last, maps_all, start_all, unit_all):
+    """Rows ``first:last`` of the tire tables (see :func:`tire_tables`); releases the GIL."""
     n = speed.shape[0]
-    n_tire = cfs.shape[0]
-    maps_all = np.empty((n_tire, n - 1, 8))
-    start_all = np.empty((n_tire, 2))
-    unit_all = np.empty((n_tire, n))
     ones = np.ones(n)
-    for i in numba.prange(n_tire):
+    for i in range(first, last):
         maps, start = tire_maps(speed, dt, cfs[i], crs[i], a_m, b_m, k2)
         maps_all[i] = maps
         start_all[i] = start
         r = np.empty(n)
         slip = np.empty(n)
-        _run_tire_maps(maps, start, ones, speed, r, slip)
+        _run_tire_maps(maps, start, ones, speed, r, slip, False)
         out = np.empty(n)
         fir_filter(r, taps, lo, out)
         unit_all[i] = out
-    return maps_all, start_all, unit_all
 
 
-@numba.njit(cache=True, parallel=True)
-def candidate_statistics(steer, speed, dt, delays_s, taus_s, tire_index, maps_all, start_all, unit_all,
-                         a_m, b_m, taps, lo, y, weight):
-    """For each candidate b: weighted sums [e.e, e.pa, e.pb, pa.pa, pa.pb, pb.pb].
-
-    ``e`` is the measured signal minus the model's (gain 1, offset 0), ``pa`` and ``pb`` its
-    sensitivities to the gain (minus one) and to the offset; all after the output filter ``taps``.
-    The best gain/offset of a candidate then follow from a 2x2 solve. ``tire_index[b]`` < 0 means
-    the kinematic bicycle, otherwise a row of the tables from :func:`tire_tables`.
-    """
+@numba.njit(cache=True, nogil=True)
+def _candidate_statistics_into(steer, speed, dt, delays_s, taus_s, tire_index, maps_all, start_all, unit_all,
+                               a_m, b_m, taps, lo, y, weight, first, last, stats):
+    """Rows ``first:last`` of :func:`candidate_statistics`; releases the GIL."""
     n = steer.shape[0]
-    n_cand = delays_s.shape[0]
-    stats = np.zeros((n_cand, 6))
-    for b in numba.prange(n_cand):
+    for b in range(first, last):
         delayed = np.empty(n)
         _delayed(steer, delays_s[b] / dt, delayed)
         delta = np.empty(n)
@@ -279,9 +278,9 @@ def candidate_statistics(steer, speed, dt, delays_s, taus_s, tire_index, maps_al
         pb = np.empty(n)
         ti = tire_index[b]
         if ti >= 0:
-            _run_tire_maps(maps_all[ti], start_all[ti], delta, speed, r, slip)
+            _run_tire_maps(maps_all[ti], start_all[ti], delta, speed, r, slip, False)
         else:
-            _kinematic_response(delta, speed, a_m, b_m, r, slip, pb)
+            _kinematic_response(delta, speed, a_m, b_m, r, slip, pb, False)
             for k in range(n):
                 pa[k] = delta[k] * pb[k]
         rf = np.empty(n)
@@ -294,29 +293,76 @@ def candidate_statistics(steer, speed, dt, delays_s, taus_s, tire_index, maps_al
             pbf = np.empty(n)
             fir_filter(pa, taps, lo, paf)
             fir_filter(pb, taps, lo, pbf)
-        s0 = 0.0
-        s1 = 0.0
-        s2 = 0.0
-        s3 = 0.0
-        s4 = 0.0
-        s5 = 0.0
-        for k in range(n):
-            w = weight[k]
-            if w == 0.0:
-                continue
-            e = y[k] - rf[k]
-            s0 += w * e * e
-            s1 += w * e * paf[k]
-            s2 += w * e * pbf[k]
-            s3 += w * paf[k] * paf[k]
-            s4 += w * paf[k] * pbf[k]
-            s5 += w * pbf[k] * pbf[k]
-        stats[b, 0] = s0
-        stats[b, 1] = s1
-        stats[b, 2] = s2
-        stats[b, 3] = s3
-        stats[b, 4] = s4
-        stats[b, 5] = s5
+        # One pass of the simulation serves every fold: a weight row per fold.
+        for f in range(weight.shape[0]):
+            s0 = 0.0
+            s1 = 0.0
+            s2 = 0.0
+            s3 = 0.0
+            s4 = 0.0
+            s5 = 0.0
+            for k in range(n):
+                w = weight[f, k]
+                if w == 0.0:
+                    continue
+                e = y[k] - rf[k]
+                s0 += w * e * e
+                s1 += w * e * paf[k]
+                s2 += w * e * pbf[k]
+                s3 += w * paf[k] * paf[k]
+                s4 += w * paf[k] * pbf[k]
+                s5 += w * pbf[k] * pbf[k]
+            stats[b, f, 0] = s0
+            stats[b, f, 1] = s1
+            stats[b, f, 2] = s2
+            stats[b, f, 3] = s3
+            stats[b, f, 4] = s4
+            stats[b, f, 5] = s5
+
+
+def _in_threads(fn, n_items: int, *args) -> None:
+    """Run ``fn(*args, first, last, ...)`` over chunks of ``range(n_items)`` on all cores.
+
+    The kernels release the GIL, so threads run them in parallel without numba's parallel
+    compilation (which costs tens of seconds on a cold cache).
+    """
+    n_threads = max(1, min(os.cpu_count() or 1, n_items))
+    bounds = np.linspace(0, n_items, n_threads + 1).astype(int)
+    if n_threads == 1:
+        fn(*args[0], 0, n_items, *args[1])
+        return
+    with ThreadPoolExecutor(n_threads) as pool:
+        futures = [pool.submit(fn, *args[0], int(bounds[i]), int(bounds[i + 1]), *args[1]) for i in range(n_threads)]
+        for f in futures:
+            f.result()
+
+
+def tire_tables(speed, dt, cfs, crs, a_m, b_m, k2, taps, lo):
+    """Maps, settled starts and filtered unit-steering responses for a set of tire candidates."""
+    n = speed.shape[0]
+    n_tire = cfs.shape[0]
+    maps_all = np.empty((n_tire, n - 1, 8))
+    start_all = np.empty((n_tire, 2))
+    unit_all = np.empty((n_tire, n))
+    _in_threads(_tire_tables_into, n_tire, (speed, dt, cfs, crs, a_m, b_m, k2, taps, lo),
+                (maps_all, start_all, unit_all))
+    return maps_all, start_all, unit_all
+
+
+def candidate_statistics(steer, speed, dt, delays_s, taus_s, tire_index, maps_all, start_all, unit_all,
+                         a_m, b_m, taps, lo, y, weight):
+    """For each candidate b and weight row f: sums [e.e, e.pa, e.pb, pa.pa, pa.pb, pb.pb] (shape B, F, 6).
+
+    ``e`` is the measured signal minus the model's (gain 1, offset 0), ``pa`` and ``pb`` its
+    sensitivities to the gain (minus one) and to the offset; all after the output filter ``taps``.
+    The best gain/offset of a candidate then follow from a 2x2 solve. ``tire_index[b]`` < 0 means
+    the kinematic bicycle, otherwise a row of the tables from :func:`tire_tables`. ``weight`` has a
+    row per fold (train mask as 0/1), so one simulation serves all folds.
+    """
+    stats = np.zeros((delays_s.shape[0], weight.shape[0], 6))
+    _in_threads(_candidate_statistics_into, delays_s.shape[0],
+                (steer, speed, dt, delays_s, taus_s, tire_index, maps_all, start_all, unit_all, a_m, b_m, taps, lo,
+                 y, weight), (stats,))
     return stats
 
 

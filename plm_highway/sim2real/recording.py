@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plm_highway.sim2real.atomic import atomic_output, write_text_atomic
+from plm_highway.data.atomic import atomic_path, write_text_atomic
 from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE, KinematicBicycleParams
 
 REQUIRED_COLUMNS = ("t", "steer", "speed", "x", "y", "heading")
@@ -52,6 +52,11 @@ STEER_DEGREES_SUSTAINED_S = 0.5
 JITTER_TOLERANCE = 0.05
 # Gaps longer than this many intervals are interpolated but left out of every fit and score.
 GAP_INTERVALS = 5.0
+# A heading step this far from the yaw rate's integral (or, without a yaw rate, implying a yaw rate
+# no car makes) is a localisation glitch; samples this close to one are not scored.
+HEADING_JUMP_RAD = 0.2
+MAX_PLAUSIBLE_YAW_RATE_RADPS = 3.0
+JUMP_EXCLUDE_S = 1.0
 # Below this speed the slip models are singular and the kinematics trivial: not scored.
 MIN_SCORED_SPEED_MPS = 2.0
 
@@ -190,6 +195,7 @@ def read_sidecar(path: Path) -> tuple[VehicleGeometry, list[str]]:
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(data, dict):
+        # Bad input, not a programming error: ValueError is what the CLI reports as "error: ..." (exit 2).
         raise ValueError(f"{path}: expected a JSON object with keys {', '.join(SIDECAR_KEYS)}")
     unknown = sorted(set(data) - set(SIDECAR_KEYS))
     if unknown:
@@ -257,12 +263,14 @@ def _check_steer_units(path: Path, t: np.ndarray, steer: np.ndarray, line_number
                     f"first on line {line_numbers[first]}); kept as radians")
 
 
-def _heading_in_degrees(heading: np.ndarray) -> bool:
+def _heading_in_degrees(heading: np.ndarray, t: np.ndarray) -> bool:
+    """Degrees betray themselves by wrapping at +-180 or by turning faster than any car (in rad/s)."""
     if np.max(np.abs(heading)) <= math.pi + 0.05:
         return False
-    as_radians = np.abs(np.diff(np.unwrap(heading))).sum()
-    as_degrees = np.abs(np.diff(np.unwrap(heading, period=360.0))).sum() * math.pi / 180
-    return as_degrees < 0.5 * as_radians
+    steps = np.abs(np.diff(heading))
+    wraps_at_180 = np.any((steps > 300) & (steps < 420)) and not np.any((steps > 5.5) & (steps < 7.0))
+    rate = np.abs(np.diff(np.unwrap(heading, period=360.0))) / np.diff(t)
+    return bool(wraps_at_180 or np.percentile(rate, 95) > MAX_PLAUSIBLE_YAW_RATE_RADPS)
 
 
 def _uniform_grid(t: np.ndarray, warnings: list[str]) -> tuple[np.ndarray, np.ndarray | None]:
@@ -271,7 +279,7 @@ def _uniform_grid(t: np.ndarray, warnings: list[str]) -> tuple[np.ndarray, np.nd
     dt = float(np.median(steps))
     if np.max(np.abs(steps - dt)) <= JITTER_TOLERANCE * dt:
         return t, None
-    n = int(round((t[-1] - t[0]) / dt)) + 1
+    n = round((t[-1] - t[0]) / dt) + 1
     grid = t[0] + dt * np.arange(n)
     grid[-1] = min(grid[-1], t[-1])
     gaps = np.flatnonzero(steps > GAP_INTERVALS * dt)
@@ -287,17 +295,23 @@ def _uniform_grid(t: np.ndarray, warnings: list[str]) -> tuple[np.ndarray, np.nd
 
 
 def _heading_jumps(heading: np.ndarray, yaw_rate: np.ndarray | None, t: np.ndarray,
-                   line_numbers: np.ndarray, warnings: list[str]) -> None:
-    if yaw_rate is None:
-        return
+                   line_numbers: np.ndarray, warnings: list[str]) -> np.ndarray:
+    """Indices of heading steps a car cannot make: not matched by the yaw rate (when recorded),
+    or faster than ``MAX_PLAUSIBLE_YAW_RATE_RADPS``. Localisation glitches, not vehicle motion."""
     dt = np.diff(t)
-    mismatch = np.abs(np.diff(heading) - 0.5 * (yaw_rate[1:] + yaw_rate[:-1]) * dt)
-    bad = np.flatnonzero(mismatch > 0.2)
+    step = np.diff(heading)
+    if yaw_rate is not None:
+        bad = np.flatnonzero(np.abs(step - 0.5 * (yaw_rate[1:] + yaw_rate[:-1]) * dt) > HEADING_JUMP_RAD)
+        against = "not matched by yaw_rate"
+    else:
+        bad = np.flatnonzero(np.abs(step) > MAX_PLAUSIBLE_YAW_RATE_RADPS * dt + HEADING_JUMP_RAD / 4)
+        against = f"faster than {MAX_PLAUSIBLE_YAW_RATE_RADPS:g} rad/s"
     if len(bad):
         i = bad[0] + 1
-        warnings.append(f"heading jumps by {np.diff(heading)[bad[0]]:+.2f} rad on line {line_numbers[i]} "
-                        f"(t={t[i]:.2f} s), not matched by yaw_rate ({len(bad)} such step(s)); "
-                        "heading and position errors there are the recording's, not the model's")
+        warnings.append(f"heading jumps by {step[bad[0]]:+.2f} rad on line {line_numbers[i]} (t={t[i]:.2f} s), "
+                        f"{against} ({len(bad)} such step(s)); {JUMP_EXCLUDE_S:g} s around each are left out "
+                        "of every fit and score")
+    return bad
 
 
 def recording_from_arrays(
@@ -336,16 +350,20 @@ def recording_from_arrays(
     t = data["t"]
     _check_times(path, t, line_numbers)
     _check_steer_units(path, t, data["steer"], line_numbers, warnings)
-    if _heading_in_degrees(data["heading"]):
+    if _heading_in_degrees(data["heading"], t):
         raise ValueError(f"{path}: column 'heading' looks like degrees (it wraps at +-180); give radians")
     heading = np.unwrap(data["heading"])
     if np.any(data["speed"] < 0):
         i = _first_bad(data["speed"] < 0)
         warnings.append(f"column 'speed' is negative from line {line_numbers[i]} (reversing); "
                         "such samples are not scored")
-    _heading_jumps(heading, data.get("yaw_rate"), t, line_numbers, warnings)
+    jumps = _heading_jumps(heading, data.get("yaw_rate"), t, line_numbers, warnings)
 
     grid, usable = _uniform_grid(t, warnings)
+    if len(jumps):
+        usable = np.ones(len(grid), bool) if usable is None else usable
+        for j in jumps:
+            usable &= np.abs(grid - 0.5 * (t[j] + t[j + 1])) > JUMP_EXCLUDE_S
 
     def on_grid(values: np.ndarray | None) -> np.ndarray | None:
         if values is None:
@@ -448,7 +466,7 @@ def write_recording(recording: Recording, path: str | os.PathLike, write_sidecar
             arrays.append(values)
             formats.append(fmt)
     table = np.column_stack(arrays)
-    with atomic_output(path) as tmp:
+    with atomic_path(path) as tmp:
         np.savetxt(tmp, table, delimiter=",", header=",".join(names), comments="", fmt=formats)
     if write_sidecar is None:
         write_sidecar = recording.vehicle != SIMULATOR_VEHICLE

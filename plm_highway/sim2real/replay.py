@@ -62,13 +62,21 @@ def heading_rate_taps(window_samples: int, dt_s: float) -> tuple[np.ndarray, int
     return c, w, int(m[0])
 
 
-def fit_signal(recording: Recording) -> FitSignal:
+SIGNALS = ("auto", "yaw_rate", "heading")
+
+
+def fit_signal(recording: Recording, prefer: str = "auto") -> FitSignal:
+    """The recorded yaw rate (``auto`` when present, or ``yaw_rate``) or the heading's derivative."""
+    if prefer not in SIGNALS:
+        raise ValueError(f"unknown signal {prefer!r}; known: {', '.join(SIGNALS)}")
+    if prefer == "yaw_rate" and recording.yaw_rate_radps is None:
+        raise ValueError(f"{recording.name}: no yaw_rate column to fit; use the heading")
     usable = recording.usable_mask.copy()
-    settle = int(round(SETTLE_S / recording.dt_s))
+    settle = round(SETTLE_S / recording.dt_s)
     usable[:settle] = False
-    if recording.yaw_rate_radps is not None:
+    if recording.yaw_rate_radps is not None and prefer != "heading":
         return FitSignal("yaw_rate", recording.yaw_rate_radps, np.ones(1), 0, usable)
-    window = max(5, int(round(HEADING_DERIVATIVE_WINDOW_S / recording.dt_s)) | 1)
+    window = max(5, round(HEADING_DERIVATIVE_WINDOW_S / recording.dt_s) | 1)
     c, w, lo = heading_rate_taps(window, recording.dt_s)
     values = np.convolve(recording.heading_rad, c[::-1], mode="same")
     half = window // 2
@@ -86,12 +94,16 @@ def filtered(signal: FitSignal, yaw_rate_radps: np.ndarray) -> np.ndarray:
     return out
 
 
-def model_yaw_rate(recording: Recording, params: EffectParams) -> tuple[np.ndarray, np.ndarray]:
-    """(yaw rate, slip angle) of the simulator's model with ``params``, at each sample."""
+def model_yaw_rate(recording: Recording, params: EffectParams, with_slip: bool = True
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """(yaw rate, slip angle) of the simulator's model with ``params``, at each sample.
+
+    Without ``with_slip`` only the yaw rate is meaningful (cheaper, for fits).
+    """
     v = recording.vehicle
     return simulate_yaw_rate(
         np.ascontiguousarray(recording.steer_rad, float), np.ascontiguousarray(recording.speed_mps, float),
-        recording.dt_s, *params.numba_args(), v.cg_to_front_m, v.cg_to_rear_m, v.yaw_inertia_per_kg_m2,
+        recording.dt_s, *params.numba_args(), v.cg_to_front_m, v.cg_to_rear_m, v.yaw_inertia_per_kg_m2, with_slip,
     )
 
 
@@ -119,6 +131,35 @@ def signal_noise_sigma(recording: Recording, signal: FitSignal, plain_residual: 
     return heading_noise_to_signal(recording, signal)
 
 
+def yaw_rate_lag_behind_heading(recording: Recording, max_lag_s: float = 0.5) -> dict | None:
+    """How late the recorded yaw rate is against the derivative of the recorded heading.
+
+    Both channels describe the same rotation; a lag between them is in the measurements (a filtered
+    or delayed gyro, or a lagging pose estimate), and a delay fitted to one channel includes it.
+    Returns {"lag_s", "rmse_at_zero", "rmse_at_lag"} (positive lag: the yaw rate is late), or None
+    without a yaw-rate column.
+    """
+    if recording.yaw_rate_radps is None:
+        return None
+    heading = fit_signal(recording, prefer="heading")
+    rate = filtered(heading, np.ascontiguousarray(recording.yaw_rate_radps, float))
+    n_max = round(max_lag_s / recording.dt_s)
+    lags = np.arange(-n_max, n_max + 1)
+    core = heading.usable.copy()
+    core[:n_max] = False
+    core[len(core) - n_max:] = False
+    idx = np.flatnonzero(core)
+    rmse = np.array([np.sqrt(np.mean((heading.values[idx] - rate[idx + lag]) ** 2)) for lag in lags])
+    i = int(np.argmin(rmse))
+    lag = float(lags[i])
+    if 0 < i < len(lags) - 1:  # parabolic refinement between samples
+        a, b, c = rmse[i - 1] ** 2, rmse[i] ** 2, rmse[i + 1] ** 2
+        denom = a - 2 * b + c
+        if denom > 0:
+            lag += 0.5 * (a - c) / denom
+    return {"lag_s": lag * recording.dt_s, "rmse_at_zero": float(rmse[n_max]), "rmse_at_lag": float(rmse[i])}
+
+
 @dataclass(frozen=True)
 class PoseReplay:
     """Re-anchored replay: the model's pose, restarted from the recording every ``anchor_s``."""
@@ -134,7 +175,7 @@ def replay_pose(recording: Recording, yaw_rate_radps: np.ndarray, slip_rad: np.n
                 anchor_s: float = ANCHOR_S) -> PoseReplay:
     """Integrate the model with the simulator's Euler step, re-anchored to the recorded pose."""
     n = recording.n
-    per_segment = max(2, int(round(anchor_s / recording.dt_s)))
+    per_segment = max(2, round(anchor_s / recording.dt_s))
     starts = np.arange(0, n, per_segment)
     x = np.empty(n)
     y = np.empty(n)

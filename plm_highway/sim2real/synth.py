@@ -4,8 +4,9 @@ A recording is made in four steps:
 
 1. **Driver inputs** (:func:`driver_inputs`): a smooth speed profile between 10 and 30 m/s and a
    sequence of manoeuvres expressed as lateral-acceleration demands (straights, steady turns,
-   weaves, single and double lane changes, left and right), plus a little band-limited steering
-   noise, turned into a front-wheel command with the kinematic geometry the driver "knows".
+   weaves, single and double lane changes, left and right; everyday levels, at most 4 m/s^2), plus
+   a little band-limited steering noise, turned into a front-wheel command with the kinematic
+   geometry the driver "knows".
 2. **Concealed effects** on the command: steering gain and offset, transport delay, first-order
    actuator lag (:class:`ConcealedEffects`), evaluated on a fine time grid (10 sub-steps per sample).
 3. **Vehicle**: the simulator's own model (stepped exactly as highway-env does), a continuous
@@ -34,9 +35,9 @@ from plm_highway.sim2real.effects import EFFECT_NAMES
 from plm_highway.sim2real.recording import SIMULATOR_VEHICLE, Recording, VehicleGeometry
 from plm_highway.vehicle.kinematic import (
     HIGHWAY_ENV_VEHICLE,
+    KinematicState,
     kinematic_bicycle_rates,
     kinematic_bicycle_rollout,
-    KinematicState,
 )
 from plm_highway.vehicle.single_track import (
     SEED_PAPER_VEHICLE,
@@ -65,6 +66,7 @@ EFFECT_VALUE_MEANING = {
 }
 
 SPEED_RANGE_MPS = (10.0, 30.0)
+MAX_LAT_ACCEL_MPS2 = 4.0
 SUBSTEPS = 10
 LEAD_IN_S = 2.0  # inputs start before the recording so a delayed command has a past
 # RK4 steps for CommonRoad's models (the multi-body model's wheel and suspension modes need ~5 ms).
@@ -132,17 +134,17 @@ def lateral_demand(t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         if kind == "straight":
             length = rng.uniform(2.0, 5.0)
         elif kind == "turn":
-            ramp, hold, level = rng.uniform(1.0, 2.5), rng.uniform(3.0, 8.0), rng.uniform(1.0, 4.5)
+            ramp, hold, level = rng.uniform(1.0, 2.5), rng.uniform(3.0, 8.0), rng.uniform(1.0, 3.5)
             length = 2 * ramp + hold
             shape = _smoothstep(local / ramp) - _smoothstep((local - ramp - hold) / ramp)
             demand += side * level * shape * ((local >= 0) & (local <= length))
         elif kind == "weave":
-            freq, cycles, level = rng.uniform(0.15, 0.9), rng.integers(2, 5), rng.uniform(1.0, 3.5)
+            freq, cycles, level = rng.uniform(0.15, 0.9), rng.integers(2, 5), rng.uniform(1.0, 3.0)
             length = cycles / freq
             inside = (local >= 0) & (local <= length)
             demand += side * level * np.sin(2 * math.pi * freq * local) * inside
         else:
-            width, duration = rng.uniform(3.0, 3.7), rng.uniform(2.5, 5.0)
+            width, duration = rng.uniform(3.0, 3.7), rng.uniform(3.0, 5.0)
             pulses = [(0.0, side)] if kind == "lane_change" else [(0.0, side), (duration + rng.uniform(1.0, 2.0), -side)]
             length = pulses[-1][0] + duration
             for start, sign in pulses:
@@ -170,7 +172,8 @@ def driver_inputs(t_s: np.ndarray, rng: np.random.Generator, wheelbase_m: float,
     """(steering command [rad], speed [m/s]) on the time grid ``t_s``."""
     speed = speed_profile(t_s, rng)
     demand = lateral_demand(t_s, rng) + steering_noise(t_s, rng, noise_mps2)
-    demand = np.clip(demand, -6.0, 6.0)
+    # Everyday driving stays below ~4 m/s^2, where tires are close to linear.
+    demand = np.clip(demand, -MAX_LAT_ACCEL_MPS2, MAX_LAT_ACCEL_MPS2)
     curvature = demand / speed**2
     return np.arctan(wheelbase_m * curvature), speed
 
@@ -350,7 +353,7 @@ def make_recording(
         raise ValueError("the 'simulator' model is highway-env's own step: it takes no effects (use 'kinematic')")
     noise = NoiseLevels() if noise is None else noise
 
-    n = int(round(duration_s * sample_hz)) + 1
+    n = round(duration_s * sample_hz) + 1
     dt = 1.0 / sample_hz
     t_rec = np.arange(n) * dt
     heading0 = rng.uniform(-math.pi, math.pi)
@@ -372,12 +375,12 @@ def make_recording(
         command, speed = driver_inputs(t_rec, rng, geometry.wheelbase_m)
         xs, ys, hs = kinematic_bicycle_rollout(KinematicState(0.0, 0.0, heading0), command[:-1], speed[:-1], dt,
                                                HIGHWAY_ENV_VEHICLE)
-        r, beta = kinematic_bicycle_rates(command, speed, HIGHWAY_ENV_VEHICLE)
+        r, _beta = kinematic_bicycle_rates(command, speed, HIGHWAY_ENV_VEHICLE)
         x, y, heading, yaw_rate, speed_true = xs, ys, hs, r, speed
         lat_accel = speed * r
     else:
         dt_fine = dt / SUBSTEPS
-        n_lead = int(round(LEAD_IN_S / dt_fine))
+        n_lead = round(LEAD_IN_S / dt_fine)
         t_fine = (np.arange(n_lead + (n - 1) * SUBSTEPS + 1) - n_lead) * dt_fine
         command_fine, speed_fine = driver_inputs(t_fine, rng, geometry.wheelbase_m)
         delta_fine = apply_effects(t_fine, command_fine, command_effects)

@@ -1,1 +1,7 @@
+"""Vehicle models as pure functions with their parameters as data (in the style of CommonRoad's).
 
+- :mod:`plm_highway.vehicle.kinematic`: the simulator's model, highway-env's kinematic bicycle
+  (``Vehicle.step``), bit for bit; a step function and vectorised rollouts over time and batches.
+- :mod:`plm_highway.vehicle.single_track`: a dynamic single-track model with linear tires (the
+  physics the kinematic bicycle leaves out), with a fine RK4 step and a replay-rate integrator.
+"""

@@ -19,7 +19,7 @@ The steady state is ``r = u delta / (L + K u^2)`` with the understeer gradient
 
 Two integrators: :func:`single_track_rk4_step` for synthesising "real" data finely, and
 :func:`single_track_tustin_step` for replays at the recording's sample rate (A-stable, so the fast
-tire modes at low speed do not blow up; the caller sub-steps when ``dt`` is not small against them).
+tire modes at low speed do not blow up; stiff intervals are sub-stepped).
 """
 
 from __future__ import annotations
@@ -85,10 +85,12 @@ def front_stiffness_for_understeer(
 @numba.njit(cache=True)
 def single_track_matrices(u_mps, cf_per_kg, cr_per_kg, a_m, b_m, k2_m2):
     """Continuous-time ``x' = A x + B delta`` for x = (vy, r) at longitudinal speed ``u``."""
-    a11 = -(cf_per_kg + cr_per_kg) / u_mps
-    a12 = (b_m * cr_per_kg - a_m * cf_per_kg) / u_mps - u_mps
-    a21 = (b_m * cr_per_kg - a_m * cf_per_kg) / (k2_m2 * u_mps)
-    a22 = -(a_m * a_m * cf_per_kg + b_m * b_m * cr_per_kg) / (k2_m2 * u_mps)
+    inv_u = 1.0 / u_mps
+    inv_ku = inv_u / k2_m2
+    a11 = -(cf_per_kg + cr_per_kg) * inv_u
+    a12 = (b_m * cr_per_kg - a_m * cf_per_kg) * inv_u - u_mps
+    a21 = (b_m * cr_per_kg - a_m * cf_per_kg) * inv_ku
+    a22 = -(a_m * a_m * cf_per_kg + b_m * b_m * cr_per_kg) * inv_ku
     b1 = cf_per_kg
     b2 = a_m * cf_per_kg / k2_m2
     return a11, a12, a21, a22, b1, b2
@@ -119,46 +121,61 @@ def _fastest_mode(a11, a12, a21, a22):
 
 
 @numba.njit(cache=True)
+def _tustin_substep(h, p11, p12, p21, p22, pba1, pba2, q11, q12, q21, q22, pbb1, pbb2):
+    """(I - h/2 A_b) x1 = (I + h/2 A_a) x0 + h/2 (B_a d_a + B_b d_b) as x1 = S x0 + Ga d_a + Gb d_b."""
+    m11 = 1.0 - 0.5 * h * q11
+    m12 = -0.5 * h * q12
+    m21 = -0.5 * h * q21
+    m22 = 1.0 - 0.5 * h * q22
+    inv_det = 1.0 / (m11 * m22 - m12 * m21)
+    i11, i12, i21, i22 = m22 * inv_det, -m12 * inv_det, -m21 * inv_det, m11 * inv_det
+    n11 = 1.0 + 0.5 * h * p11
+    n12 = 0.5 * h * p12
+    n21 = 0.5 * h * p21
+    n22 = 1.0 + 0.5 * h * p22
+    s11 = i11 * n11 + i12 * n21
+    s12 = i11 * n12 + i12 * n22
+    s21 = i21 * n11 + i22 * n21
+    s22 = i21 * n12 + i22 * n22
+    ga1 = 0.5 * h * (i11 * pba1 + i12 * pba2)
+    ga2 = 0.5 * h * (i21 * pba1 + i22 * pba2)
+    gb1 = 0.5 * h * (i11 * pbb1 + i12 * pbb2)
+    gb2 = 0.5 * h * (i21 * pbb1 + i22 * pbb2)
+    return s11, s12, s21, s22, ga1, ga2, gb1, gb2
+
+
+@numba.njit(cache=True)
 def single_track_tustin_map(u0_mps, u1_mps, dt_s, cf_per_kg, cr_per_kg, a_m, b_m, k2_m2, u_min_mps):
     """One sample of the trapezoidal rule as an affine map: x1 = Phi x0 + Pa delta0 + Pb delta1.
 
     Steering and speed are interpolated linearly across the sample (first-order hold); intervals
-    that are stiff against ``dt`` (low speed) are sub-stepped so that dt * |lambda| <= 0.5, where
-    the trapezoidal rule neither blows up nor rings. Returns (phi11, phi12, phi21, phi22, pa1, pa2,
+    that are stiff against ``dt`` (low speed, very stiff tires) are sub-stepped so that
+    dt * |lambda| <= 1.5: the trapezoidal rule is stable at any step but rings (amplification
+    below zero) beyond 2; modes that fast have decayed within a step anyway. Returns (phi11, phi12, phi21, phi22, pa1, pa2,
     pb1, pb2).
     """
-    u_mid = max(0.5 * (u0_mps + u1_mps), u_min_mps)
-    a11, a12, a21, a22, _, _ = single_track_matrices(u_mid, cf_per_kg, cr_per_kg, a_m, b_m, k2_m2)
-    n_sub = min(max(int(math.ceil(dt_s * _fastest_mode(a11, a12, a21, a22) / 0.5)), 1), 400)
+    ua = max(u0_mps, u_min_mps)
+    ub = max(u1_mps, u_min_mps)
+    p11, p12, p21, p22, pba1, pba2 = single_track_matrices(ua, cf_per_kg, cr_per_kg, a_m, b_m, k2_m2)
+    q11, q12, q21, q22, pbb1, pbb2 = single_track_matrices(ub, cf_per_kg, cr_per_kg, a_m, b_m, k2_m2)
+    # The stiffest end of the interval sets the sub-step (the modes scale like 1/u).
+    if ua < ub:
+        stiff = _fastest_mode(p11, p12, p21, p22)
+    else:
+        stiff = _fastest_mode(q11, q12, q21, q22)
+    n_sub = min(max(math.ceil(dt_s * stiff / 1.5), 1), 200)
+    if n_sub == 1:
+        return _tustin_substep(dt_s, p11, p12, p21, p22, pba1, pba2, q11, q12, q21, q22, pbb1, pbb2)
     h = dt_s / n_sub
     f11, f12, f21, f22 = 1.0, 0.0, 0.0, 1.0
     pa1, pa2, pb1, pb2 = 0.0, 0.0, 0.0, 0.0
-    p11, p12, p21, p22, pba1, pba2 = single_track_matrices(max(u0_mps, u_min_mps), cf_per_kg, cr_per_kg,
-                                                           a_m, b_m, k2_m2)
     for i in range(n_sub):
         f0 = i / n_sub
         f1 = (i + 1) / n_sub
         u_b = max(u0_mps + (u1_mps - u0_mps) * f1, u_min_mps)
         q11, q12, q21, q22, pbb1, pbb2 = single_track_matrices(u_b, cf_per_kg, cr_per_kg, a_m, b_m, k2_m2)
-        # (I - h/2 A_b) x1 = (I + h/2 A_a) x0 + h/2 (B_a d_a + B_b d_b)
-        m11 = 1.0 - 0.5 * h * q11
-        m12 = -0.5 * h * q12
-        m21 = -0.5 * h * q21
-        m22 = 1.0 - 0.5 * h * q22
-        det = m11 * m22 - m12 * m21
-        i11, i12, i21, i22 = m22 / det, -m12 / det, -m21 / det, m11 / det
-        n11 = 1.0 + 0.5 * h * p11
-        n12 = 0.5 * h * p12
-        n21 = 0.5 * h * p21
-        n22 = 1.0 + 0.5 * h * p22
-        s11 = i11 * n11 + i12 * n21
-        s12 = i11 * n12 + i12 * n22
-        s21 = i21 * n11 + i22 * n21
-        s22 = i21 * n12 + i22 * n22
-        ga1 = 0.5 * h * (i11 * pba1 + i12 * pba2)
-        ga2 = 0.5 * h * (i21 * pba1 + i22 * pba2)
-        gb1 = 0.5 * h * (i11 * pbb1 + i12 * pbb2)
-        gb2 = 0.5 * h * (i21 * pbb1 + i22 * pbb2)
+        s11, s12, s21, s22, ga1, ga2, gb1, gb2 = _tustin_substep(h, p11, p12, p21, p22, pba1, pba2,
+                                                                 q11, q12, q21, q22, pbb1, pbb2)
         # Compose: the sub-step's inputs are (1 - f) delta0 + f delta1.
         f11, f12, f21, f22 = s11 * f11 + s12 * f21, s11 * f12 + s12 * f22, s21 * f11 + s22 * f21, s21 * f12 + s22 * f22
         pa1, pa2 = (s11 * pa1 + s12 * pa2 + ga1 * (1.0 - f0) + gb1 * (1.0 - f1),

@@ -1,0 +1,199 @@
+"""Figures and a text summary of a diagnosis, written into a report directory.
+
+``overlay.png``     a held-out excerpt: recorded vs plain vs fitted signal, residuals, heading error
+``residuals.png``   the whole run: residual before/after with the mismatch windows shaded
+``conditions.png``  residual RMS before/after by speed, |lateral acceleration|, steering frequency, side
+``candidates.png``  held-out RMSE of every candidate against the noise level
+``summary.md``      the plain-language summary and the numbers
+
+Every file is written to a temporary name in the same directory and renamed into place.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from plm_highway.data.atomic import atomic_path, write_text_atomic
+from plm_highway.sim2real.diagnose import Diagnosis, to_json
+
+FIGURES = ("overlay.png", "residuals.png", "conditions.png", "candidates.png")
+
+
+def _pyplot():
+    import matplotlib
+
+    if os.environ.get("MPLBACKEND") is None:
+        matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    plt.rcParams.update({"font.size": 10, "axes.titlesize": 11, "axes.labelsize": 10, "legend.fontsize": 9})
+    return plt
+
+
+def _save(fig, path: Path) -> None:
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120, bbox_inches="tight")
+
+
+def _excerpt(d: Diagnosis, length_s: float = 20.0) -> slice:
+    """The held-out stretch of ``length_s`` where the chosen model gains most over the plain one
+    (on a match: where the plain model is worst). Gains, not raw errors, so that a glitch in the
+    recording that no model explains does not take the picture."""
+    t = d.recording.t_s
+    n = len(t)
+    width = max(2, min(n, round(length_s / d.recording.dt_s)))
+    before = np.nan_to_num(d.signal.values - d.before)
+    after = np.nan_to_num(d.signal.values - d.after)
+    gain = before**2 - after**2 if d.verdict == "mismatch" else before**2
+    csum = np.concatenate([[0.0], np.cumsum(np.where(d.heldout, gain, 0.0))])
+    scores = csum[width:] - csum[:-width]
+    start = int(np.argmax(scores)) if scores.size else 0
+    return slice(start, min(start + width, n))
+
+
+def _label(d: Diagnosis) -> tuple[str, str]:
+    if d.signal.name == "yaw_rate":
+        return "yaw rate [rad/s]", "recorded yaw rate"
+    return "heading rate [rad/s]", "recorded heading rate (smoothed derivative)"
+
+
+def overlay_figure(d: Diagnosis, plt):
+    sl = _excerpt(d)
+    t = d.recording.t_s[sl]
+    ylabel, rec_label = _label(d)
+    after_name = d.selection.winner.name if d.verdict == "mismatch" else d.selection.best.name
+    after = d.after if d.verdict == "mismatch" else d.best
+    fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
+    ax = axes[0]
+    ax.plot(t, d.signal.values[sl], color="0.3", lw=1.0, label=rec_label)
+    ax.plot(t, d.before[sl], color="tab:red", lw=1.2, label="simulator (plain kinematic bicycle)")
+    ax.plot(t, after[sl], color="tab:blue", lw=1.2, ls="--", label=f"simulator + {after_name}")
+    ax.set_ylabel(ylabel)
+    what = "the fitted term matters most" if d.verdict == "mismatch" else "the simulator is worst"
+    ax.set_title(f"{d.recording.name}: held-out excerpt where {what}")
+    ax.legend(loc="upper right")
+    ax = axes[1]
+    ax.plot(t, (d.signal.values - d.before)[sl], color="tab:red", lw=1.0, label="residual, plain")
+    ax.plot(t, (d.signal.values - after)[sl], color="tab:blue", lw=1.0, label=f"residual, + {after_name}")
+    ax.axhspan(-2 * d.noise_sigma, 2 * d.noise_sigma, color="0.85", label="+-2 x noise")
+    ax.set_ylabel("recorded - model [rad/s]")
+    ax.legend(loc="upper right")
+    ax = axes[2]
+    ax.plot(t, d.pose_before.heading_error_rad[sl], color="tab:red", lw=1.0, label="plain")
+    ax.plot(t, d.pose_after.heading_error_rad[sl], color="tab:blue", lw=1.0,
+            label=f"+ {d.selection.winner.name}" if d.verdict == "mismatch" else "chosen model (plain)")
+    ax.set_ylabel(f"heading error [rad]\n(re-anchored every {d.anchor_s:g} s)")
+    ax.set_xlabel("time [s]")
+    ax.legend(loc="upper right")
+    for a in axes:
+        a.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def residuals_figure(d: Diagnosis, plt):
+    t = d.recording.t_s
+    usable = d.signal.usable
+    fig, axes = plt.subplots(2, 1, figsize=(10, 6), gridspec_kw={"height_ratios": [2, 1]})
+    ax = axes[0]
+    for i, (a, b) in enumerate(d.windows):
+        ax.axvspan(a, b, color="gold", alpha=0.35, lw=0, label="mismatch window (1-s RMS > 2 x noise)" if i == 0
+                   else None)
+    ax.plot(t[usable], (d.signal.values - d.before)[usable], color="tab:red", lw=0.6, label="plain")
+    ax.plot(t[usable], (d.signal.values - d.after)[usable], color="tab:blue", lw=0.6,
+            label=f"+ {d.selection.winner.name}" if d.verdict == "mismatch" else "chosen model (plain)")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("recorded - model [rad/s]")
+    ax.set_title("Residuals over the whole run")
+    ax.legend(loc="upper right")
+    ax.grid(alpha=0.3)
+    ax = axes[1]
+    held = d.heldout
+    lim = float(np.percentile(np.abs(d.signal.values - d.before)[usable], 99.5)) or 1.0
+    bins = np.linspace(-lim, lim, 61)
+    ax.hist((d.signal.values - d.before)[held], bins=bins, color="tab:red", alpha=0.5, label="plain (held out)")
+    ax.hist((d.signal.values - d.after)[held], bins=bins, color="tab:blue", alpha=0.5, label="chosen (held out)")
+    ax.set_xlabel("residual [rad/s]")
+    ax.set_ylabel("samples")
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    return fig
+
+
+def conditions_figure(d: Diagnosis, plt):
+    groups = (("speed_mps", "speed [m/s]"), ("abs_lat_accel_mps2", "|lateral accel| [m/s^2]"),
+              ("steer_freq_hz", "steering frequency [Hz]"), ("direction", "side"))
+    fig, axes = plt.subplots(1, 4, figsize=(14, 3.8), sharey=True)
+    for ax, (key, title) in zip(axes, groups):
+        rows = d.conditions[key]
+        if key == "direction":
+            labels = [r["side"] for r in rows]
+        else:
+            labels = [f">{r['range'][0]:g}" if r["range"][1] is None else f"{r['range'][0]:g}-{r['range'][1]:g}"
+                      for r in rows]
+        x = np.arange(len(rows))
+        ax.bar(x - 0.2, [r["rmse_before"] for r in rows], 0.4, color="tab:red", label="plain")
+        ax.bar(x + 0.2, [r["rmse_after"] for r in rows], 0.4, color="tab:blue", label="chosen model")
+        ax.axhline(d.noise_sigma, color="0.3", ls=":", label="noise")
+        ax.set_xticks(x, labels, rotation=30)
+        ax.set_xlabel(title)
+        ax.grid(alpha=0.3, axis="y")
+    axes[0].set_ylabel("residual RMS [rad/s]")
+    axes[0].legend(loc="upper left")
+    fig.suptitle("Where the simulator departs from the recording (all usable samples)")
+    fig.tight_layout()
+    return fig
+
+
+def candidates_figure(d: Diagnosis, plt):
+    ranking = d.selection.ranking
+    fig, ax = plt.subplots(figsize=(8, 0.32 * len(ranking) + 1.5))
+    names = [c.name for c in ranking][::-1]
+    values = [c.heldout_rmse for c in ranking][::-1]
+    colors = ["tab:blue" if c is d.selection.winner else ("tab:orange" if c is d.selection.runner_up else "0.6")
+              for c in ranking][::-1]
+    ax.barh(names, values, color=colors)
+    ax.axvline(d.noise_sigma, color="0.2", ls=":", label=f"noise {d.noise_sigma:.4f}")
+    ax.set_xlabel("held-out RMSE [rad/s] (chosen: blue, runner-up: orange)")
+    ax.set_title("Candidates, best penalised score at the top")
+    ax.legend(loc="lower right")
+    ax.grid(alpha=0.3, axis="x")
+    fig.tight_layout()
+    return fig
+
+
+def write_report(d: Diagnosis, directory: str | os.PathLike) -> list[Path]:
+    """Write the figures and summary into ``directory``; returns the paths written."""
+    plt = _pyplot()
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, make in zip(FIGURES, (overlay_figure, residuals_figure, conditions_figure, candidates_figure)):
+        fig = make(d, plt)
+        try:
+            _save(fig, directory / name)
+        finally:
+            plt.close(fig)
+        written.append(directory / name)
+    data = to_json(d)
+    lines = [f"# sim2real diagnosis: {d.recording.name}", "", d.summary, "", "## Numbers (held-out)", "",
+             "| quantity | plain | chosen |", "|---|---|---|"]
+    fit = d.fit
+    lines += [f"| {fit['signal']} RMSE [rad/s] | {fit['rmse_before']:.5f} | {fit['rmse_after']:.5f} |",
+              f"| heading RMSE [rad] | {fit['heading_rmse_before_rad']:.5f} | {fit['heading_rmse_after_rad']:.5f} |",
+              f"| position RMSE [m] | {fit['position_rmse_before_m']:.4f} | {fit['position_rmse_after_m']:.4f} |",
+              "", f"Noise level: {fit['noise_sigma']:.5f} rad/s. Verdict: **{d.verdict}** ({d.selection.reason}).", ""]
+    if d.recording.warnings or d.notes:
+        lines += ["## Warnings", ""] + [f"- {w}" for w in list(d.recording.warnings) + d.notes] + [""]
+    lines += ["## Candidates", "", "| candidate | held-out RMSE | parameters |", "|---|---|---|"]
+    for c in d.selection.ranking:
+        params = "; ".join(f"{k}={v:.5g}" for e in c.estimates.values() for k, v in e.items())
+        lines.append(f"| {c.name} | {c.heldout_rmse:.5f} | {params} |")
+    write_text_atomic(directory / "summary.md", "\n".join(lines) + "\n")
+    write_text_atomic(directory / "diagnosis.json", json.dumps(data, indent=1) + "\n")
+    written += [directory / "summary.md", directory / "diagnosis.json"]
+    return written

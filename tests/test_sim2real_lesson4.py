@@ -1,0 +1,88 @@
+"""Lesson 4's graded checks: pass on correct answers, fail on the generator's stubs and on typical mistakes."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from plm_highway.grading import lesson4
+from plm_highway.grading.checks import CheckFailed
+from plm_highway.vehicle.kinematic import KinematicBicycleParams, kinematic_bicycle_rates
+
+
+def replay(steer, speed, front, rear):
+    return kinematic_bicycle_rates(steer, speed, KinematicBicycleParams(front, rear))[0]
+
+
+def delayed(steer, speed, dt, delay, front, rear):
+    n = round(delay / dt)
+    return replay(np.concatenate([np.full(n, steer[0]), steer[: len(steer) - n]]), speed, front, rear)
+
+
+def understeer(steer, speed, k, front, rear):
+    return replay(steer, speed, front, rear) * (front + rear) / (front + rear + k * speed**2)
+
+
+def fit_on_grid(predict, grid, measured, train):
+    errors = [np.sqrt(np.mean((predict(v)[train] - measured[train]) ** 2)) for v in grid]
+    return float(grid[int(np.argmin(errors))]), float(min(errors))
+
+
+CORRECT = {
+    "check_replay": replay,
+    "check_windows": lesson4.reference_windows,
+    "check_delay_model": delayed,
+    "check_understeer_model": understeer,
+    "check_fit_on_grid": fit_on_grid,
+}
+
+
+def _stub(*args, **kwargs):
+    raise NotImplementedError("your code here")
+
+
+@pytest.mark.parametrize("check", sorted(CORRECT))
+def test_check_passes_on_a_correct_answer_quickly(check, capsys):
+    started = time.perf_counter()
+    getattr(lesson4, check)(CORRECT[check])
+    assert time.perf_counter() - started < 5.0
+    assert f"PASSED {check}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("check", sorted(CORRECT))
+def test_check_fails_on_the_stub_with_not_implemented_yet(check):
+    with pytest.raises(AssertionError, match="not implemented yet"):
+        getattr(lesson4, check)(_stub)
+
+
+def _kinematic_small_angle(steer, speed, front, rear):
+    return speed * steer / (front + rear)
+
+
+def _delay_wrapping_around(steer, speed, dt, delay, front, rear):
+    return replay(np.roll(steer, round(delay / dt)), speed, front, rear)
+
+
+def _fit_on_everything(predict, grid, measured, train):
+    errors = [np.sqrt(np.mean((predict(v) - measured) ** 2)) for v in grid]
+    return float(grid[int(np.argmin(errors))]), float(min(errors))
+
+
+def _windows_of_single_samples(t_s, residual, noise_sigma, window_s=1.0, factor=2.0):
+    above = np.abs(residual) > factor * noise_sigma
+    return [[float(t), float(t)] for t in t_s[above]]
+
+
+@pytest.mark.parametrize("check, wrong, hint", [
+    ("check_replay", _kinematic_small_angle, "beta = arctan"),
+    ("check_delay_model", _delay_wrapping_around, "repeat steer[0]"),
+    ("check_fit_on_grid", _fit_on_everything, "measured[train] only"),
+    ("check_windows", _windows_of_single_samples, "running RMS"),
+])
+def test_check_explains_a_typical_mistake(check, wrong, hint):
+    with pytest.raises(CheckFailed) as failure:
+        getattr(lesson4, check)(wrong)
+    message = str(failure.value)
+    assert "expected" in message and hint in message, message
