@@ -1,7 +1,7 @@
 """The expert driver: a privileged lane-centre tracker to learn from.
 
 In lane coordinates (offset ``e`` to the lane centre, course error ``psi``: the direction of travel
-relative to the lane) a car driving at
+relative to the lane, i.e. heading error plus the bicycle's slip angle beta) a car driving at
 speed ``v`` with path curvature ``kappa`` obeys ``de/dt = v sin(psi)`` and
 ``dpsi/dt = v (kappa - kappa_lane)``. Commanding
 
@@ -41,8 +41,13 @@ def expert_steering(state: dict, params: ExpertParams = ExpertParams()) -> float
     w = params.natural_frequency_radps
     k_offset = w * w / (speed_mps * speed_mps)
     k_heading = 2.0 * params.damping_ratio * w / speed_mps
+    # The course angle is heading + beta. Beta is taken from the road's curvature (its steady-state
+    # value), not from the steering applied a moment ago: a camera sees the road but not the steering
+    # wheel, so a policy that imitates this expert from images can learn exactly what it does.
+    beta_rad = math.asin(max(-1.0, min(1.0, HALF_LENGTH_M * state["curvature_1pm"])))
+    course_error_rad = state["heading_error_rad"] + beta_rad
     curvature_1pm = (state["curvature_preview_1pm"] - k_offset * state["lateral_offset_m"]
-                     - k_heading * math.sin(state["course_error_rad"]))
+                     - k_heading * math.sin(course_error_rad))
     steering = steering_for_curvature(curvature_1pm) / params.max_steering_rad
     return max(-1.0, min(1.0, steering))
 
