@@ -198,8 +198,8 @@ def test_sim_log_maps_onto_a_recording_and_replays_exactly(tmp_path):
 
 def test_diagnose_reads_a_sim_log_from_the_cli(tmp_path):
     path = _simulator_log(tmp_path / "sim.csv", n=800)
-    # The default column names of read_sim_log are t, x, y, heading, speed: rename the log's.
-    text = path.read_text().replace("time,pos_x,pos_y,yaw,v,", "t,x,y,heading,speed,", 1)
+    # The default column names of read_sim_log are those of the project's evaluate logs: rename the log's.
+    text = path.read_text().replace("time,pos_x,pos_y,yaw,v,", "t_s,x_m,y_m,heading_rad,speed_mps,", 1)
     path.write_text(text)
     out = tmp_path / "d.json"
     code = main(["sim2real", "diagnose", str(path), "--steer-column", "steering_action",
@@ -207,3 +207,17 @@ def test_diagnose_reads_a_sim_log_from_the_cli(tmp_path):
     assert code == 0
     data = json.loads(out.read_text())
     assert data["verdict"] == "match" and data["fit"]["signal"] == "heading_rate"
+
+
+def test_an_evaluate_log_of_the_env_matches_the_simulator_model(tmp_path):
+    from plm_highway.evaluation.closed_loop import drive, write_log_csv
+    from plm_highway.expert import ExpertPolicy
+
+    log = drive("reference", ExpertPolicy(), "test", "const:0", seed=0, max_steps=400)  # 20 s at 20 Hz
+    path = tmp_path / "out_reference.csv"
+    write_log_csv(log, path)
+    out = tmp_path / "d.json"
+    code = main(["sim2real", "diagnose", str(path), "--steer-column", "steering", "--steer-scale", "0.2",
+                 "--json", str(out), "--quiet"])
+    assert code == 0
+    assert json.loads(out.read_text())["verdict"] == "match"

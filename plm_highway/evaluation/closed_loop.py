@@ -19,7 +19,7 @@ import plm_highway  # noqa: F401  (registers the env)
 from plm_highway.data.atomic import atomic_path
 from plm_highway.latency import LatencyWrapper, parse_profile
 
-LOG_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_m", "heading_rad",
+LOG_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_m", "heading_rad", "speed_mps",
                "lateral_offset_m", "heading_error_rad", "arc_length_m", "segment")
 
 

@@ -35,7 +35,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--steer-column", metavar="NAME",
                             help="read a simulator log instead: the steering command column (see read_sim_log)")
         parser.add_argument("--steer-scale", type=float, default=1.0,
-                            help="with --steer-column: multiply the command by this to get radians")
+                            help="with --steer-column: multiply the command by this to get radians "
+                                 "(0.2 for this project's env logs, whose steering is normalised)")
         parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
     elif command == "sim2real make-recording":
         parser.add_argument("--effect", action="append", default=[], metavar="NAME[=VALUE]",
