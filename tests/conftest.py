@@ -1,4 +1,9 @@
-"""Shared test set-up: headless plotting and rendering before anything imports them."""
+"""Shared test set-up: headless plotting and rendering before anything imports them.
+
+``PLM_FAST=1`` puts the notebooks in their CI mode (short loops, shipped checkpoints). It is set here,
+at collection, so the kernels nbval starts for solutions/ inherit it: run ``python -m pytest`` from the
+repository root (pytest collects tests/ and solutions/ together).
+"""
 
 from __future__ import annotations
 
@@ -6,6 +11,7 @@ import os
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+os.environ.setdefault("PLM_FAST", "1")
 
 from pathlib import Path
 
