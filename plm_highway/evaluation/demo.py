@@ -63,10 +63,11 @@ def _plot(track_spec, runs: dict, policy: str, out) -> None:
     import matplotlib.pyplot as plt
 
     colours = ["tab:green", "tab:red"]
-    first_curve = next(i for i, seg in enumerate(track_spec.segments) if seg.kind == "arc")
-    start_m = sum(seg.length_m for seg in track_spec.segments[:first_curve])
-    # 60 m of road around the curve entry: wide enough to see the curve, narrow enough to see 0.3 m.
-    window = (max(0.0, start_m - 15.0), start_m + 45.0)
+    # 60 m of road around where the delayed run weaves most: wide enough to see the road bend, narrow
+    # enough to see offsets of a few tenths of a metre.
+    delayed = list(runs.values())[-1].columns
+    worst_m = float(delayed["arc_length_m"][np.argmax(np.abs(delayed["lateral_offset_m"]))])
+    window = (max(0.0, worst_m - 30.0), worst_m + 30.0)
     fig, (ax_map, ax_offset) = plt.subplots(2, 1, figsize=(10, 9), gridspec_kw={"height_ratios": [1, 1]})
     draw_road(ax_map, track_spec, window)
     for (name, log), colour in zip(runs.items(), colours):
@@ -77,7 +78,7 @@ def _plot(track_spec, runs: dict, policy: str, out) -> None:
                        label=f"{name}: RMS {log.summary()['lateral_offset_rms_m']:.2f} m, "
                              f"max {log.summary()['lateral_offset_max_m']:.2f} m")
     who = "Base Model" if policy == "bm" else "expert driver (standing in for the Base Model)"
-    ax_map.set_title(f"Figure 2 reproduction: {who} entering the first curve")
+    ax_map.set_title(f"Figure 2 reproduction: {who}, 60 m of road where the delayed run weaves most")
     ax_map.legend(loc="best")
     reference = next(iter(runs.values())).columns
     in_curve = reference["segment"] != "straight"
