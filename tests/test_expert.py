@@ -87,20 +87,26 @@ def test_constant_steering_for_a_curvature_drives_that_circle(direction):
 
 
 def test_expert_steering_signs_and_curvature_feed_forward():
-    state = {"speed_mps": 16.7, "lateral_offset_m": 0.0, "course_error_rad": 0.0, "curvature_preview_1pm": 0.01}
+    # Steady state on a left curve of radius 100 m: the bicycle's body points inward by its slip angle
+    # beta = asin(2.5 / 100), so the direction of travel follows the lane and only feed-forward remains.
+    beta_rad = math.asin(2.5 * 0.01)
+    state = {"speed_mps": 16.7, "lateral_offset_m": 0.0, "heading_error_rad": -beta_rad, "curvature_1pm": 0.01,
+             "curvature_preview_1pm": 0.01}
     assert expert_steering(state) == pytest.approx(steering_for_curvature(0.01) / MAX_STEERING_RAD)
     assert expert_steering(state) == pytest.approx(0.2499, abs=1e-3)
     # Left of the centre, or heading left of the lane: steer right (negative).
-    assert expert_steering({**state, "curvature_preview_1pm": 0.0, "lateral_offset_m": 0.5}) < 0
-    assert expert_steering({**state, "curvature_preview_1pm": 0.0, "course_error_rad": 0.05}) < 0
-    assert expert_steering({**state, "curvature_preview_1pm": 0.0, "lateral_offset_m": -0.5}) > 0
+    straight = {**state, "heading_error_rad": 0.0, "curvature_1pm": 0.0, "curvature_preview_1pm": 0.0}
+    assert expert_steering({**straight, "lateral_offset_m": 0.5}) < 0
+    assert expert_steering({**straight, "heading_error_rad": 0.05}) < 0
+    assert expert_steering({**straight, "lateral_offset_m": -0.5}) > 0
     # Far off: saturates at the action limits.
     assert expert_steering({**state, "lateral_offset_m": -50.0}) == 1.0
     assert expert_steering({**state, "lateral_offset_m": 50.0}) == -1.0
 
 
 def test_expert_policy_prefers_the_observed_state():
-    true = {"speed_mps": 16.7, "lateral_offset_m": 1.0, "course_error_rad": 0.0, "curvature_preview_1pm": 0.0}
+    true = {"speed_mps": 16.7, "lateral_offset_m": 1.0, "heading_error_rad": 0.0, "curvature_1pm": 0.0,
+            "curvature_preview_1pm": 0.0}
     observed = {**true, "lateral_offset_m": -1.0}
     policy = ExpertPolicy()
     assert policy(None, true) < 0

@@ -172,6 +172,9 @@ def run_track(track, specs: list[str], policies: dict, seed: int, max_steps: int
 def evaluate_targets(settings: dict) -> list[dict]:
     """Met / missed per target: the paper's MAE reductions and PLM-Net's full-track Frechet <= 1.5x reference's."""
     max_ratio = paper.TARGETS["mitigated_full_frechet_max_ratio_to_reference"]
+    # PLM-Net's own steering error against the reference, at its best across the settings: a reduction
+    # cannot exceed 1 - floor / (the BM's error), so a BM that barely degrades leaves little to remove.
+    floor_mae = min(entry["result"]["steering"]["mitigated"]["mae"] for entry in settings.values())
     rows = []
     for spec, entry in settings.items():
         result = entry["result"]
@@ -187,7 +190,12 @@ def evaluate_targets(settings: dict) -> list[dict]:
                 how = (f"PLM-Net left the road ({100 * mitigated_run['completed_fraction']:.0f}% driven); "
                        f"over its run: ours {ours:.1f}%, paper {target:.1f}%")
             else:
-                how = f"missed by {target - ours:.1f} percentage points (ours {ours:.1f}%, paper {target:.1f}%)"
+                baseline_mae = result["steering"]["baseline"]["mae"]
+                bound = 100.0 * (1.0 - floor_mae / baseline_mae) if baseline_mae > 0 else 0.0
+                how = (f"missed by {target - ours:.1f} percentage points (ours {ours:.1f}%, paper {target:.1f}%). "
+                       f"Why: the BM with this latency is only {baseline_mae:.4f} off the reference, and PLM-Net's "
+                       f"own error floor (its lowest MAE across the settings) is {floor_mae:.4f}, so at most "
+                       f"{bound:.0f}% could be removed")
             rows.append({"setting": spec, "target": f"steering MAE reduction >= {target:.1f}%",
                          "paper": target, "ours": ours, "met": met, "detail": how})
         frechet = result["trajectory"]["full"]
@@ -200,7 +208,10 @@ def evaluate_targets(settings: dict) -> list[dict]:
         met = ratio <= max_ratio and not off_road
         detail = (f"PLM-Net {mit_f:.3f} m vs reference {ref_f:.3f} m: ratio {ratio:.2f}" if met else
                   f"missed: ratio {ratio:.2f} (PLM-Net {mit_f:.3f} m vs reference {ref_f:.3f} m), "
-                  f"{mit_f - max_ratio * ref_f:.3f} m above {max_ratio}x" + (" ; PLM-Net left the road" if off_road else ""))
+                  f"{mit_f - max_ratio * ref_f:.3f} m above {max_ratio}x. Why: PLM-Net's lateral offset RMS is "
+                  f"{mitigated_run['lateral_offset_rms_m']:.3f} m against the reference's "
+                  f"{result['runs']['reference']['lateral_offset_rms_m']:.3f} m; its worst moment sets the Frechet "
+                  f"distance" + ("; PLM-Net left the road" if off_road else ""))
         rows.append({"setting": spec, "target": f"full-track Frechet <= {max_ratio}x reference",
                      "paper": max_ratio, "ours": ratio, "met": met, "detail": detail})
     return rows
