@@ -547,14 +547,8 @@ def render_report(results: dict, figure_files: dict, other_figures: dict, track_
               "reference / BM / PLM-Net [m] | left the road |"), "|---|---|---|---|---|---|"]
     for spec, result in results["settings"].items():
         key = paper_key(spec)
-        frechet = result["trajectory"]["full"]
-        off = [run for run in RUNS if result["runs"][run]["left_road"]]
-        lines.append(f"| {setting_label(spec)} | {_num(result['steering']['baseline']['mae'])} | "
-                     f"{_num(result['steering']['mitigated']['mae'])} | "
-                     f"{_pct(result['steering']['mae_reduction_pct'])} / "
-                     f"{_pct(paper.TARGETS['mae_reduction_pct'].get(key or '')) if key else '—'} | "
-                     + " / ".join(_num(frechet[run]["frechet_dist"], 3) for run in RUNS)
-                     + f" | {', '.join(off) or 'none'} |")
+        paper_pct = _pct(paper.TARGETS["mae_reduction_pct"].get(key or "")) if key else "—"
+        lines.append(_summary_row(spec, result, [paper_pct]))
     lines.append("")
     for spec, result in results["settings"].items():
         key = paper_key(spec)
@@ -592,6 +586,16 @@ def render_report(results: dict, figure_files: dict, other_figures: dict, track_
     return "\n".join(lines) + "\n"
 
 
+def _summary_row(spec: str, result: dict, compared_pct: list[str], extra_cells: list[str] = ()) -> str:
+    """One summary line: BM and PLM-Net MAE, our reduction / the compared one, Frechet per run, extras, off-road runs."""
+    frechet = result["trajectory"]["full"]
+    off = [run for run in RUNS if result["runs"][run]["left_road"]]
+    cells = [setting_label(spec), _num(result["steering"]["baseline"]["mae"]), _num(result["steering"]["mitigated"]["mae"]),
+             " / ".join([_pct(result["steering"]["mae_reduction_pct"]), *compared_pct]),
+             " / ".join(_num(frechet[run]["frechet_dist"], 3) for run in RUNS), *extra_cells, ", ".join(off) or "none"]
+    return "| " + " | ".join(cells) + " |"
+
+
 def _generalisation_markdown(results: dict, other_figures: dict) -> list[str]:
     if not results["generalisation"]:
         return []
@@ -606,15 +610,9 @@ def _generalisation_markdown(results: dict, other_figures: dict) -> list[str]:
                   "left the road |"), "|---|---|---|---|---|---|---|"]
         for spec, result in g["settings"].items():
             main = results["settings"].get(spec)
-            frechet = result["trajectory"]["full"]
-            off = [run for run in RUNS if result["runs"][run]["left_road"]]
-            lines.append(f"| {setting_label(spec)} | {_num(result['steering']['baseline']['mae'])} | "
-                         f"{_num(result['steering']['mitigated']['mae'])} | "
-                         f"{_pct(result['steering']['mae_reduction_pct'])} / "
-                         f"{_pct(main['steering']['mae_reduction_pct']) if main else '—'} | "
-                         + " / ".join(_num(frechet[run]["frechet_dist"], 3) for run in RUNS)
-                         + f" | {_ratio(frechet)} / {_ratio(main['trajectory']['full']) if main else '—'}"
-                         + f" | {', '.join(off) or 'none'} |")
+            main_pct = _pct(main["steering"]["mae_reduction_pct"]) if main else "—"
+            ratios = f"{_ratio(result['trajectory']['full'])} / {_ratio(main['trajectory']['full']) if main else '—'}"
+            lines.append(_summary_row(spec, result, [main_pct], extra_cells=[ratios]))
         lines.append("")
         for spec, result in g["settings"].items():
             lines += [f"#### `{name}` track, latency {setting_label(spec)}: trajectory similarity", ""]
