@@ -16,6 +16,13 @@ os.environ.setdefault("PLM_FAST", "1")
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# Property tests explore new examples on developers' machines; CI (CI=true) replays a fixed sequence so a
+# landing never depends on the luck of the draw.
+settings.register_profile("ci", derandomize=True)
+if os.environ.get("CI"):
+    settings.load_profile("ci")
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 

@@ -85,7 +85,8 @@ def test_mirrored_steering_mirrors_the_path(speed, steer, steps):
     np.testing.assert_allclose(left[0], right[0], atol=1e-9)
     np.testing.assert_allclose(left[1], -right[1], atol=1e-9)
     np.testing.assert_allclose(left[2], -right[2], atol=1e-12)
-    assert np.sign(left[2][-1]) == np.sign(steer) or steer == 0
+    # A steer so small that the heading change underflows (e.g. 5e-324 rad) has no sign to check.
+    assert np.sign(left[2][-1]) == np.sign(steer) or abs(steer) < 1e-12
 
 
 @settings(max_examples=40, deadline=None)
