@@ -218,7 +218,7 @@ def test_terminates_when_the_car_leaves_the_road():
     env.reset(seed=0)
     half_road_m = 6.0  # 3 lanes of 4 m, starting in the middle one
     previous = 0.0
-    for step in range(200):
+    for step in range(200):  # noqa: B007  (the count is asserted after the loop)
         _, reward, terminated, truncated, info = env.step(act(1.0))
         assert not truncated
         # Full left: the offset grows to the left (positive) monotonically.
@@ -252,7 +252,7 @@ def test_truncated_at_the_end_of_an_open_track():
 def test_duration_truncates():
     env = make(duration_s=1.0)
     env.reset(seed=0)
-    for step in range(1, 100):
+    for step in range(1, 100):  # noqa: B007  (the count is asserted after the loop)
         _, _, terminated, truncated, info = env.step(act(0.0))
         if truncated:
             break

@@ -108,5 +108,5 @@ def run(args) -> int:
     manifest["command"] = "plm-highway collect " + " ".join(
         f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if k != "command")
     out = write_dataset(args.out, frames, steps, manifest)
-    print(json.dumps({"out": str(out), **{"samples": len(frames), "episodes": int(args.episodes)}}))
+    print(json.dumps({"out": str(out), "samples": len(frames), "episodes": int(args.episodes)}))
     return 0

@@ -132,7 +132,7 @@ def load_weights(model: nn.Module, path: str | Path) -> None:
     except Exception as exc:  # unpickling errors have no common base class worth naming
         raise ValueError(f"{weights_path}: not a loadable state_dict ({exc})") from exc
     if not isinstance(state, dict):  # a malformed file is bad input, like a shape mismatch
-        raise ValueError(f"{weights_path}: expected a state_dict, found {type(state).__name__}")  # noqa: TRY004
+        raise ValueError(f"{weights_path}: expected a state_dict, found {type(state).__name__}")
     problems = _state_mismatches(model.state_dict(), state)
     if problems:
         raise ValueError(f"{weights_path}: weights do not match the architecture: " + "; ".join(problems))
@@ -159,7 +159,7 @@ def _config_from(config_class, document: dict, path: str | Path):
     architecture = document.get("architecture")
     json_path = checkpoint_paths(path)[1]
     if not isinstance(architecture, dict):
-        raise ValueError(f"{json_path}: field 'architecture' is missing")  # noqa: TRY004 (bad input file)
+        raise ValueError(f"{json_path}: field 'architecture' is missing")
     known = {field.name for field in dataclasses.fields(config_class)}
     unknown = sorted(set(architecture) - known)
     if unknown:
