@@ -15,6 +15,8 @@ Keys: settings are latency specs as ``plm-highway evaluate --latency`` takes the
 
 from __future__ import annotations
 
+from plm_highway.evaluation.trajectory import METRICS
+
 SOURCE = {
     "paper": (
         "A. Khalil and J. Kwon, PLM-Net: Perception Latency Mitigation Network for Vision-Based Lateral "
@@ -31,7 +33,8 @@ SOURCE = {
 }
 
 STEERING_METRICS = ("mae", "mse", "rmse")
-TRAJECTORY_METRICS = ("pcm", "frechet_dist", "area_between_two_curves", "curve_length_measure", "dtw", "dtsi")
+# The paper's table columns are exactly the metrics we compute, in the same order: one definition.
+TRAJECTORY_METRICS = METRICS
 PARTS = {
     "full": "(a) Full Track",
     "straight": "(b) Straight",
