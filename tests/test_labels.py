@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from plm_highway.data.dataset import read_dataset
-from plm_highway.training.datasets import (
+from plm_highway.training.labels import balance_by_histogram, future_steering_labels, save_balance_figure
+from plm_highway.training.samples import (
     Augmentation,
     LabelledRows,
     adjust_gamma,
@@ -18,7 +19,6 @@ from plm_highway.training.datasets import (
     split_train_val,
     tapm_rows,
 )
-from plm_highway.training.labels import balance_by_histogram, future_steering_labels, save_balance_figure
 from plm_highway.training.synthetic import make_synthetic_dataset
 
 # --- future labels by time ------------------------------------------------------------------------

@@ -29,8 +29,8 @@ from plm_highway.models.checkpoints import (
     save_checkpoint,
     state_fingerprint,
 )
+from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
 from plm_highway.models.plm_net import PLMNet, interpolate_actions
-from plm_highway.models.policies import BaseModelPolicy, PLMNetPolicy
 from plm_highway.models.shipped import load_shipped_plm_net, shipped_checkpoint_dir
 from plm_highway.models.tapm import TAPM, TAPMConfig
 

@@ -10,7 +10,7 @@ import pytest
 from highway_env.vehicle.kinematics import Vehicle
 
 from plm_highway.cli import main
-from plm_highway.data.atomic import atomic_path
+from plm_highway.io.atomic import atomic_path
 from plm_highway.sim2real.recording import (
     SIMULATOR_VEHICLE,
     Recording,

@@ -14,7 +14,7 @@ from plm_highway.data.dataset import read_dataset
 from plm_highway.models.base_model import BaseModel
 from plm_highway.models.checkpoints import load_base_model, load_plm_net
 from plm_highway.models.tapm import TAPM, TAPMConfig
-from plm_highway.training.datasets import bm_rows, split_train_val, tapm_rows
+from plm_highway.training.samples import bm_rows, split_train_val, tapm_rows
 from plm_highway.training.synthetic import make_synthetic_dataset
 from plm_highway.training.train import (
     TrainConfig,

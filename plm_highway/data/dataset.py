@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plm_highway.data.atomic import atomic_path
+from plm_highway.io.atomic import atomic_path
 
 FORMAT = "plm_highway.dataset/1"
 STEP_COLUMNS: dict[str, type] = {

@@ -30,7 +30,7 @@ from highway_env.road.road import Road
 from plm_highway.camera.ground_map import ground_map
 from plm_highway.camera.pinhole import CameraConfig, PinholeCamera
 from plm_highway.camera.topdown import TopDownView
-from plm_highway.envs.vehicle import TrackVehicle
+from plm_highway.envs.ego_vehicle import TrackVehicle
 from plm_highway.road.builder import BuiltRoad, build_road
 from plm_highway.road.geometry import reference_pose_at, segment_lookup
 from plm_highway.road.track import TrackSpec, load_track, parse_track

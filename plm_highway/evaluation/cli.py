@@ -21,10 +21,10 @@ import json
 import math
 from pathlib import Path
 
-from plm_highway.data.atomic import atomic_path, write_text_atomic
 from plm_highway.evaluation.closed_loop import RunLog, drive, make_env, write_log_csv
 from plm_highway.evaluation.policies import POLICY_NAMES, make_policy, single_threaded_inference
 from plm_highway.evaluation.trajectory import finite_or_none, trajectory_method, trajectory_metrics
+from plm_highway.io.atomic import atomic_path, write_text_atomic
 from plm_highway.latency import parse_profile
 from plm_highway.road.track import TrackSpec, load_track
 

@@ -16,7 +16,7 @@ import gymnasium
 import numpy as np
 
 import plm_highway  # noqa: F401  (registers the env)
-from plm_highway.data.atomic import atomic_path
+from plm_highway.io.atomic import atomic_path
 from plm_highway.latency import LatencyWrapper, parse_profile
 
 LOG_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_m", "heading_rad", "speed_mps",

@@ -100,9 +100,9 @@ def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0):
         return ExpertPolicy()
     if name not in POLICY_NAMES:
         raise ValueError(f"--policy {name!r}: expected one of {list(POLICY_NAMES)}")
-    from plm_highway.models import checkpoints, policies
+    from plm_highway.models import checkpoints, inference
 
     bm_path, tapm_path = checkpoint_pair(checkpoint_dir)
     if name == "bm":
-        return VisionPolicy(policies.BaseModelPolicy(checkpoints.load_base_model(bm_path)))
-    return VisionPolicy(policies.PLMNetPolicy(checkpoints.load_plm_net(bm_path, tapm_path)), latency_bias_s)
+        return VisionPolicy(inference.BaseModelPolicy(checkpoints.load_base_model(bm_path)))
+    return VisionPolicy(inference.PLMNetPolicy(checkpoints.load_plm_net(bm_path, tapm_path)), latency_bias_s)

@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from plm_highway.data.atomic import atomic_path
 from plm_highway.evaluation.closed_loop import RunLog, drive
 from plm_highway.evaluation.policies import VisionPolicy
 from plm_highway.evaluation.steering import steering_errors
+from plm_highway.io.atomic import atomic_path
 
 SWEEP_MAX_S = 0.5
 SWEEP_STEP_S = 0.05

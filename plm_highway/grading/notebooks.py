@@ -19,7 +19,7 @@ from pathlib import Path
 
 import nbformat
 
-from plm_highway.data.atomic import write_text_atomic
+from plm_highway.io.atomic import write_text_atomic
 
 BEGIN = "### BEGIN SOLUTION"
 END = "### END SOLUTION"

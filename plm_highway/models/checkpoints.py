@@ -20,7 +20,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from plm_highway.data.atomic import atomic_path, write_text_atomic
+from plm_highway.io.atomic import atomic_path, write_text_atomic
 from plm_highway.models.base_model import BaseModel, BaseModelConfig
 from plm_highway.models.plm_net import PLMNet
 from plm_highway.models.tapm import TAPM, TAPMConfig

@@ -112,7 +112,7 @@ def _run_diagnose(args) -> int:
 
         write_report(result, args.report)
     if args.json:
-        from plm_highway.data.atomic import write_text_atomic
+        from plm_highway.io.atomic import write_text_atomic
 
         write_text_atomic(args.json, json.dumps(data, indent=1) + "\n")
     if not args.quiet:
@@ -124,7 +124,7 @@ def _run_diagnose(args) -> int:
 def _run_make_recording(args) -> int:
     import numpy as np
 
-    from plm_highway.data.atomic import write_text_atomic
+    from plm_highway.io.atomic import write_text_atomic
     from plm_highway.sim2real.recording import write_recording
     from plm_highway.sim2real.synth import NoiseLevels, make_recording
 

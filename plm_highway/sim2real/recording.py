@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plm_highway.data.atomic import atomic_path, write_text_atomic
+from plm_highway.io.atomic import atomic_path, write_text_atomic
 from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE, KinematicBicycleParams
 
 REQUIRED_COLUMNS = ("t", "steer", "speed", "x", "y", "heading")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plm_highway.data.atomic import atomic_path, write_text_atomic
+from plm_highway.io.atomic import atomic_path, write_text_atomic
 from plm_highway.sim2real.diagnose import Diagnosis, to_json
 
 FIGURES = ("overlay.png", "residuals.png", "conditions.png", "candidates.png")

@@ -51,7 +51,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from plm_highway.training.datasets import Augmentation
+    from plm_highway.training.samples import Augmentation
     from plm_highway.training.train import TrainConfig, train_base_model, train_tapm
 
     torch.set_num_threads(args.threads or available_cpus())

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plm_highway.data.atomic import atomic_path
+from plm_highway.io.atomic import atomic_path
 
 # Timestamps are sums of float steps: t + 0.15 may land a few ulps past the episode's last sample.
 TIME_TOLERANCE_S = 1e-6

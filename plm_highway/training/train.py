@@ -33,7 +33,8 @@ from plm_highway.models.checkpoints import (
     state_fingerprint,
 )
 from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S, TAPM, TAPMConfig
-from plm_highway.training.datasets import (
+from plm_highway.training.labels import save_balance_figure
+from plm_highway.training.samples import (
     MIN_EPISODES_FOR_EPISODE_SPLIT,
     SPLIT_BLOCK_S,
     Augmentation,
@@ -46,7 +47,6 @@ from plm_highway.training.datasets import (
     split_train_val,
     tapm_rows,
 )
-from plm_highway.training.labels import save_balance_figure
 
 BALANCE_FIGURE_NAME = "steering_balance.png"
 

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from plm_highway.data.atomic import write_text_atomic
+from plm_highway.io.atomic import write_text_atomic
 
 
 def configure(parser) -> None:

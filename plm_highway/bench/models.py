@@ -45,7 +45,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from plm_highway.data.atomic import write_text_atomic
+    from plm_highway.io.atomic import write_text_atomic
 
     if args.frames < 1 or args.warmup < 0 or args.threads < 1:
         raise ValueError(

@@ -1,0 +1,1 @@
+"""Benchmarks: each prints both sides of a comparison in one run and their ratio."""
