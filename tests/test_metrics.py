@@ -15,7 +15,7 @@ from hypothesis.extra import numpy as hnp
 
 from plm_highway import cli
 from plm_highway import metrics as pm
-from plm_highway.metrics import bench
+from plm_highway.bench import metrics as bench
 
 REL_TOL = 1e-9
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
