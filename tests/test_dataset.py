@@ -53,7 +53,7 @@ def test_write_read_round_trip(tmp_path):
     frames, steps = make_frames(), make_steps()
     out = write_dataset(tmp_path / "ds", frames, steps, {"track": "test", "seed": 3})
     assert out == tmp_path / "ds"
-    assert listing(out) == ["frames.npy", "manifest.json", "steps.npz"]
+    assert listing(out) == [".plm-highway-output.json", "frames.npy", "manifest.json", "steps.npz"]
     data = read_dataset(out)
     assert len(data) == N_ROWS
     assert isinstance(data.frames, np.memmap)  # not loaded into memory
@@ -145,15 +145,19 @@ def test_read_validates_columns(tmp_path):
 # -- atomicity -------------------------------------------------------------------------------------
 
 
-def test_rewriting_replaces_the_dataset(tmp_path):
+def test_rewriting_replaces_the_dataset_only_with_overwrite(tmp_path):
     out = tmp_path / "ds"
     write_dataset(out, make_frames(), make_steps(), {"version": 1})
     (out / "stale.txt").write_text("left over from the first write")
-    write_dataset(out, make_frames(6), make_steps(6, episodes=2), {"version": 2})
+    with pytest.raises(ValueError, match="--overwrite"):
+        write_dataset(out, make_frames(6), make_steps(6, episodes=2), {"version": 2})
+    assert read_dataset(out).manifest["version"] == 1
+    write_dataset(out, make_frames(6), make_steps(6, episodes=2), {"version": 2}, overwrite=True)
     data = read_dataset(out)
     assert len(data) == 6 and data.manifest["version"] == 2
     assert data.manifest["counts"] == {"samples": 6, "episodes": 2}
-    assert listing(tmp_path) == ["ds", "ds/frames.npy", "ds/manifest.json", "ds/steps.npz"]
+    assert listing(tmp_path) == ["ds", "ds/.plm-highway-output.json", "ds/frames.npy", "ds/manifest.json",
+                                 "ds/steps.npz"]
 
 
 def test_failed_rewrite_keeps_the_old_dataset(tmp_path):
@@ -161,7 +165,7 @@ def test_failed_rewrite_keeps_the_old_dataset(tmp_path):
     write_dataset(out, make_frames(), make_steps(), {"version": 1})
     before = listing(tmp_path)
     with pytest.raises(ValueError):
-        write_dataset(out, make_frames(), _without(make_steps(), "steering"), {"version": 2})
+        write_dataset(out, make_frames(), _without(make_steps(), "steering"), {"version": 2}, overwrite=True)
     assert listing(tmp_path) == before
     assert read_dataset(out).manifest["version"] == 1
 
@@ -176,7 +180,7 @@ def test_crash_during_the_write_leaves_nothing_behind(tmp_path, monkeypatch):
 
     monkeypatch.setattr(dataset_module.np, "savez", crash)
     with pytest.raises(OSError, match="disk full"):
-        write_dataset(out, make_frames(6), make_steps(6, episodes=2), {"version": 2})
+        write_dataset(out, make_frames(6), make_steps(6, episodes=2), {"version": 2}, overwrite=True)
     with pytest.raises(OSError):
         write_dataset(tmp_path / "new", make_frames(), make_steps(), {})
     monkeypatch.undo()

@@ -407,7 +407,10 @@ def test_bench_skip_reference(capsys):
     assert "similaritymeasures 1" not in capsys.readouterr().out
 
 
-def test_bench_rejects_missing_json_directory(tmp_path, capsys):
-    missing = tmp_path / "nowhere" / "out.json"
-    assert cli.main(["bench", "metrics", "--points", "30", "--json", str(missing)]) == cli.EXIT_BAD_INPUT
-    assert "does not exist" in capsys.readouterr().err
+def test_bench_refuses_a_foreign_json_before_benchmarking(tmp_path, capsys):
+    foreign = tmp_path / "notes.json"
+    foreign.write_text('{"mine": true}')
+    assert cli.main(["bench", "metrics", "--points", "30", "--json", str(foreign)]) == cli.EXIT_BAD_INPUT
+    err = capsys.readouterr()
+    assert "refusing to replace" in err.err and "curves:" not in err.out
+    assert foreign.read_text() == '{"mine": true}'

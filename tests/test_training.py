@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shlex
 import os
 
 import numpy as np
@@ -86,7 +87,9 @@ def test_train_bm_and_tapm_through_the_cli_and_reload_them(data_dir, tmp_path, c
     training = tapm_document["training"]
     assert training["epochs_run"] == 2 and training["data_seed"] == 0 and training["config"]["seed"] == 3
     assert training["data_manifest"].endswith("manifest.json")
-    assert training["command"].startswith("plm-highway train tapm --data")
+    # the command exactly as typed, ready to paste back into a shell
+    assert training["command"] == shlex.join(["plm-highway", "train", "tapm", "--out", str(tmp_path / "tapm"),
+                                              "--bm", str(tmp_path / "bm"), *common])
     assert (tmp_path / "bm" / "steering_balance.png").is_file()
 
 
@@ -177,7 +180,7 @@ def test_train_reports_a_missing_dataset(tmp_path, capsys):
 
 
 def test_delta_grid_option_is_parsed_and_checked():
-    from plm_highway.training.cli import parse_delta_grid
+    from plm_highway.training.train import parse_delta_grid
 
     assert parse_delta_grid("0.1, 0.2,0.3") == (0.1, 0.2, 0.3)
     with pytest.raises(ValueError, match="--delta-grid"):

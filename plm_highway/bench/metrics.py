@@ -8,17 +8,15 @@ fastest of ``--repeat`` runs; the reference runs once because it takes minutes a
 from __future__ import annotations
 
 import argparse
-import contextlib
-import json
-import os
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
+from plm_highway.bench import BENCH_RESULT
+from plm_highway.io import check_target, write_json
 from plm_highway.metrics import curves
 
 METRICS = ("frechet_dist", "dtw", "area_between_two_curves", "curve_length_measure", "pcm")
@@ -165,30 +163,13 @@ def _format_table(table: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
-def write_json_atomic(path: Path, payload: dict) -> None:
-    """Write JSON to a temporary file beside ``path``, then rename it over ``path``."""
-    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(payload, fh, indent=2)
-            fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp_name, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp_name)
-        raise
-
-
 def _check_args(args: argparse.Namespace) -> None:
     if args.points < 3:
         raise ValueError(f"--points: needs at least 3, got {args.points}")
     if args.repeat < 1:
         raise ValueError(f"--repeat: needs at least 1, got {args.repeat}")
-    # fail now rather than after minutes of benchmarking
-    if args.json is not None and not args.json.resolve().parent.is_dir():
-        raise FileNotFoundError(f"--json: directory {args.json.resolve().parent} does not exist")
+    if args.json is not None:  # fail now rather than after minutes of benchmarking
+        check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -210,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
             "python": sys.version.split()[0],
             "metrics": table,
         }
-        write_json_atomic(args.json, payload)
+        write_json(args.json, payload, BENCH_RESULT, overwrite=args.overwrite)
         _say(f"wrote {args.json}")
     if mismatched:
         _say(f"MISMATCH beyond {MATCH_REL_TOL:g} relative: {', '.join(mismatched)}")

@@ -16,12 +16,13 @@ the run is recorded for the same reason.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from typing import NamedTuple
 
 import numpy as np
+
+from plm_highway.bench import BENCH_RESULT
 
 BLOCK_FRAMES = 50
 TARGET_OVERHEAD_RATIO = 1.25
@@ -30,7 +31,7 @@ SPEED_MPS = 16.7
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--preset", choices=("default", "paper"), default="default")
+    parser.add_argument("--preset", choices=("default", "paper"), default="default", help="model size preset")
     parser.add_argument(
         "--frames", type=int, default=500, help="timed frames per model (>= 500 for the report)"
     )
@@ -39,13 +40,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--threads", type=int, default=1, help="torch intra-op threads (default: %(default)s)"
     )
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random weights and inputs")
 
 
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from plm_highway.io.atomic import write_text_atomic
+    from plm_highway.io import write_json
 
     if args.frames < 1 or args.warmup < 0 or args.threads < 1:
         raise ValueError(
@@ -56,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     result = benchmark_models(args.preset, args.frames, args.warmup, args.seed)
     print(format_report(result))
     if args.json:
-        write_text_atomic(args.json, json.dumps(result, indent=2) + "\n")
+        write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
     return 0
 
 

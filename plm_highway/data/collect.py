@@ -1,4 +1,4 @@
-"""``plm-highway collect``: record expert demonstrations, with recovery, for imitation learning.
+"""Record expert demonstrations, with recovery, for imitation learning.
 
 A policy trained only on perfect driving has never seen the car off-centre, so it drifts off
 once its own errors accumulate. Most episodes therefore start displaced (lateral offset and
@@ -9,34 +9,16 @@ action. Every displacement starts a new episode, so future-action labels never s
 
 from __future__ import annotations
 
-import argparse
-import json
-
 import gymnasium
 import numpy as np
 from tqdm import tqdm
 
 import plm_highway  # noqa: F401  (registers the env)
-from plm_highway.data.dataset import STEP_COLUMNS, write_dataset
+from plm_highway.data.dataset import STEP_COLUMNS
 from plm_highway.envs.lane_keeping import PAPER_CAMERA
 from plm_highway.expert import ExpertPolicy
 
 RECOVERY_WINDOW_S = 2.0  # frames this soon after a displaced start are flagged `perturbed`
-
-
-def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--track", default="train", help="train, test, unseen or a track JSON path")
-    parser.add_argument("--out", required=True, help="dataset directory to write")
-    parser.add_argument("--episodes", type=int, default=200)
-    parser.add_argument("--episode-seconds", type=float, default=8.0)
-    parser.add_argument("--displaced-fraction", type=float, default=0.7,
-                        help="share of episodes that start off-centre (recovery demonstrations)")
-    parser.add_argument("--max-offset-m", type=float, default=1.5)
-    parser.add_argument("--max-heading-error-deg", type=float, default=6.0)
-    parser.add_argument("--speed-mps", type=float, default=16.7)
-    parser.add_argument("--camera", choices=["default", "paper"], default="default",
-                        help="paper: 160x160 frames like the original PLM-Net input")
-    parser.add_argument("--seed", type=int, default=0)
 
 
 def collect(track: str = "train", episodes: int = 200, episode_seconds: float = 8.0, displaced_fraction: float = 0.7,
@@ -98,15 +80,3 @@ def _append_step(columns: dict, episode_id: int, info: dict, label: float, pertu
     }
     for name, value in row.items():
         columns[name].append(value)
-
-
-def run(args) -> int:
-    frames, steps, manifest = collect(
-        args.track, args.episodes, args.episode_seconds, args.displaced_fraction, args.max_offset_m,
-        args.max_heading_error_deg, args.speed_mps, args.camera, args.seed,
-    )
-    manifest["command"] = "plm-highway collect " + " ".join(
-        f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if k != "command")
-    out = write_dataset(args.out, frames, steps, manifest)
-    print(json.dumps({"out": str(out), "samples": len(frames), "episodes": int(args.episodes)}))
-    return 0

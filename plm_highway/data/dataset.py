@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plm_highway.io.atomic import atomic_path
+from plm_highway.io import directory_kind, write_output
 
 FORMAT = "plm_highway.dataset/1"
 STEP_COLUMNS: dict[str, type] = {
@@ -42,6 +42,17 @@ STEP_COLUMNS: dict[str, type] = {
 }
 
 
+def _has_dataset_manifest(path: Path) -> bool:
+    """Datasets written before output markers existed: a manifest of this format."""
+    try:
+        return json.loads((path / "manifest.json").read_text(encoding="utf-8")).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+DATASET = directory_kind("dataset", "a plm-highway dataset directory", _has_dataset_manifest)
+
+
 @dataclass
 class Dataset:
     manifest: dict
@@ -52,8 +63,9 @@ class Dataset:
         return len(self.frames)
 
 
-def write_dataset(out_dir: str | Path, frames: np.ndarray, steps: dict[str, np.ndarray], manifest: dict) -> Path:
-    """Validate and write a dataset atomically; returns the directory."""
+def write_dataset(out_dir: str | Path, frames: np.ndarray, steps: dict[str, np.ndarray], manifest: dict,
+                  overwrite: bool = False) -> Path:
+    """Validate and write a dataset atomically (see :mod:`plm_highway.io.outputs`); returns the directory."""
     frames = np.asarray(frames)
     if frames.dtype != np.uint8 or frames.ndim != 3:
         raise ValueError(f"frames: expected uint8 (N, H, W), got {frames.dtype} {frames.shape}")
@@ -61,8 +73,7 @@ def write_dataset(out_dir: str | Path, frames: np.ndarray, steps: dict[str, np.n
     manifest = {**manifest, "format": FORMAT}
     manifest["counts"] = {"samples": int(len(frames)), "episodes": int(len(np.unique(columns["episode_id"])))}
     out_dir = Path(out_dir)
-    with atomic_path(out_dir) as tmp:
-        tmp.mkdir()
+    with write_output(out_dir, DATASET, overwrite=overwrite) as tmp:
         np.save(tmp / "frames.npy", frames)
         np.savez(tmp / "steps.npz", **columns)
         (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2))

@@ -19,7 +19,17 @@ from pathlib import Path
 
 import nbformat
 
-from plm_highway.io.atomic import write_text_atomic
+from plm_highway.io import file_kind, write_text
+
+def _is_notebook(path: Path) -> bool:
+    try:
+        return isinstance(nbformat.read(path, as_version=4).cells, list)
+    except Exception:  # any unreadable file is not a notebook this build wrote
+        return False
+
+
+# `lessons build` regenerates the kit's own notebooks: it replaces notebooks only, never other files.
+NOTEBOOK = file_kind("notebook", "a Jupyter notebook", None, _is_notebook)
 
 BEGIN = "### BEGIN SOLUTION"
 END = "### END SOLUTION"
@@ -27,8 +37,8 @@ STUB = 'raise NotImplementedError("your code here")'
 
 
 def configure(parser) -> None:
-    parser.add_argument("--solutions", default="solutions")
-    parser.add_argument("--lessons", default="lessons")
+    parser.add_argument("--solutions", default="solutions", help="folder of solution notebooks (the single source)")
+    parser.add_argument("--lessons", default="lessons", help="folder of student notebooks to write")
     parser.add_argument("--check", action="store_true", help="exit 1 if any notebook would change")
 
 
@@ -98,7 +108,7 @@ def build(solutions_dir: Path, lessons_dir: Path, check: bool = False) -> list[P
             if not target.exists() or target.read_text() != text:
                 changed.append(target)
                 if not check:
-                    write_text_atomic(target, text)
+                    write_text(target, text, NOTEBOOK, overwrite=True)
     return changed
 
 

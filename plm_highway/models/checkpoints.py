@@ -20,7 +20,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from plm_highway.io.atomic import atomic_path, write_text_atomic
+from plm_highway.io import directory_kind
 from plm_highway.models.base_model import BaseModel, BaseModelConfig
 from plm_highway.models.plm_net import PLMNet
 from plm_highway.models.tapm import TAPM, TAPMConfig
@@ -28,6 +28,17 @@ from plm_highway.models.tapm import TAPM, TAPMConfig
 FORMAT = "plm_highway.checkpoint/1"
 KIND_BASE_MODEL = "base_model"
 KIND_TAPM = "tapm"
+
+
+def _has_checkpoint_description(path: Path) -> bool:
+    """Checkpoint directories written before output markers existed: a ``model.json`` of this format."""
+    try:
+        return json.loads((path / "model.json").read_text(encoding="utf-8")).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+CHECKPOINT = directory_kind("checkpoint", "a plm-highway checkpoint directory", _has_checkpoint_description)
 
 
 def checkpoint_paths(path: str | Path) -> tuple[Path, Path]:
@@ -49,7 +60,11 @@ def state_fingerprint(module: nn.Module) -> str:
 
 
 def save_checkpoint(path: str | Path, model: BaseModel | TAPM, description: dict) -> Path:
-    """Write ``model``'s weights and ``description`` (plus kind, architecture, fingerprint); returns the .pt."""
+    """Write ``model``'s weights and ``description`` (plus kind, architecture, fingerprint); returns the .pt.
+
+    Plain writes: call it inside a directory staged by :func:`plm_highway.io.write_output` (training
+    does), so the checkpoint is published whole or not at all.
+    """
     weights_path, json_path = checkpoint_paths(path)
     kind = KIND_BASE_MODEL if isinstance(model, BaseModel) else KIND_TAPM
     identity = {
@@ -61,9 +76,9 @@ def save_checkpoint(path: str | Path, model: BaseModel | TAPM, description: dict
     }
     # The identity fields are derived from the model and always win over the caller's.
     document = {"format": FORMAT, **description, **identity}
-    with atomic_path(weights_path) as tmp:
-        torch.save(model.state_dict(), tmp)
-    write_text_atomic(json_path, json.dumps(document, indent=2) + "\n")
+    weights_path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(model.state_dict(), weights_path)
+    json_path.write_text(json.dumps(document, indent=2) + "\n", encoding="utf-8")
     return weights_path
 
 

@@ -24,8 +24,10 @@ from torch.nn import functional as F
 from tqdm import tqdm
 
 from plm_highway.data.dataset import Dataset, read_dataset
+from plm_highway.io import check_target, write_output
 from plm_highway.models.base_model import BaseModel, preset_config
 from plm_highway.models.checkpoints import (
+    CHECKPOINT,
     KIND_BASE_MODEL,
     load_base_model,
     read_description,
@@ -200,13 +202,12 @@ def evaluate(model, loss_fn, frames: np.ndarray, rows: LabelledRows, batch_size:
 
 
 def prepare_rows(
-    rows: LabelledRows, config: TrainConfig, rng: np.random.Generator, figure_path: Path | None
-) -> tuple[LabelledRows, LabelledRows, dict]:
-    """Balance, subset and split ``rows``; returns (train, val, counts for the summary)."""
+    rows: LabelledRows, config: TrainConfig, rng: np.random.Generator
+) -> tuple[LabelledRows, LabelledRows, dict, tuple[np.ndarray, np.ndarray]]:
+    """Balance, subset and split ``rows``; returns (train, val, counts, steering before/after balancing)."""
     steering_before = rows.steering
     rows = balanced(rows, config.balance_max_per_bin, rng)
-    if figure_path is not None:
-        save_balance_figure(steering_before, rows.steering, figure_path)
+    histograms = (steering_before, rows.steering)
     n_balanced = len(rows)
     rows = at_most(rows, config.max_samples, rng)
     train_rows, val_rows = split_train_val(rows, config.val_fraction, rng)
@@ -217,7 +218,14 @@ def prepare_rows(
         "rows_train": len(train_rows),
         "rows_val": len(val_rows),
     }
-    return train_rows, val_rows, counts
+    return train_rows, val_rows, counts, histograms
+
+
+def _write_checkpoint_dir(out_dir: Path, model, description: dict, histograms, overwrite: bool) -> None:
+    """The checkpoint, its description and the balancing figure, published together."""
+    with write_output(out_dir, CHECKPOINT, overwrite=overwrite) as staged:
+        save_checkpoint(staged, model, description)
+        save_balance_figure(*histograms, staged / BALANCE_FIGURE_NAME)
 
 
 def train_base_model(
@@ -226,14 +234,16 @@ def train_base_model(
     preset: str = "default",
     config: TrainConfig = TrainConfig(),
     command: str = "",
+    overwrite: bool = False,
 ) -> dict:
     """Train a BM on the dataset at ``data_dir``; writes ``out_dir/model.pt`` + ``model.json``; returns the description."""
     dataset = read_dataset(data_dir)
     model_config = preset_config(preset)
     _check_frame_size(dataset, model_config.image_size_px, f"preset {preset!r}")
+    check_target(out_dir, CHECKPOINT, overwrite=overwrite)
     out_dir = Path(out_dir)
     rng = np.random.default_rng(config.seed)
-    train_rows, val_rows, counts = prepare_rows(bm_rows(dataset), config, rng, out_dir / BALANCE_FIGURE_NAME)
+    train_rows, val_rows, counts, histograms = prepare_rows(bm_rows(dataset), config, rng)
     with deterministic(config.seed):
         bm = BaseModel(model_config)
         result = fit(bm, bm_loss(bm), dataset.frames, train_rows, val_rows, config, "BM")
@@ -242,7 +252,7 @@ def train_base_model(
         "image_size_px": list(model_config.image_size_px),
         "training": _training_summary(data_dir, dataset, config, result, counts, command),
     }
-    save_checkpoint(out_dir, bm, description)
+    _write_checkpoint_dir(out_dir, bm, description, histograms, overwrite)
     return description
 
 
@@ -253,16 +263,18 @@ def train_tapm(
     config: TrainConfig = TrainConfig(),
     delta_grid_s: tuple[float, ...] = DEFAULT_DELTA_GRID_S,
     command: str = "",
+    overwrite: bool = False,
 ) -> dict:
     """Train a TAPM on the frozen BM at ``bm_path``; writes ``out_dir/model.pt`` + ``model.json``."""
     bm = freeze(load_base_model(bm_path))
     bm_description = read_description(bm_path, KIND_BASE_MODEL)
     dataset = read_dataset(data_dir)
     _check_frame_size(dataset, bm.config.image_size_px, f"the BM at {bm_path}")
+    check_target(out_dir, CHECKPOINT, overwrite=overwrite)
     tapm_config = TAPMConfig(image_feature_dim=bm.image_feature_dim, delta_grid_s=delta_grid_s)
     rng = np.random.default_rng(config.seed)
     rows = tapm_rows(dataset, tapm_config.delta_grid_s)
-    train_rows, val_rows, counts = prepare_rows(rows, config, rng, Path(out_dir) / BALANCE_FIGURE_NAME)
+    train_rows, val_rows, counts, histograms = prepare_rows(rows, config, rng)
     with deterministic(config.seed):
         tapm = TAPM(tapm_config)
         result = fit(tapm, tapm_loss(tapm, bm), dataset.frames, train_rows, val_rows, config, "TAPM")
@@ -274,7 +286,7 @@ def train_tapm(
         "bm_fingerprint": state_fingerprint(bm),
         "training": _training_summary(data_dir, dataset, config, result, counts, command),
     }
-    save_checkpoint(out_dir, tapm, description)
+    _write_checkpoint_dir(Path(out_dir), tapm, description, histograms, overwrite)
     return description
 
 
@@ -305,3 +317,20 @@ def _training_summary(
         "best_val_loss": result.best_val_loss if math.isfinite(result.best_val_loss) else None,
         "threads": torch.get_num_threads(),
     }
+
+
+def parse_delta_grid(text: str) -> tuple[float, ...]:
+    """``"0.15,0.2"`` -> (0.15, 0.2): the TAPM latencies in seconds."""
+    try:
+        return tuple(float(part) for part in text.split(",") if part.strip())
+    except ValueError as exc:
+        raise ValueError(f"--delta-grid: expected comma-separated seconds, got {text!r}") from exc
+
+
+def check_bm_preset(bm_path: str | Path, preset: str | None) -> None:
+    """Refuse a BM trained with another preset than ``preset`` (None: any)."""
+    if preset is None:
+        return
+    bm_preset = read_description(bm_path, KIND_BASE_MODEL).get("preset")
+    if bm_preset != preset:
+        raise ValueError(f"--preset {preset} given, but the BM at {bm_path} was trained with preset {bm_preset!r}")
