@@ -273,15 +273,19 @@ def densify(num, n_points_out):
     seg = np.empty(n_points_out - 1)
     for r in range(n - 1):
         seg[r] = _row_distance(work, r)
+    x_sum = np.empty(1, dtype=num.dtype)  # numpy adds two float32 in float32, numba in float64
     for count in range(n, n_points_out):
         i = _first_argmax(seg, count - 1)
         xa = out[i, 0]
         xb = out[i + 1, 0]
-        new_x = (xb + xa) / 2.0
+        x_sum[0] = xb + xa
+        new_x = x_sum[0] / 2.0
+        # np.interp computes in float64 (numba's float() would keep a float32 a float32)
+        x, left, right = np.float64(new_x), np.float64(out[i, 1]), np.float64(out[i + 1, 1])
         if xa < xb:
-            new_y = _np_interp_two_points(float(new_x), float(xa), float(xb), float(out[i, 1]), float(out[i + 1, 1]))
+            new_y = _np_interp_two_points(x, np.float64(xa), np.float64(xb), left, right)
         else:
-            new_y = _np_interp_two_points(float(new_x), float(xb), float(xa), float(out[i + 1, 1]), float(out[i, 1]))
+            new_y = _np_interp_two_points(x, np.float64(xb), np.float64(xa), right, left)
         for r in range(count, i + 1, -1):
             for c in range(n_cols):
                 out[r, c] = out[r - 1, c]
