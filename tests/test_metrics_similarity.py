@@ -221,7 +221,7 @@ DTW_METRICS = [
 ]
 
 
-@pytest.mark.parametrize(("metric", "kwargs"), DTW_METRICS, ids=[f"{m}-{k}" for m, k in DTW_METRICS])
+@pytest.mark.parametrize(("metric", "kwargs"), DTW_METRICS, ids=[f"{getattr(m, '__name__', m)}-{k}" for m, k in DTW_METRICS])
 def test_dtw_metrics(metric, kwargs):
     assert_all_match([(f"{a}, {b}", "dtw", (CURVES[a], CURVES[b], metric), kwargs)
                       for a in SOME_CURVES for b in ("random", "random_longer", a)])

@@ -177,7 +177,7 @@ def _same_arithmetic_vectorised(x, y, x_arr: np.ndarray, y_arr: np.ndarray) -> b
 
 
 def _get_length_loop(x, y, n, xmax, ymax):
-    """get_length's original loop, for inputs that are not 1-D numeric arrays (same errors)."""
+    """get_length's original loop, where whole-array numpy would differ (same errors and rounding)."""
     le = np.zeros(n)
     l_sum = np.zeros(n)
     for i in range(n - 1):
