@@ -11,7 +11,7 @@ from tiny_models import tiny_checkpoints
 from plm_highway import cli
 from plm_highway.evaluation import paper_results as paper
 from plm_highway.evaluation import reproduce
-from plm_highway.evaluation.steering import reduction_pct
+from plm_highway.metrics.steering import reduction_pct
 
 TABLE_NAMES = ["Table 3", "Table 4", "Table 5", "Table 6", "Table A1", "Table A2", "Table A3", "Table A4",
                "Table A5", "Table A6"]

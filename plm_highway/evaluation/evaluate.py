@@ -57,7 +57,7 @@ def compare_runs(logs: dict[str, RunLog], track, latency_spec: str, policy: str,
     result = {"track": str(track if not isinstance(track, TrackSpec) else track.name), "latency": latency_spec,
               "policy": policy, "seed": seed, "runs": {name: log.summary() for name, log in logs.items()}}
     if "mitigated" in logs:
-        from plm_highway.evaluation.steering import steering_comparison
+        from plm_highway.evaluation.comparison import steering_comparison
         result["steering"] = steering_comparison(logs)
     track_spec = track if isinstance(track, TrackSpec) else load_track(track)
     result["trajectory"] = trajectory_metrics(logs, track_spec)

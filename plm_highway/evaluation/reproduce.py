@@ -35,8 +35,7 @@ from tqdm import tqdm
 from plm_highway.evaluation import paper_results as paper
 from plm_highway.evaluation.closed_loop import drive
 from plm_highway.evaluation.evaluate import check_inputs, compare_runs, run_steps
-from plm_highway.evaluation.policies import checkpoint_pair, make_policy
-from plm_highway.evaluation.steering import ERROR_NAMES, reduction_pct
+from plm_highway.evaluation.policies import checkpoint_pair, make_policy, single_threaded_inference
 from plm_highway.evaluation.trajectory import (
     METRIC_LABELS,
     METRICS,
@@ -45,6 +44,7 @@ from plm_highway.evaluation.trajectory import (
     representative_segment,
 )
 from plm_highway.io import check_target, directory_kind, json_text, write_csv_into, write_output
+from plm_highway.metrics.steering import ERROR_NAMES, reduction_pct
 from plm_highway.road.track import TrackSpec, load_track
 
 DEFAULT_SETTINGS = ("const:0.15", "const:0.2", "const:0.25", "const:0.3", "steps:0.0-0.35:1.0")

@@ -123,7 +123,7 @@ def kit_table_3_runs(max_steps: int | None, checkpoints: str | None, latency: st
 def check_table_3(drive_table_3, steering_errors, reduction_pct, max_steps=None, checkpoints=None) -> dict:
     """The student's three runs are the paper's (BM without latency, BM and PLM-Net with 0.2 s, one
     seed) and their Table 3 numbers equal the kit's. Returns the student's runs."""
-    from plm_highway.evaluation.steering import steering_comparison
+    from plm_highway.evaluation.comparison import steering_comparison
 
     logs = call_student(drive_table_3, TABLE_3_LATENCY, max_steps=max_steps, checkpoints=checkpoints,
                         what="drive_table_3(latency, max_steps, checkpoints)")
