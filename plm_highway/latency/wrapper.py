@@ -35,16 +35,17 @@ INJECTIONS = ("time", "legacy-fifo")
 class TimeLookup:
     """History looked up by time: the newest snapshot at or before ``now - latency``."""
 
-    def __init__(self, max_latency_s: float, simulation_dt_s: float) -> None:
+    def __init__(self, max_latency_s: float) -> None:
         self.max_latency_s = max_latency_s
-        self.simulation_dt_s = simulation_dt_s
+        self.simulation_dt_s = 0.0
         self._times_s: deque[float] = deque()
         self._snapshots: deque = deque()
 
     def __len__(self) -> int:
         return len(self._snapshots)
 
-    def reset(self) -> None:
+    def reset(self, simulation_dt_s: float, policy_dt_s: float) -> None:
+        self.simulation_dt_s = simulation_dt_s
         self._times_s.clear()
         self._snapshots.clear()
 
@@ -78,14 +79,15 @@ class LegacyFifo:
     more than ``max delta`` frames.
     """
 
-    def __init__(self, policy_dt_s: float) -> None:
-        self.policy_dt_s = policy_dt_s
+    def __init__(self) -> None:
+        self.policy_dt_s = 0.0
         self._fifo: deque = deque()
 
     def __len__(self) -> int:
         return len(self._fifo)
 
-    def reset(self) -> None:
+    def reset(self, simulation_dt_s: float, policy_dt_s: float) -> None:
+        self.policy_dt_s = policy_dt_s
         self._fifo.clear()
 
     def delta_frames(self, latency_s: float) -> int:
@@ -105,7 +107,7 @@ class LegacyFifo:
         return current
 
 
-class LatencyWrapper(gymnasium.Wrapper):
+class LatencyWrapper(gymnasium.Wrapper, gymnasium.utils.RecordConstructorArgs):
     """Deliver observations ``profile.latency_s(t)`` seconds old.
 
     ``info["latency_s"]`` is the requested latency, ``info["observation_age_s"]`` the true age of
@@ -114,13 +116,20 @@ class LatencyWrapper(gymnasium.Wrapper):
 
     ``injection`` is ``"time"`` (default: exact ages) or ``"legacy-fifo"`` (the original code's
     FIFO, whose ages differ from the requested latency while it changes).
+
+    Like gymnasium's own wrappers it records its arguments in ``env.spec``, so ``env.spec.make()``
+    rebuilds the same stack (a trace is read again from its path).
     """
 
     def __init__(self, env: gymnasium.Env, profile: LatencyProfile | str | float, max_latency_s: float = 1.0,
                  injection: str = "time"):
-        super().__init__(env)
+        parsed = parse_profile(profile)
+        gymnasium.utils.RecordConstructorArgs.__init__(
+            self, profile=profile if isinstance(profile, LatencyProfile) else parsed.spec,
+            max_latency_s=max_latency_s, injection=injection)
+        gymnasium.Wrapper.__init__(self, env)
         # A private copy: two wrappers given one profile object must not share its random state.
-        self.profile = copy.deepcopy(parse_profile(profile))
+        self.profile = copy.deepcopy(parsed)
         max_latency_s = float(max_latency_s)
         if not (math.isfinite(max_latency_s) and 0.0 <= max_latency_s <= MAX_LATENCY_S):
             raise ValueError(f"max_latency_s {max_latency_s!r} is outside [0, {MAX_LATENCY_S:g}] s")
@@ -133,11 +142,7 @@ class LatencyWrapper(gymnasium.Wrapper):
         if injection not in INJECTIONS:
             raise ValueError(f"injection {injection!r}: expected one of {', '.join(INJECTIONS)}")
         self.injection = injection
-        base = self.env.unwrapped
-        if injection == "time":
-            self._history = TimeLookup(self.max_latency_s, base.simulation_dt_s)
-        else:
-            self._history = LegacyFifo(1.0 / base.config["policy_frequency"])
+        self._history = TimeLookup(self.max_latency_s) if injection == "time" else LegacyFifo()
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         _, info = self.env.reset(seed=seed, options=options)
@@ -145,7 +150,9 @@ class LatencyWrapper(gymnasium.Wrapper):
         # in every run, without drawing from (and so changing) the env's own random stream.
         seed_sequence = self.env.unwrapped.np_random.bit_generator.seed_seq.spawn(1)[0]
         self.profile.reset(np.random.default_rng(seed_sequence))
-        self._history.reset()
+        # Rates are read at every reset: reset(options={"config": ...}) may change them.
+        base = self.env.unwrapped
+        self._history.reset(base.simulation_dt_s, 1.0 / base.config["policy_frequency"])
         return self._delayed(info)
 
     def step(self, action):
