@@ -229,6 +229,23 @@ def test_age_property_steps(bounds, period_s, episode):
         assert_age_follows_latency(info, value)
 
 
+@settings(max_examples=25, deadline=None)
+@given(low=st.integers(0, 12), width=st.integers(0, 12), every=st.integers(1, 40), rate_hz=st.sampled_from([20, 30, 60]),
+       episode=episode)
+def test_age_property_frames(low, width, every, rate_hz, episode):
+    high = low + width
+    env = LatencyWrapper(base_env(episode["policy_hz"]), f"frames:{low}-{high}:{every}@{rate_hz}")
+    records, _ = run_episode(env, episode["steps"], episode["seed"], episode["action_seed"])
+    by_block: dict[int, float] = {}
+    for _, info in records:
+        frames = info["latency_s"] * rate_hz
+        assert frames == pytest.approx(round(frames), abs=1e-9) and low <= round(frames) <= high
+        # One draw per block of `every` frames of the loop (indices computed by hand from the time).
+        block = math.floor(info["time"] * rate_hz / every + 1e-9)
+        assert by_block.setdefault(block, info["latency_s"]) == info["latency_s"]
+        assert_age_follows_latency(info, info["latency_s"])
+
+
 # -- growing latency: the age never drops below it (the original ROS bug) --------------------------
 
 
