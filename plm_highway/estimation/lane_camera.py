@@ -14,13 +14,16 @@ frames:
 3. **Fit**: all boundaries at once. With the lane centre line ``c(x) = c0 + c1 x + c2 x^2`` in the car
    frame, boundary ``k`` lies at ``c(x) + (k + 1/2) w`` (``k = 0`` the ego lane's left boundary,
    ``k = -1`` its right one). Points are assigned to their nearest boundary and ``(c0, c1, c2, w)`` is
-   fitted by least squares, a few times with shrinking tolerance. This is the paper's average of the
+   fitted by least squares, a few times with a shrinking outlier gate. This is the paper's average of the
    left and right polynomials (Eqs. (20)-(22)) when both are seen, and still works with one.
 
-Then ``d = -c0 cos(dpsi)``, ``dpsi = -atan(c1)``, ``kappa = 2 c2 / (1 + c1^2)^(3/2)`` (d is the car's
-offset from the lane centre, left positive). Lane identity is tracked: given the previous measurement,
-the boundaries keep their indices, so ``d`` stays continuous through a lane change (it is measured from
-the lane the tracker started in); without one, the lane the car is in is taken.
+The fit runs in a frame turned to the lane's first heading (from a phase search that needs no guess of
+which point belongs to which boundary, :func:`initial_centre_line`): there a parabola describes an arc
+well even when the car is at 10 deg to the lane. Then, at the point of the centre line nearest the car,
+``d`` (the car's offset from the lane centre, left positive), ``dpsi = -(lane heading)`` and
+``kappa = y'' / (1 + y'^2)^(3/2)`` (the paper's Eqs. (15)-(17) without their small-angle shortcuts).
+Lane identity is tracked: given the previous measurement, ``d`` is taken from the lane it followed, so
+it stays continuous through a lane change; without one, the lane the car is in is taken.
 """
 
 from __future__ import annotations
@@ -137,18 +140,18 @@ def fit_lane(forward_m: np.ndarray, left_m: np.ndarray, config: LaneDetectorConf
     if len(forward_m) < config.min_points:
         return None
     width_m = config.lane_width_m if previous is None else previous.lane_width_m
-    centre = initial_centre_line(forward_m, left_m, width_m)
-    if previous is None:
-        # No lane identity yet: measure from the lane the car is in.
-        centre[0] -= width_m * np.round(centre[0] / width_m)
-    else:
-        # Keep the lane the tracker follows: the boundary pattern repeats every lane width.
-        previous_c0 = -previous.offset_m / math.cos(previous.heading_rad)
-        centre[0] += width_m * np.round((previous_c0 - centre[0]) / width_m)
-    powers = np.stack([np.ones_like(forward_m), forward_m, forward_m ** 2], axis=1)
+    c0, slope, bend = initial_centre_line(forward_m, left_m, width_m)
+    # Fit in a frame turned to the lane's first heading: there the lane is nearly along the axis, and a
+    # parabola describes a circular arc well (in the car frame a curve seen at 10 deg needs a cubic term).
+    turn = math.atan(slope)
+    cos_t, sin_t = math.cos(turn), math.sin(turn)
+    along_m = forward_m * cos_t + left_m * sin_t
+    across_m = -forward_m * sin_t + left_m * cos_t
+    centre = np.array([c0 * cos_t, 0.0, bend / cos_t ** 3])
+    powers = np.stack([np.ones_like(along_m), along_m, along_m ** 2], axis=1)
     tolerance_m = config.max_residual_m
     for _ in range(config.fit_iterations):
-        relative_m = left_m - powers @ centre
+        relative_m = across_m - powers @ centre
         boundary = np.round(relative_m / width_m - 0.5)
         residual_m = relative_m - (boundary + 0.5) * width_m
         used = np.abs(residual_m) <= tolerance_m
@@ -158,7 +161,7 @@ def fit_lane(forward_m: np.ndarray, left_m: np.ndarray, config: LaneDetectorConf
         offsets = boundary[used] + 0.5
         # A boundary o metres left of a centre line of curvature 2 c2 bends by 2 c2 / (1 - 2 c2 o): take
         # the extra bend off with the last estimate, so every boundary has the centre line's shape.
-        target_m = left_m[used] - 2.0 * centre[2] ** 2 * offsets * width_m * forward_m[used] ** 2
+        target_m = across_m[used] - 2.0 * centre[2] ** 2 * offsets * width_m * along_m[used] ** 2
         if len(np.unique(offsets)) >= 2:
             solution, *_ = np.linalg.lstsq(np.column_stack([powers[used], offsets]), target_m, rcond=None)
             centre, width_m = solution[:3], float(solution[3])
@@ -169,14 +172,29 @@ def fit_lane(forward_m: np.ndarray, left_m: np.ndarray, config: LaneDetectorConf
         # Shrink the gate to 3 robust standard deviations: drops the smeared points at dash ends.
         spread_m = 1.4826 * np.median(np.abs(residual_m[used] - np.median(residual_m[used])))
         tolerance_m = min(config.max_residual_m, max(MIN_GATE_M, 3.0 * spread_m))
-    heading_rad = -math.atan(centre[1])
-    return LaneMeasurement(
-        offset_m=float(-centre[0] * math.cos(heading_rad)),
-        heading_rad=heading_rad,
-        curvature_1pm=float(2.0 * centre[2] / (1.0 + centre[1] ** 2) ** 1.5),
-        lane_width_m=width_m,
-        n_points=int(used.sum()),
-    )
+    offset_m, heading_rad, curvature_1pm = lane_at_car(centre)
+    heading_rad -= turn
+    # The boundary comb repeats every lane width: with a previous measurement keep following its lane
+    # (d stays continuous through a lane change), without one take the lane the car is in.
+    reference_m = 0.0 if previous is None else previous.offset_m
+    offset_m += width_m * round((reference_m - offset_m) / width_m)
+    return LaneMeasurement(offset_m, heading_rad, curvature_1pm, width_m, int(used.sum()))
+
+
+def lane_at_car(centre: np.ndarray) -> tuple[float, float, float]:
+    """``(d, dpsi, kappa)`` of the car (at the origin, heading along x) from a centre line ``c0 + c1 x + c2 x^2``.
+
+    Taken at the point of the line nearest the car (one Newton step from ``x = 0``), so a heading offset
+    does not turn into an offset error.
+    """
+    c0, c1, c2 = (float(c) for c in centre)
+    # d/dx (x^2 + y^2) / 2 = x + y y' = 0, linearised at x = 0.
+    foot_m = -c0 * c1 / (1.0 + c1 * c1 + 2.0 * c0 * c2)
+    y_m = c0 + c1 * foot_m + c2 * foot_m ** 2
+    slope = c1 + 2 * c2 * foot_m
+    lane_heading = math.atan(slope)
+    offset_m = foot_m * math.sin(lane_heading) - y_m * math.cos(lane_heading)
+    return offset_m, -lane_heading, 2 * c2 / (1.0 + slope * slope) ** 1.5
 
 
 def initial_centre_line(forward_m: np.ndarray, left_m: np.ndarray, width_m: float) -> np.ndarray:
