@@ -55,6 +55,7 @@ class EstimatorConfig:
     camera_std: tuple[float, float, float] = (0.05, 0.006, 0.002)
     initial_std: tuple[float, ...] = (1.0, 0.05, 0.5, 0.5, 0.05, 0.01)
     history_s: float = 1.0  # longest camera delay that can be compensated
+    max_euler_step_s: float = 0.01  # longer prediction steps are split into Euler steps of at most this
 
     def __post_init__(self):
         for name in ("process_std", "initial_std"):
@@ -66,6 +67,8 @@ class EstimatorConfig:
         for name in ("yaw_rate_std_radps", "lateral_acceleration_std_mps2"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f"EstimatorConfig.{name} must be positive, got {getattr(self, name)!r}")
+        if not (math.isfinite(self.max_euler_step_s) and 0 < self.max_euler_step_s <= 0.1):
+            raise ValueError(f"EstimatorConfig.max_euler_step_s={self.max_euler_step_s!r} must be in (0, 0.1] s")
         if not (math.isfinite(self.history_s) and 0 < self.history_s <= 10):
             raise ValueError(f"EstimatorConfig.history_s={self.history_s!r} must be in (0, 10] s")
 
@@ -95,12 +98,20 @@ class StepRecord:
 
 
 def ekf_predict(x, p, steer_rad: float, speed_mps: float, dt_s: float, config: EstimatorConfig):
-    """Time update over ``dt_s`` (forward Euler of Eq. (23), covariance through its Jacobian)."""
+    """Time update over ``dt_s``: forward Euler of Eq. (23), the covariance through its Jacobian.
+
+    Steps longer than ``config.max_euler_step_s`` are split (a 20 Hz policy step is five Euler steps), so
+    stiff tires or low speeds do not make the explicit step unstable.
+    """
     rows = single_track_rows(speed_mps, config.vehicle)
-    f_matrix = np.eye(N_STATES) + dt_s * lane_dynamics_jacobian(x, speed_mps, rows)
-    x = x + dt_s * lane_dynamics(x, steer_rad, speed_mps, rows)
-    q_matrix = np.diag(np.square(config.process_std)) * dt_s
-    return x, f_matrix @ p @ f_matrix.T + q_matrix
+    n_sub = max(1, math.ceil(dt_s / config.max_euler_step_s - 1e-9))
+    h_s = dt_s / n_sub
+    q_matrix = np.diag(np.square(config.process_std)) * h_s
+    for _ in range(n_sub):
+        f_matrix = np.eye(N_STATES) + h_s * lane_dynamics_jacobian(x, speed_mps, rows)
+        x = x + h_s * lane_dynamics(x, steer_rad, speed_mps, rows)
+        p = f_matrix @ p @ f_matrix.T + q_matrix
+    return x, p
 
 
 def filter_step(x, p, record: StepRecord, config: EstimatorConfig):
