@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from plm_highway.estimation.ekf import EstimatorConfig, LaneStateEstimator, ekf_predict, filter_step
+from plm_highway.estimation.ekf import EstimatorConfig, LaneStateEstimator, ekf_predict
 from plm_highway.estimation.lane_model import H_CAMERA, imu_model, single_track_rows
 from plm_highway.estimation.table3 import CALIBRATION_SEEDS, SCENARIOS, SimulationConfig, run_scenario
 
@@ -40,7 +40,8 @@ class EstimationBench:
 
 
 def bench_estimation(delay_s: float = 0.3, repeats: int = 5, calls: int = 2000,
-                     config: SimulationConfig = SimulationConfig()) -> EstimationBench:
+                     config: SimulationConfig | None = None) -> EstimationBench:
+    config = SimulationConfig() if config is None else config
     if not 0 < delay_s <= config.estimator.history_s:
         raise ValueError(f"delay_s={delay_s!r} must be in (0, history_s={config.estimator.history_s}] s")
     if repeats < 1 or calls < 10:

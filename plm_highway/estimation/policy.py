@@ -35,7 +35,7 @@ import numpy as np
 from plm_highway.camera.pinhole import CameraConfig
 from plm_highway.estimation.ekf import EstimatorConfig, LaneStateEstimator
 from plm_highway.estimation.lane_camera import LaneDetector, LaneDetectorConfig, LaneMeasurement
-from plm_highway.estimation.lane_model import D, KAPPA, VN
+from plm_highway.estimation.lane_model import KAPPA, VN, D
 from plm_highway.estimation.sensors import ImuConfig, SteeringSensorConfig
 from plm_highway.vehicle.single_track import SingleTrackParams
 

@@ -29,7 +29,14 @@ from plm_highway.camera.ground_map import ground_map
 from plm_highway.camera.pinhole import CameraConfig, PinholeCamera
 from plm_highway.estimation.ekf import EstimatorConfig, LaneStateEstimator
 from plm_highway.estimation.lane_camera import LaneDetector, LaneDetectorConfig
-from plm_highway.estimation.scenarios import DASH_PERIOD_SPAN_M, LANE_WIDTH_M, SCENARIOS, Scenario, Truth, simulate_truth
+from plm_highway.estimation.scenarios import (
+    DASH_PERIOD_SPAN_M,
+    LANE_WIDTH_M,
+    SCENARIOS,
+    Scenario,
+    Truth,
+    simulate_truth,
+)
 from plm_highway.estimation.sensors import CameraTiming, ImuConfig, SteeringSensorConfig
 
 VARIANTS = ("camera", "ekf", "ekf_dc")  # the paper's three columns
