@@ -216,8 +216,8 @@ class LaneStateEstimator:
         if capture_time_s < self.last_capture_time_s - TIME_EPS_S:
             raise ValueError(f"camera capture time {capture_time_s} s is before the previous one "
                              f"({self.last_capture_time_s} s): measurements must arrive in capture order")
-        self.last_capture_time_s = capture_time_s
         index = self._index_at(capture_time_s) if self.compensate_delay else len(self.history) - 1
+        self.last_capture_time_s = capture_time_s
         self.history[index].cameras.append(z_camera)
         self.reestimated_steps += len(self.history) - index
         reestimate(self.history, index, self.config)
