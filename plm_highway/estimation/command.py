@@ -25,6 +25,7 @@ def configure(parser) -> None:
     parser.add_argument("--figures", default=DEFAULT_FIGURES_DIR,
                         help="directory for the Figure 7-10 style plots (seed 0); '' for none")
     parser.add_argument("--markdown", help="also write the table as Markdown to this file")
+    parser.add_argument("--scenarios", default="1,2,3,4", help="comma-separated scenario numbers (default all four)")
 
 
 def run(args) -> int:
@@ -42,10 +43,10 @@ def run(args) -> int:
     from pathlib import Path
 
     from plm_highway.estimation.figures import plot_scenario_run
-    from plm_highway.estimation.table3 import table3
+    from plm_highway.estimation.table3 import scenarios_by_number, table3
 
     runs: list = []
-    result = table3(args.seeds, keep_runs=runs)
+    result = table3(args.seeds, scenarios=scenarios_by_number(args.scenarios), keep_runs=runs)
     print(result.markdown())
     if args.figures:
         for run in runs:

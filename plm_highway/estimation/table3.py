@@ -278,6 +278,19 @@ def scenario_checks(number: int, metrics: dict) -> dict[str, bool]:
     return checks
 
 
+def scenarios_by_number(text: str) -> tuple[Scenario, ...]:
+    """``"1,3"`` -> those scenarios; refuses unknown numbers."""
+    by_number = {scenario.number: scenario for scenario in SCENARIOS}
+    try:
+        numbers = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise ValueError(f"scenarios {text!r}: expected comma-separated numbers from {sorted(by_number)}") from None
+    unknown = sorted(set(numbers) - set(by_number))
+    if unknown or not numbers:
+        raise ValueError(f"scenarios {text!r}: unknown {unknown}; choose from {sorted(by_number)}")
+    return tuple(by_number[number] for number in dict.fromkeys(numbers))
+
+
 def table3(seeds: int | tuple[int, ...] = 5, config: SimulationConfig = SimulationConfig(),
            scenarios: tuple[Scenario, ...] = SCENARIOS, progress: bool = True,
            keep_runs: list | None = None) -> Table3Result:
