@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import gymnasium
@@ -70,14 +69,11 @@ def test_latency_bias_moves_the_capture_stamp():
 
 @pytest.mark.slow
 def test_table3_command_one_scenario_orders_the_variants(tmp_path):
-    from plm_highway.estimation import command
+    from plm_highway import cli
 
-    parser = argparse.ArgumentParser()
-    parser.set_defaults(command=command.TABLE3_COMMAND)
-    command.configure(parser)
     out = tmp_path / "t3.json"
-    args = parser.parse_args(["--seeds", "2", "--scenarios", "1", "--json", str(out), "--figures", str(tmp_path / "fig")])
-    assert command.run(args) == 0
+    assert cli.main(["estimate", "table3", "--seeds", "2", "--scenarios", "1", "--json", str(out),
+                     "--out", str(tmp_path / "fig")]) == 0
     result = json.loads(out.read_text())
     (scenario,) = result["scenarios"]
     ours = scenario["ours"]
@@ -86,6 +82,10 @@ def test_table3_command_one_scenario_orders_the_variants(tmp_path):
         assert ours["ekf_dc"][state]["rmse"]["mean"] < ours["ekf"][state]["rmse"]["mean"]
     assert scenario["paper"]["ekf_dc"]["d"]["rmse"] == 0.055
     assert (tmp_path / "fig" / "scenario1_sine_straight.png").stat().st_size > 10_000
+    assert json.loads((tmp_path / "fig" / "table3.json").read_text())["scenarios"] == result["scenarios"]
+    assert "### Scenario 1" in (tmp_path / "fig" / "table3.md").read_text()
+    # a second run refuses to replace its own output unless told to
+    assert cli.main(["estimate", "table3", "--seeds", "1", "--scenarios", "1", "--json", str(out)]) == 2
 
 
 def test_table3_refuses_bad_seed_counts_and_scenarios():

@@ -8,15 +8,12 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.estimation.table3 import ScenarioRun
-from plm_highway.io import atomic_path
+from plm_highway.io import pyplot, save_figure_into
 
 
 def plot_scenario_run(run: ScenarioRun, path: str | Path) -> Path:
-    """d, dpsi and v_n over time for one run; written through :mod:`plm_highway.io`."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    """d, dpsi and v_n over time for one run, saved at ``path`` (a place staged by :mod:`plm_highway.io`)."""
+    plt = pyplot()
 
     truth = run.truth
     t = truth.time_s
@@ -39,7 +36,6 @@ def plot_scenario_run(run: ScenarioRun, path: str | Path) -> Path:
     fig.suptitle(f"Scenario {run.scenario.number}: {run.scenario.description} (seed {run.seed})")
     fig.tight_layout()
     path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
+    save_figure_into(fig, path, dpi=110)
     plt.close(fig)
     return path
