@@ -8,6 +8,14 @@ Outside the grid (the paper leaves this undefined): a latency above the last gri
 last head's action (clamping; extrapolating a tanh-bounded prediction is not better founded), and
 the number of clamped samples is reported so that a run can record it. NaN or negative latency
 raises ValueError: it is a bug upstream, not a condition to mitigate.
+
+:class:`PLMNet` is the model as specified (every head, the BM's and the TAPM's layers one after
+the other) and what training and analysis use. :class:`FusedPLMNet` is its inference form, equal
+to it up to float rounding (in our measurements bit-equal) and cheaper where PLM-Net's cost over
+the BM lies: the BM's first FC layer and the TAPM's image branch read the same features, so they
+run as one matrix product (the image features are read once, one call instead of two), and only
+the heads that bracket each sample's latency run (Algorithm 1 reads no others: one or two heads
+at batch size 1 instead of five).
 """
 
 from __future__ import annotations
@@ -94,6 +102,14 @@ def _validate_reference(delta_ref_s: torch.Tensor, a_ref: torch.Tensor, n_latenc
         raise ValueError(f"a_ref: expected ({n_latencies}, {n_ref}) or ({n_ref},), got {tuple(a_ref.shape)}")
 
 
+def check_latency_array(latency_s: np.ndarray, last_grid_s: float) -> np.ndarray:
+    """:func:`check_latency` on the host: raise on NaN or negative latency; return the above-grid mask."""
+    if not bool(np.all(latency_s >= 0)):  # NaN fails the comparison too
+        bad = latency_s[~(latency_s >= 0)]
+        raise ValueError(f"latency_s: must be a number >= 0 s, got {float(bad[0])}")
+    return latency_s > np.float32(last_grid_s)
+
+
 class PLMNet(nn.Module):
     """BM + TAPM + Algorithm 1. The BM stays frozen and in eval mode whatever mode this module is in."""
 
@@ -128,3 +144,66 @@ class PLMNet(nn.Module):
         a_bm = self.bm.steering_from_features(z_o, z_v)
         a_ref = torch.cat([a_bm.unsqueeze(1), self.tapm(a_bm, z_o, z_v)], dim=1)
         return PLMNetOutput(interpolate_batch(latency_s, self.delta_ref_s, a_ref), a_ref, n_clamped)
+
+
+class PLMNetSteering(NamedTuple):
+    steering: torch.Tensor  # (B,) the interpolated action a_PLM
+    clamped: np.ndarray  # (B,) bool: latency above the last grid value (the last head was used)
+
+
+class FusedPLMNet:
+    """Inference-only PLM-Net, equal to :meth:`PLMNet.forward`'s steering up to float rounding.
+
+    Takes a snapshot of ``plm_net``'s weights when built (the fused first layer is a copy: ~5 MB for
+    the default preset, ~44 MB for the paper preset); later changes to ``plm_net`` are not seen.
+    Call under ``torch.inference_mode()`` (or ``no_grad``).
+    """
+
+    def __init__(self, plm_net: PLMNet):
+        bm, tapm = plm_net.bm.eval(), plm_net.tapm.eval()
+        self.bm, self.tapm = bm, tapm
+        first, image_fc = bm.mlp[0], tapm.image_fc
+        self.bm_width = first.out_features
+        # The TAPM reads z_o only: its rows get zero weights for the speed (and acceleration) features,
+        # so one product over the BM's concatenated MLP input yields both layers.
+        padding = torch.zeros(image_fc.out_features, first.in_features - image_fc.in_features)
+        with torch.no_grad():
+            self.weight = torch.cat([first.weight, torch.cat([image_fc.weight, padding], dim=1)]).contiguous()
+            self.bias = torch.cat([first.bias, image_fc.bias])
+        self.delta_ref_s = plm_net.delta_ref_s.clone()
+        self._interior_grid_s = self.delta_ref_s[1:-1].numpy()
+        self.last_grid_s = plm_net.last_grid_s
+        self.n_heads = tapm.config.n_heads
+        self._sub_grids: dict[tuple[int, int], torch.Tensor] = {}
+
+    def __call__(self, frames: torch.Tensor, speed_mps: torch.Tensor, latency_s) -> PLMNetSteering:
+        """Frames uint8 (B, H, W), speed (B,) m/s, latency (B,) s (tensor or array) -> steering (B,)."""
+        latency_np = np.asarray(latency_s, dtype=np.float32).reshape(-1)
+        if len(latency_np) != len(frames):
+            raise ValueError(f"latency_s: expected one latency per frame ({len(frames)}), got {len(latency_np)}")
+        clamped = check_latency_array(latency_np, self.last_grid_s)
+        z_o, z_v = self.bm.encode(frames, speed_mps)
+        first_layer = torch.nn.functional.linear(self.bm.mlp_input(z_o, z_v), self.weight, self.bias)
+        a_bm = self.bm.steering_from_first_layer(first_layer[:, : self.bm_width])
+        if not latency_np.any():  # every latency 0: Algorithm 1 returns a_BM, no head is needed
+            return PLMNetSteering(a_bm, clamped)
+        # Grid segment of each sample, as interpolate_batch finds it: a_ref entries lo and lo + 1,
+        # i.e. heads lo - 1 (none for lo = 0: the BM) and lo.
+        lo = np.searchsorted(self._interior_grid_s, np.minimum(latency_np, np.float32(self.last_grid_s)))
+        first_head, stop_head = max(int(lo.min()) - 1, 0), int(lo.max()) + 1
+        trunk = self.tapm.trunk(a_bm, first_layer[:, self.bm_width :], z_v)
+        a_ref = torch.cat([a_bm.unsqueeze(1), self.tapm.heads(trunk, first_head, stop_head)], dim=1)
+        # The sub-grid [0, heads' latencies] puts every sample in the same segment as the full grid
+        # (all latencies lie above delta_ref[first_head + 1] when first_head > 0, and at most at
+        # delta_ref[stop_head]), so the interpolation is the reference's, value for value.
+        return PLMNetSteering(interpolate_batch(
+            torch.from_numpy(latency_np), self._sub_grid(first_head, stop_head), a_ref
+        ), clamped)
+
+    def _sub_grid(self, first_head: int, stop_head: int) -> torch.Tensor:
+        key = (first_head, stop_head)
+        if key not in self._sub_grids:
+            self._sub_grids[key] = torch.cat(
+                [self.delta_ref_s[:1], self.delta_ref_s[first_head + 1 : stop_head + 1]]
+            )
+        return self._sub_grids[key]

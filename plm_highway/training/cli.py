@@ -1,4 +1,11 @@
-"""``plm-highway train bm`` and ``plm-highway train tapm``."""
+"""``plm-highway train bm`` and ``plm-highway train tapm``.
+
+Option bounds are :class:`~plm_highway.training.train.TrainConfig`'s (``--epochs`` in [1, 1000],
+``--max-samples`` in [2, 10**9], ``--balance-max-per-bin`` 0 (off) or in [1, 10**9], ``--seed``
+in [0, 2**63 - 1]), ``--threads`` in [1, the CPUs this process may use] (more only oversubscribes
+the cores), and ``--delta-grid`` as :func:`~plm_highway.models.tapm.validate_delta_grid` (1 to 32
+latencies in (0, 10] s, increasing). All are checked before the dataset is read.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +14,7 @@ import json
 import os
 import shlex
 
-from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S
+from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S, validate_delta_grid
 
 PRESET_CHOICES = ("default", "paper")
 
@@ -30,15 +37,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
         parser.add_argument(
             "--preset", choices=PRESET_CHOICES, default="default", help="model input size preset"
         )
-    parser.add_argument("--epochs", type=int, default=50, help="maximum epochs (early stopping, patience 3)")
+    from plm_highway.training.train import TrainConfig
+
+    parser.add_argument(
+        "--epochs", type=int, default=TrainConfig.epochs, help="maximum epochs (early stopping, patience 3)"
+    )
     parser.add_argument(
         "--max-samples", type=int, help="use at most N samples (seeded subset), for fast runs"
     )
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=TrainConfig.seed)
     parser.add_argument(
         "--balance-max-per-bin",
         type=int,
-        default=2000,
+        default=TrainConfig.balance_max_per_bin,
         help="steering histogram cap per bin (35 bins); 0 disables",
     )
     parser.add_argument("--no-augment", action="store_true", help="disable flip and brightness augmentation")
@@ -54,23 +65,25 @@ def run(args: argparse.Namespace) -> int:
     from plm_highway.training.samples import Augmentation
     from plm_highway.training.train import TrainConfig, train_base_model, train_tapm
 
-    torch.set_num_threads(args.threads or available_cpus())
+    threads = check_threads(args.threads)
+    if args.balance_max_per_bin is not None and args.balance_max_per_bin < 0:
+        raise ValueError(f"--balance-max-per-bin: must be 0 (off) or >= 1, got {args.balance_max_per_bin}")
     config = TrainConfig(
-        epochs=_positive("--epochs", args.epochs),
+        epochs=args.epochs,
         seed=args.seed,
-        max_samples=None if args.max_samples is None else _positive("--max-samples", args.max_samples),
+        max_samples=args.max_samples,
         balance_max_per_bin=args.balance_max_per_bin or None,
         augmentation=None if args.no_augment else Augmentation(),
         show_progress=not args.quiet,
     )
+    delta_grid_s = parse_delta_grid(args.delta_grid) if args.command == "train tapm" else None
+    torch.set_num_threads(threads)
     command = command_line(args)
     if args.command == "train bm":
         description = train_base_model(args.data, args.out, args.preset, config, command)
     else:
         _check_bm_preset(args.bm, args.preset)
-        description = train_tapm(
-            args.data, args.out, args.bm, config, parse_delta_grid(args.delta_grid), command
-        )
+        description = train_tapm(args.data, args.out, args.bm, config, delta_grid_s, command)
     training = description["training"]
     print(
         json.dumps(
@@ -104,11 +117,24 @@ def available_cpus() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
+def check_threads(threads: int | None) -> int:
+    """``--threads`` (None: every available CPU) within [1, available CPUs]."""
+    from plm_highway.models.config_checks import check_int
+
+    cpus = available_cpus()
+    return cpus if threads is None else check_int("--threads", threads, 1, cpus)
+
+
 def parse_delta_grid(text: str) -> tuple[float, ...]:
+    """``--delta-grid`` "0.15,0.2,..." -> latencies in seconds, checked like the TAPM's grid."""
+    parts = [part.strip() for part in text.split(",")]
     try:
-        return tuple(float(part) for part in text.split(",") if part.strip())
+        grid = [float(part) for part in parts if part]
     except ValueError as exc:
         raise ValueError(f"--delta-grid: expected comma-separated seconds, got {text!r}") from exc
+    if not grid:
+        raise ValueError(f"--delta-grid: expected at least one latency in seconds, got {text!r}")
+    return validate_delta_grid(grid, field="--delta-grid")
 
 
 def _check_bm_preset(bm_path: str, preset: str | None) -> None:
@@ -122,8 +148,3 @@ def _check_bm_preset(bm_path: str, preset: str | None) -> None:
             f"--preset {preset} given, but the BM at {bm_path} was trained with preset {bm_preset!r}"
         )
 
-
-def _positive(option: str, value: int) -> int:
-    if value < 1:
-        raise ValueError(f"{option}: must be >= 1, got {value}")
-    return value
