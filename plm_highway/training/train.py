@@ -33,7 +33,6 @@ from tqdm import tqdm
 
 from plm_highway.data.dataset import Dataset, read_dataset
 from plm_highway.models.base_model import BaseModel, preset_config
-from plm_highway.models.config_checks import check_int, check_number
 from plm_highway.models.checkpoints import (
     KIND_BASE_MODEL,
     load_base_model,
@@ -41,6 +40,7 @@ from plm_highway.models.checkpoints import (
     save_checkpoint,
     state_fingerprint,
 )
+from plm_highway.models.config_checks import check_int, check_number
 from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S, TAPM, TAPMConfig
 from plm_highway.training.labels import save_balance_figure
 from plm_highway.training.samples import (
