@@ -352,6 +352,20 @@ def test_latency_above_the_grid_uses_the_last_head(a_ref, latency_s):
     assert interpolate_actions(latency_s, PAPER_DELTA_REF_S, a_ref) == a_ref[-1]
 
 
+@settings(max_examples=50)
+@given(st.lists(st.tuples(a_refs, st.floats(0, 1, allow_nan=False)), min_size=1, max_size=8))
+def test_algorithm_1_gives_the_same_values_on_numpy_and_torch(rows):
+    from plm_highway.models.plm_net import interpolate_batch
+
+    a_ref = np.array([row[0] for row in rows], dtype=np.float32)
+    latency_s = np.array([row[1] for row in rows], dtype=np.float32)
+    delta_ref_s = np.array(PAPER_DELTA_REF_S, dtype=np.float32)
+    on_numpy = interpolate_batch(latency_s, delta_ref_s, a_ref)
+    on_torch = interpolate_batch(*(torch.from_numpy(x) for x in (latency_s, delta_ref_s, a_ref)))
+    assert on_numpy.dtype == np.float32
+    assert np.array_equal(on_numpy, on_torch.numpy())  # exactly equal (0.0 and -0.0 may swap)
+
+
 # --- PLM-Net ----------------------------------------------------------------------------------------
 
 

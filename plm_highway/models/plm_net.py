@@ -11,7 +11,7 @@ raises ValueError: it is a bug upstream, not a condition to mitigate.
 
 :class:`PLMNet` is the model as specified (every head, the BM's and the TAPM's layers one after
 the other) and what training and analysis use. :class:`FusedPLMNet` is its inference form, equal
-to it up to float rounding (in our measurements bit-equal) and cheaper where PLM-Net's cost over
+to it up to float rounding (measured: at most a few 1e-8 apart) and cheaper where PLM-Net's cost over
 the BM lies: the BM's first FC layer and the TAPM's image branch read the same features, so they
 run as one matrix product (the image features are read once, one call instead of two), and only
 the heads that bracket each sample's latency run (Algorithm 1 reads no others: one or two heads
@@ -72,7 +72,7 @@ def interpolate_batch(latency_s, delta_ref_s, a_ref):
     """Vectorised Algorithm 1 on validated inputs: latency (B,), delta_ref (M,), a_ref (B, M) -> (B,).
 
     All torch tensors or all numpy arrays (of one float dtype): the same element-wise IEEE
-    arithmetic either way, so both give the same bits. Numpy is the cheaper of the two at batch
+    arithmetic either way, so both give the same values (a zero's sign may differ). Numpy is the cheaper of the two at batch
     size 1 (an operation costs ~1 us instead of ~5 us), which is why inference uses it.
     """
     xp = torch if isinstance(a_ref, torch.Tensor) else np
