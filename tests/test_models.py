@@ -693,19 +693,29 @@ def test_fused_paper_preset_equals_the_reference():
     ],
 )
 def test_fused_plm_net_runs_only_the_heads_that_bracket_the_latency(plm_pair, monkeypatch, latencies_s, head_range):
-    plm_net, fused = plm_pair
+    _, fused = plm_pair
     ranges = []
-    original = plm_net.tapm.heads
+    original = fused._heads
 
-    def recording_heads(trunk, first=0, stop=None):
+    def recording_heads(trunk, first, stop):
         ranges.append((first, stop))
         return original(trunk, first, stop)
 
-    monkeypatch.setattr(plm_net.tapm, "heads", recording_heads)
+    monkeypatch.setattr(fused, "_heads", recording_heads)
     n = len(latencies_s)
     with torch.inference_mode():
         fused(random_frames(n), torch.full((n,), 16.7), torch.tensor(latencies_s))
     assert ranges == ([] if head_range is None else [head_range])
+
+
+@pytest.mark.parametrize("first, stop", [(0, 1), (0, 2), (1, 3), (2, 4), (3, 5), (0, 5), (1, 4)])
+def test_packed_heads_equal_the_tapm_heads(plm_pair, first, stop):
+    plm_net, fused = plm_pair
+    trunk = torch.relu(torch.randn(4, 700, generator=torch.Generator().manual_seed(first * 10 + stop)))
+    with torch.inference_mode():
+        torch.testing.assert_close(
+            fused._heads(trunk, first, stop), plm_net.tapm.heads(trunk, first, stop), rtol=0, atol=1e-6
+        )
 
 
 @pytest.mark.parametrize("bad_latency_s", [float("nan"), -0.05])

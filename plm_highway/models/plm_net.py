@@ -173,11 +173,16 @@ class FusedPLMNet:
         with torch.no_grad():
             self.weight = torch.cat([first.weight, torch.cat([image_fc.weight, padding], dim=1)]).contiguous()
             self.bias = torch.cat([first.bias, image_fc.bias])
+            # a_BM -> FC 100 is a rank-1 map: a_BM * w + b, one fused op instead of a (B, 1) product.
+            self.action_weight = tapm.action_fc.weight.view(1, -1).clone()
+            self.action_bias = tapm.action_fc.bias.clone()
         self.delta_ref_s = plm_net.delta_ref_s.numpy().copy()  # float32
         self._interior_grid_s = self.delta_ref_s[1:-1]
         self.last_grid_s = plm_net.last_grid_s
         self.n_heads = tapm.config.n_heads
+        # Per contiguous head range (at most n (n + 1) / 2 of them, built when first needed).
         self._sub_grids: dict[tuple[int, int], np.ndarray] = {}
+        self._packed_heads: dict[tuple[int, int], tuple[tuple[torch.Tensor, torch.Tensor], ...]] = {}
 
     def __call__(self, frames: torch.Tensor, speed_mps: torch.Tensor, latency_s) -> PLMNetSteering:
         """Frames uint8 (B, H, W), speed (B,) m/s, latency (B,) s (tensor or array) -> steering (B,)."""
@@ -194,14 +199,30 @@ class FusedPLMNet:
         # i.e. heads lo - 1 (none for lo = 0: the BM) and lo.
         lo = np.searchsorted(self._interior_grid_s, np.minimum(latency_np, np.float32(self.last_grid_s)))
         first_head, stop_head = max(int(lo.min()) - 1, 0), int(lo.max()) + 1
-        trunk = self.tapm.trunk(a_bm, first_layer[:, self.bm_width :], z_v)
-        heads = self.tapm.heads(trunk, first_head, stop_head)
+        trunk = torch.cat([
+            torch.addcmul(self.action_bias, a_bm.view(-1, 1), self.action_weight),
+            first_layer[:, self.bm_width :],
+            self.tapm.speed_fc(z_v),
+        ], dim=1).relu_()
+        heads = self._heads(trunk, first_head, stop_head)
         a_ref = np.concatenate([a_bm.numpy()[:, None], heads.numpy()], axis=1)
         # The sub-grid [0, heads' latencies] puts every sample in the same segment as the full grid
         # (all latencies lie above delta_ref[first_head + 1] when first_head > 0, and at most at
         # delta_ref[stop_head]), so the interpolation is the reference's, value for value.
         steering = interpolate_batch(latency_np, self._sub_grid(first_head, stop_head), a_ref)
         return PLMNetSteering(torch.from_numpy(steering), clamped)
+
+    def _heads(self, trunk: torch.Tensor, first_head: int, stop_head: int) -> torch.Tensor:
+        """:meth:`TAPM.heads` in eval mode, as four plain products: (B, 700) -> (B, stop - first)."""
+        key = (first_head, stop_head)
+        if key not in self._packed_heads:
+            self._packed_heads[key] = _pack_heads(self.tapm, first_head, stop_head)
+        (w_in, b_in), (w_hidden, b_hidden), (w_tanh, b_tanh), (w_out, b_out) = self._packed_heads[key]
+        functional = torch.nn.functional
+        hidden = functional.linear(trunk, w_in, b_in).relu_()
+        hidden = functional.linear(hidden, w_hidden, b_hidden).relu_()
+        hidden = functional.linear(hidden, w_tanh, b_tanh).tanh_()
+        return functional.linear(hidden, w_out, b_out).tanh_()
 
     def _sub_grid(self, first_head: int, stop_head: int) -> np.ndarray:
         key = (first_head, stop_head)
@@ -210,3 +231,20 @@ class FusedPLMNet:
                 [self.delta_ref_s[:1], self.delta_ref_s[first_head + 1 : stop_head + 1]]
             )
         return self._sub_grids[key]
+
+
+def _pack_heads(tapm: TAPM, first: int, stop: int) -> tuple[tuple[torch.Tensor, torch.Tensor], ...]:
+    """(weight (out, in), bias) of heads ``first .. stop - 1``, layer by layer, as ``F.linear`` takes them.
+
+    The grouped layers become block-diagonal matrices (head h's block maps head h's units only), so
+    that the heads run as four products with no reshaping: at batch size 1 the number of operations,
+    not their arithmetic, is the cost. The zero blocks add exact zeros.
+    """
+    width = tapm.heads_in.out_features // tapm.config.n_heads
+    rows = slice(first * width, stop * width)
+    with torch.no_grad():
+        layers = [(tapm.heads_in.weight[rows].clone(), tapm.heads_in.bias[rows].clone())]
+        for grouped in (tapm.heads_hidden, tapm.heads_tanh, tapm.heads_out):
+            blocks = [weight.T for weight in grouped.weight[first:stop]]  # (in, out) per head -> (out, in)
+            layers.append((torch.block_diag(*blocks).contiguous(), grouped.bias[first:stop].reshape(-1).clone()))
+    return tuple(layers)
