@@ -157,9 +157,10 @@ class PLMNetSteering(NamedTuple):
 class FusedPLMNet:
     """Inference-only PLM-Net, equal to :meth:`PLMNet.forward`'s steering up to float rounding.
 
-    Takes a snapshot of ``plm_net``'s weights when built (the fused first layer is a copy: ~5 MB for
-    the default preset, ~44 MB for the paper preset); later changes to ``plm_net`` are not seen.
-    Call under ``torch.inference_mode()`` (or ``no_grad``).
+    Built from a trained, frozen ``plm_net``: the fused first layer, the action branch and the packed
+    heads are copies taken then (~5 MB for the default preset, ~44 MB for the paper preset), so a
+    ``plm_net`` whose weights change afterwards needs a new ``FusedPLMNet``. Runs under
+    ``torch.inference_mode`` (no gradients).
     """
 
     def __init__(self, plm_net: PLMNet):
@@ -184,6 +185,7 @@ class FusedPLMNet:
         self._sub_grids: dict[tuple[int, int], np.ndarray] = {}
         self._packed_heads: dict[tuple[int, int], tuple[tuple[torch.Tensor, torch.Tensor], ...]] = {}
 
+    @torch.inference_mode()
     def __call__(self, frames: torch.Tensor, speed_mps: torch.Tensor, latency_s) -> PLMNetSteering:
         """Frames uint8 (B, H, W), speed (B,) m/s, latency (B,) s (tensor or array) -> steering (B,)."""
         latency_np = np.asarray(latency_s, dtype=np.float32).reshape(-1)
