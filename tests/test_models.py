@@ -1088,3 +1088,13 @@ def test_bench_models_cli_prints_and_writes_the_figures(tmp_path, capsys):
 def test_bench_models_refuses_bad_arguments(capsys, args, message):
     assert cli.main(["bench", "models", *args]) == cli.EXIT_BAD_INPUT
     assert re.search(message, capsys.readouterr().err)
+
+
+def test_bench_confidence_interval_matches_the_t_table():
+    from plm_highway.bench.models import _mean_ci
+
+    # mean 2, sample sd 1, n 3: half width t(0.975, 2) / sqrt(3) = 4.3027 / 1.7321 (t from tables)
+    figure = _mean_ci([1.0, 2.0, 3.0])
+    assert figure["mean"] == 2.0
+    assert figure["ci95_half_width"] == pytest.approx(4.3027 / 3**0.5, abs=1e-4)
+    assert _mean_ci([0.5])["ci95_half_width"] == 0.0
