@@ -35,7 +35,7 @@ from tqdm import tqdm
 from plm_highway.evaluation import paper_results as paper
 from plm_highway.evaluation.closed_loop import drive
 from plm_highway.evaluation.evaluate import check_inputs, compare_runs, run_steps
-from plm_highway.evaluation.policies import checkpoint_pair, make_policy, single_threaded_inference
+from plm_highway.evaluation.policies import checkpoint_pair, make_policy
 from plm_highway.evaluation.trajectory import (
     METRIC_LABELS,
     METRICS,

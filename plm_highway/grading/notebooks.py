@@ -21,6 +21,7 @@ import nbformat
 
 from plm_highway.io import file_kind, write_text
 
+
 def _is_notebook(path: Path) -> bool:
     try:
         return isinstance(nbformat.read(path, as_version=4).cells, list)
