@@ -216,7 +216,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "current[j] = max(reach, dist)", "current[j] = dist if i == j == 0 else reach + dist"),
     Mutant("03", ("check_frechet",), "forgets the diagonal step",
            "reach = min(previous[j], current[j - 1], previous[j - 1])", "reach = min(previous[j], current[j - 1])"),
-    Mutant("03", ("check_frechet", "check_trajectory_frechet"), "Hausdorff-like: ignores the order of the points",
+    Mutant("03", ("check_frechet",), "Hausdorff-like: ignores the order of the points",
            "return float(previous[-1])", "return float(max(min(row) for row in d))"),
     Mutant("03", ("check_frechet",), "max instead of min over the predecessors",
            "reach = min(previous[j], current[j - 1], previous[j - 1])",
@@ -244,8 +244,9 @@ MUTANTS: tuple[Mutant, ...] = (
            "arc_m = np.concatenate([[0.0], np.cumsum(steps_m)])[keep]", "arc_m = (xy[:, 0] - xy[0, 0])[keep]"),
     Mutant("03", ("check_resample", "check_trajectory_frechet"), "off by one: one station short",
            "np.arange(int(np.floor(arc_m[-1] / spacing_m)) + 1)", "np.arange(int(np.floor(arc_m[-1] / spacing_m)))"),
-    Mutant("03", ("check_resample",), "rounds the number of stations instead of flooring it",
-           "int(np.floor(arc_m[-1] / spacing_m))", "int(round(arc_m[-1] / spacing_m))"),
+    Mutant("03", ("check_resample", "check_trajectory_frechet"), "starts one spacing after the first point",
+           "stations_m = spacing_m * np.arange(int(np.floor(arc_m[-1] / spacing_m)) + 1)",
+           "stations_m = spacing_m * np.arange(1, int(np.floor(arc_m[-1] / spacing_m)) + 1)"),
     Mutant("03", ("check_resample",), "delegates to the kit", "",
            "def resample(xy, spacing_m):\n"
            "    from plm_highway.metrics import resample_by_arc_length\n"

@@ -108,6 +108,9 @@ def check_frechet(discrete_frechet, seed: int | None = None) -> None:
         (line, line[::-1], 2.0, "the same points in reverse order (the ends must be coupled)"),
         (line[[0, 2]], np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 0.0]]), np.sqrt(2.0),
          "a detour: (1, 1) is sqrt(2) from both ends of the other curve"),
+        (line[:1], np.array([[0.0, 0.0], [3.0, 0.0], [0.0, 0.0]]), 3.0,
+         "one point against a curve that goes 3 m away and back (the leash must reach every point)"),
+        (np.array([[0.0, 0.0], [0.0, 3.0], [0.0, 0.0]]), line[:1], 3.0, "the same with the curves swapped"),
     ]
     for p, q, expected, what in cases:
         received = call_student(discrete_frechet, p, q, what=f"discrete_frechet for {what}",
@@ -237,11 +240,13 @@ def check_trajectory_frechet(discrete_frechet, resample, max_steps=None, checkpo
         c = logs[name].columns
         path = np.column_stack([c["x_m"], c["y_m"]])
         lane = centre.between(float(c["arc_length_m"].min()), float(c["arc_length_m"].max()))
-        expected = frechet_dist(resample_by_arc_length(lane, LESSON_SPACING_M),
-                                resample_by_arc_length(path, LESSON_SPACING_M))
+        lane_points, path_points = (resample_by_arc_length(xy, LESSON_SPACING_M) for xy in (lane, path))
+        expected = frechet_dist(lane_points, path_points)
+        their_path = _resample(resample, path, LESSON_SPACING_M, f"resample({name} path, 1)")
+        expect_close(f"the {name!r} path resampled every 1 m", path_points, their_path, atol=1e-9,
+                     hint="a point every metre along the path from its start, plus its end")
         received = call_student(discrete_frechet, _resample(resample, lane, LESSON_SPACING_M, "resample(lane centre, 1)"),
-                                _resample(resample, path, LESSON_SPACING_M, f"resample({name} path, 1)"),
-                                what=f"discrete_frechet of the resampled lane centre and {name} path",
+                                their_path, what=f"discrete_frechet of the resampled lane centre and {name} path",
                                 exercise="lesson3.discrete_frechet")
         expect_close(f"Frechet distance of the {name!r} run to the lane centre [m]", expected, received, atol=1e-9,
                      hint="resample the lane centre and the path with the same spacing, lane centre first")
