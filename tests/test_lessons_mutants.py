@@ -12,11 +12,11 @@ import contextlib
 import io
 
 import pytest
+from lesson_harness import exercise_namespace, run_check, solution_path
+from lesson_mutants import MUTANTS, Mutant
 
 from plm_highway.grading.checks import CheckFailed
 from plm_highway.grading.course import check_calls
-from lesson_harness import exercise_namespace, run_check, solution_path
-from lesson_mutants import MUTANTS, Mutant
 
 CATCH_RATE = 0.9
 LESSONS = sorted({mutant.lesson for mutant in MUTANTS})
