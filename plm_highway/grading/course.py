@@ -108,7 +108,7 @@ def annotate(notebook: nbformat.NotebookNode) -> list[int]:
 
 def validate(notebook: nbformat.NotebookNode, where: str) -> None:
     """Raise ``ValueError`` naming every cell whose nbgrader metadata does not fit its content."""
-    from nbgrader.nbgraderformat import MetadataValidator, ValidationError
+    from nbgrader.nbgraderformat import MetadataValidator, SchemaTooNewError, SchemaTooOldError, ValidationError
 
     problems = []
     for index, cell in enumerate(notebook.cells):
@@ -147,7 +147,7 @@ def validate(notebook: nbformat.NotebookNode, where: str) -> None:
             problems.append(f"{at}: neither a solution, a grade nor a read-only cell")
     try:
         MetadataValidator().validate_nb(nbformat.from_dict(notebook))
-    except ValidationError as error:
+    except (ValidationError, SchemaTooOldError, SchemaTooNewError) as error:
         problems.append(f"{where}: nbgrader rejects the metadata: {error}")
     if not any(BEGIN_SOLUTION in cell.source for cell in notebook.cells if cell.cell_type == "code"):
         problems.append(f"{where}: no '{BEGIN_SOLUTION}' region, so the student copy would be the solution")
