@@ -54,7 +54,7 @@ def jupyterlab(tmp_path_factory):
     env.update(PLM_FAST="1", SDL_VIDEODRIVER="offscreen", JUPYTERLAB_SETTINGS_DIR=str(settings))
     server = subprocess.Popen([sys.executable, "-m", "jupyter", "lab", "--no-browser", "--ip=127.0.0.1",
                                f"--port={port}", f"--IdentityProvider.token={token}", f"--ServerApp.root_dir={root}",
-                               "--ServerApp.open_browser=False"], env=env, stdout=subprocess.DEVNULL,
+                               "--ServerApp.open_browser=False", "--allow-root"], env=env, stdout=subprocess.DEVNULL,
                               stderr=subprocess.DEVNULL)
     base = f"http://127.0.0.1:{port}"
     try:
