@@ -32,6 +32,7 @@ selenium = pytest.importorskip("selenium", reason="Selenium is not installed")
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not (CHROMIUM and CHROMEDRIVER), reason="no Chromium and chromedriver installed")]
 RUN_TIMEOUT_S = 900
+ACTIVE = ".jp-NotebookPanel:not(.lm-mod-hidden) "  # the notebook in front: other tabs stay in the page
 
 
 def _free_port() -> int:
@@ -51,7 +52,8 @@ def jupyterlab(tmp_path_factory):
     tracker.write_text(json.dumps({"windowingMode": "none"}))  # every cell in the page, not only the visible ones
     port, token = _free_port(), secrets.token_hex(16)
     env = {key: value for key, value in os.environ.items() if key != "MPLBACKEND"}  # the kernel's inline plots
-    env.update(PLM_FAST="1", SDL_VIDEODRIVER="offscreen", JUPYTERLAB_SETTINGS_DIR=str(settings))
+    env.update(PLM_FAST="1", SDL_VIDEODRIVER="offscreen", JUPYTERLAB_SETTINGS_DIR=str(settings),
+               JUPYTERLAB_WORKSPACES_DIR=str(tmp_path_factory.mktemp("lab_workspaces")))  # no tabs from earlier runs
     server = subprocess.Popen([sys.executable, "-m", "jupyter", "lab", "--no-browser", "--ip=127.0.0.1",
                                f"--port={port}", f"--IdentityProvider.token={token}", f"--ServerApp.root_dir={root}",
                                "--ServerApp.open_browser=False", "--allow-root"], env=env, stdout=subprocess.DEVNULL,
@@ -119,21 +121,32 @@ def test_solution_runs_in_jupyterlab_and_its_last_check_passes(path, jupyterlab,
     check_name = check_calls(cells[last_check].source)[0][1]
     browser.get(f"{base}/lab/tree/{path.name}?token={token}")
     WebDriverWait(browser, 180, poll_frequency=1).until(
-        lambda d: d.find_elements(By.CSS_SELECTOR, ".jp-Notebook .jp-Cell") and
+        lambda d: d.find_elements(By.CSS_SELECTOR, ACTIVE + ".jp-Cell") and
         "Idle" in d.find_element(By.ID, "jp-main-statusbar").text)
     _click_menu(browser, "Run", "Run All Cells")
     started = time.monotonic()
 
     def finished(driver):
-        prompts = [p.text for p in driver.find_elements(By.CSS_SELECTOR, ".jp-CodeCell .jp-InputPrompt")]
-        return prompts and not any("*" in prompt or prompt.strip() in ("", "[ ]:") for prompt in prompts)
+        if "Idle" not in driver.find_element(By.ID, "jp-main-statusbar").text:
+            return False
+        prompts = [p.text for p in driver.find_elements(By.CSS_SELECTOR, ACTIVE + ".jp-CodeCell .jp-InputPrompt")]
+        # Run All stops at a cell that raises: an idle kernel with unrun cells is finished too
+        return bool(prompts) and not any("*" in prompt for prompt in prompts) and prompts[0].strip() not in ("", "[ ]:")
 
-    WebDriverWait(browser, RUN_TIMEOUT_S, poll_frequency=2).until(finished)
+    try:
+        time.sleep(5)  # let the kernel turn busy
+        WebDriverWait(browser, RUN_TIMEOUT_S, poll_frequency=2).until(finished)
+    finally:
+        browser.save_screenshot(str(screenshots / f"{path.stem}.png"))
     elapsed_s = time.monotonic() - started
-    page_cells = browser.find_elements(By.CSS_SELECTOR, ".jp-Notebook .jp-Cell")
+    page_cells = browser.find_elements(By.CSS_SELECTOR, ACTIVE + ".jp-Cell")
+    assert len(page_cells) == len(cells)
     browser.execute_script("arguments[0].scrollIntoView();", page_cells[last_check])
     browser.save_screenshot(str(screenshots / f"{path.stem}.png"))
     output = page_cells[last_check].find_element(By.CSS_SELECTOR, ".jp-Cell-outputWrapper").text
+    errors_on_page = [e.text[:300] for e in browser.find_elements(By.CSS_SELECTOR, ACTIVE + ".jp-OutputArea-output")
+                      if "Error" in e.text or "Traceback" in e.text or "FAILED" in e.text]
+    assert not errors_on_page, f"{path.name}: error output on the page: {errors_on_page}"
     assert f"PASSED {check_name}" in output, output
     _click_menu(browser, "File", "Save Notebook")
     deadline = time.monotonic() + 60
@@ -142,6 +155,7 @@ def test_solution_runs_in_jupyterlab_and_its_last_check_passes(path, jupyterlab,
         if any(cell.get("outputs") for cell in saved.cells if cell.cell_type == "code") or time.monotonic() > deadline:
             break
         time.sleep(1)
+    _click_menu(browser, "File", "Close All Tabs")
     errors = [(i, out.get("ename")) for i, cell in enumerate(saved.cells) if cell.cell_type == "code"
               for out in cell.outputs if out.output_type == "error"]
     assert not errors, f"{path.name}: error outputs in cells {errors}"

@@ -43,3 +43,19 @@ def run_figures(args) -> int:
     for path in write_lesson_figures(Path(args.out), overwrite=args.overwrite):
         print(f"wrote {path}")
     return 0
+
+
+def configure_timing(parser) -> None:
+    parser.add_argument("--solutions", default=DEFAULT_SOLUTIONS, help="folder of solution notebooks")
+    parser.add_argument("--fast", action="store_true", help="time the CI mode (PLM_FAST=1) instead of full mode")
+    parser.add_argument("notebooks", nargs="*", help="only these notebooks (file names or stems)")
+
+
+def run_timing(args) -> int:
+    """``plm-highway bench lessons``: wall-clock time of each lesson, top to bottom, in a fresh kernel."""
+    from plm_highway.grading.timing import time_lessons
+
+    timings = time_lessons(Path(args.solutions), fast=args.fast, names=args.notebooks)
+    for timing in timings:
+        print(timing.line())
+    return 1 if any(t.errors for t in timings) else 0
