@@ -300,7 +300,7 @@ def closed_loop_check(latency: str = CLOSED_LOOP_LATENCY, seeds: int = CLOSED_LO
     """
     from plm_highway.evaluation.closed_loop import drive
     from plm_highway.evaluation.policies import VisionPolicy, single_threaded_inference
-    from plm_highway.evaluation.steering import steering_errors
+    from plm_highway.metrics.steering import common_span, steering_mae
     from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
     from plm_highway.models.shipped import load_shipped_plm_net
 
@@ -315,7 +315,7 @@ def closed_loop_check(latency: str = CLOSED_LOOP_LATENCY, seeds: int = CLOSED_LO
             for name, fused in forms.items():
                 log = drive(name, VisionPolicy(PLMNetPolicy(plm_net, fused=fused)), track, latency, seed)
                 steering[name] = log.columns["steering"]
-                mae[name].append(steering_errors(reference.columns["steering"], steering[name])["mae"])
+                mae[name].append(steering_mae(*common_span(reference.columns["steering"], steering[name])))
             n = min(len(values) for values in steering.values())
             largest_difference = max(largest_difference, float(np.max(np.abs(
                 steering["fused"][:n] - steering["reference_forward"][:n]))))

@@ -45,10 +45,24 @@ def run_estimation(args) -> int:
     return 0
 
 
+def configure_lessons(parser) -> None:
+    from plm_highway.cli.lessons import configure_timing
+
+    configure_timing(parser)
+
+
+def run_lessons(args) -> int:
+    from plm_highway.cli.lessons import run_timing
+
+    return run_timing(args)
+
+
 COMMANDS = [
     Command("env", "env + camera + latency steps/s against highway-env's own camera envs", *_delegate("env")),
     Command("models", "parameter counts and inference time of BM and PLM-Net", *_delegate("models")),
     Command("metrics", "trajectory metrics against similaritymeasures", *_delegate("metrics")),
     Command("estimation", "EKF costs per step with and without delay compensation, camera lane fit accuracy",
             configure_estimation, run_estimation),
+    Command("lessons", "wall-clock time of each lesson top to bottom (budget 5 minutes on 2 cores)",
+            configure_lessons, run_lessons),
 ]

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from plm_highway.io.outputs import JSON_MARKER_KEY, PNG_SOFTWARE, OutputKind, file_kind, write_output
 
-FIGURE = file_kind("figure", "a figure (PNG) written by plm-highway")
+FIGURE = file_kind("figure", "a figure (PNG)")
 
 
 def json_safe(value):

@@ -463,9 +463,9 @@ def _has_recording_header(path: Path) -> bool:
         OPTIONAL_COLUMNS)
 
 
-RECORDING_CSV = file_kind("recording", "a recording CSV written by plm-highway", None, _has_recording_header)
-RECORDING_SIDECAR = file_kind("recording-sidecar", "a recording sidecar JSON written by plm-highway")
-RECORDING_TRUTH = file_kind("recording-truth", "a recording's concealed-truth JSON written by plm-highway")
+RECORDING_CSV = file_kind("recording", "a recording CSV", None, _has_recording_header)
+RECORDING_SIDECAR = file_kind("recording-sidecar", "a recording sidecar JSON")
+RECORDING_TRUTH = file_kind("recording-truth", "a recording's concealed-truth JSON")
 
 
 def write_recording(recording: Recording, path: str | os.PathLike, write_sidecar: bool | None = None,
