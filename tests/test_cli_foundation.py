@@ -50,7 +50,7 @@ def test_help_lists_every_command_and_group():
     assert no_args.returncode == 0 and "commands:" in no_args.stdout
 
 
-@pytest.mark.parametrize("group", ["demo", "train", "bench", "sim2real", "lessons"])
+@pytest.mark.parametrize("group", ["demo", "train", "estimate", "bench", "sim2real", "lessons"])
 def test_group_help_lists_its_commands(group):
     result = plm(group, "--help")
     assert result.returncode == 0, result.stderr

@@ -13,18 +13,14 @@ compiles on first use, then loads from its cache). Both results are compared to 
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from types import ModuleType
 
 import numpy as np
 
-from plm_highway.bench import BENCH_RESULT
-from plm_highway.io import check_target, write_json
 from plm_highway.metrics import similarity
 
 DEFAULT_POINTS = 3000  # the size issue 14 states its target on (TARGET_POINTS)
@@ -39,29 +35,8 @@ TARGET_COMBINATION, TARGET_SPEEDUP, TARGET_POINTS = "frechet+dtw", 100.0, 3000  
 _REFERENCE_S_AT_3000 = {"frechet_dist": 16.0, "dtw": 22.0, "area_between_two_curves": 34.0, "pcm": 0.2}
 
 
-def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--points", type=int, default=DEFAULT_POINTS, help=f"points on the first curve (default {DEFAULT_POINTS})")
-    parser.add_argument("--json", type=Path, metavar="OUT", help="also write the results to this JSON file")
-    parser.add_argument("--skip-reference", action="store_true", help="time plm_highway only (no similaritymeasures)")
-    parser.add_argument("--repeat", type=int, default=DEFAULT_REPEAT, help="runs of each function per side; fastest counts")
-    parser.add_argument("--seed", type=int, default=DEFAULT_SEED, help="seed of the random curves")
 
 
-def run(args: argparse.Namespace) -> int:
-    check_settings(args.points, args.repeat)
-    if args.json is not None:  # fail now rather than after minutes of benchmarking
-        check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
-    result = run_benchmark(args.points, args.seed, args.repeat, args.skip_reference)
-    print(format_table(result["functions"]))
-    print(target_line(result["functions"], result["points"][0]))
-    if args.json is not None:
-        write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
-        print(f"wrote {args.json}")
-    mismatched = mismatches(result["functions"])
-    if mismatched:
-        print(f"MISMATCH beyond {MATCH_REL_TOL:g} relative: {', '.join(mismatched)}")
-        return 1
-    return 0
 
 
 def check_settings(n_points: int, repeat: int) -> None:

@@ -31,13 +31,10 @@ mean little, the ratios measured side by side in one run are what to compare.
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 
 import numpy as np
-
-from plm_highway.bench import BENCH_RESULT
 
 BLOCK_FRAMES = 50
 TARGET_OVERHEAD_RATIO = 1.25
@@ -52,42 +49,8 @@ MAX_FRAMES = 100_000
 MAX_REPEATS = 100
 
 
-def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--preset", choices=(*PRESETS, "both"), default="both", help="model size preset(s) to time")
-    parser.add_argument("--frames", type=int, default=500, help="timed frames per side and repeat (>= 500 for the report)")
-    parser.add_argument("--warmup", type=int, default=50, help="untimed frames per side first")
-    parser.add_argument("--repeats", type=int, default=3, help="repeats of every measurement; medians are reported")
-    parser.add_argument("--train-batches", type=int, default=10,
-                        help=f"training batches of {TRAIN_BATCH_SIZE} per timed epoch (default: %(default)s)")
-    parser.add_argument("--closed-loop", action="store_true",
-                        help="also drive the shipped checkpoints with the reference and the fused PLM-Net")
-    parser.add_argument("--json", help="write the results to this JSON file")
-    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default: %(default)s)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the random weights and inputs")
 
 
-def run(args: argparse.Namespace) -> int:
-    import torch
-
-    from plm_highway.io import check_target, write_json
-    from plm_highway.models.config_checks import check_int
-
-    check_int("--frames", args.frames, 1, MAX_FRAMES)
-    check_int("--warmup", args.warmup, 0, MAX_FRAMES)
-    check_int("--repeats", args.repeats, 1, MAX_REPEATS)
-    check_int("--train-batches", args.train_batches, 1, 10_000)
-    check_int("--threads", args.threads, 1, os.cpu_count() or 1)
-    check_int("--seed", args.seed, 0, 2**32 - 1)
-    if args.json:  # refuse before the benchmark runs, not after
-        check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
-    torch.set_num_threads(args.threads)
-    presets = PRESETS if args.preset == "both" else (args.preset,)
-    result = benchmark_models(presets, args.frames, args.warmup, args.repeats, args.train_batches, args.seed,
-                              args.closed_loop)
-    print(format_report(result))
-    if args.json:
-        write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
-    return 0
 
 
 def benchmark_models(presets=PRESETS, n_frames: int = 500, n_warmup: int = 50, repeats: int = 3,

@@ -57,10 +57,88 @@ def run_lessons(args) -> int:
     return run_timing(args)
 
 
+def configure_metrics(parser) -> None:
+    from plm_highway.bench import metrics as bench
+
+    parser.add_argument("--points", type=int, default=bench.DEFAULT_POINTS, help="points on the first curve")
+    parser.add_argument("--json", metavar="OUT.json", help="also write the results to this JSON file")
+    parser.add_argument("--skip-reference", action="store_true", help="time plm_highway only (no similaritymeasures)")
+    parser.add_argument("--repeat", type=int, default=bench.DEFAULT_REPEAT,
+                        help="runs of each function per side; fastest counts")
+    parser.add_argument("--seed", type=int, default=bench.DEFAULT_SEED, help="seed of the random curves")
+    add_overwrite(parser)
+
+
+def run_metrics(args) -> int:
+    from plm_highway.bench import BENCH_RESULT
+    from plm_highway.bench import metrics as bench
+    from plm_highway.io import check_target, write_json
+
+    bench.check_settings(args.points, args.repeat)
+    if args.json is not None:  # fail now rather than after minutes of benchmarking
+        check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
+    result = bench.run_benchmark(args.points, args.seed, args.repeat, args.skip_reference)
+    print(bench.format_table(result["functions"]))
+    print(bench.target_line(result["functions"], result["points"][0]))
+    if args.json is not None:
+        write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
+        print(f"wrote {args.json}")
+    mismatched = bench.mismatches(result["functions"])
+    if mismatched:
+        print(f"MISMATCH beyond {bench.MATCH_REL_TOL:g} relative: {', '.join(mismatched)}")
+        return 1
+    return 0
+
+
+def configure_models(parser) -> None:
+    from plm_highway.bench import models as bench
+
+    parser.add_argument("--preset", choices=(*bench.PRESETS, "both"), default="both", help="model size preset(s) to time")
+    parser.add_argument("--frames", type=int, default=500, help="timed frames per side and repeat (>= 500 for the report)")
+    parser.add_argument("--warmup", type=int, default=50, help="untimed frames per side first")
+    parser.add_argument("--repeats", type=int, default=3, help="repeats of every measurement; medians are reported")
+    parser.add_argument("--train-batches", type=int, default=10,
+                        help=f"training batches of {bench.TRAIN_BATCH_SIZE} per timed epoch")
+    parser.add_argument("--closed-loop", action="store_true",
+                        help="also drive the shipped checkpoints with the reference and the fused PLM-Net")
+    parser.add_argument("--json", metavar="OUT.json", help="write the results to this JSON file")
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random weights and inputs")
+    add_overwrite(parser)
+
+
+def run_models(args) -> int:
+    import os
+
+    import torch
+
+    from plm_highway.bench import BENCH_RESULT
+    from plm_highway.bench import models as bench
+    from plm_highway.io import check_target, write_json
+    from plm_highway.models.config_checks import check_int
+
+    check_int("--frames", args.frames, 1, bench.MAX_FRAMES)
+    check_int("--warmup", args.warmup, 0, bench.MAX_FRAMES)
+    check_int("--repeats", args.repeats, 1, bench.MAX_REPEATS)
+    check_int("--train-batches", args.train_batches, 1, 10_000)
+    check_int("--threads", args.threads, 1, os.cpu_count() or 1)
+    check_int("--seed", args.seed, 0, 2**32 - 1)
+    if args.json:  # refuse before the benchmark runs, not after
+        check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
+    torch.set_num_threads(args.threads)
+    presets = bench.PRESETS if args.preset == "both" else (args.preset,)
+    result = bench.benchmark_models(presets, args.frames, args.warmup, args.repeats, args.train_batches, args.seed,
+                                    args.closed_loop)
+    print(bench.format_report(result))
+    if args.json:
+        write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
+    return 0
+
+
 COMMANDS = [
     Command("env", "env + camera + latency steps/s against highway-env's own camera envs", *_delegate("env")),
-    Command("models", "parameter counts and inference time of BM and PLM-Net", *_delegate("models")),
-    Command("metrics", "trajectory metrics against similaritymeasures", *_delegate("metrics")),
+    Command("models", "parameter counts and inference time of BM and PLM-Net", configure_models, run_models),
+    Command("metrics", "trajectory metrics against similaritymeasures", configure_metrics, run_metrics),
     Command("estimation", "EKF costs per step with and without delay compensation, camera lane fit accuracy",
             configure_estimation, run_estimation),
     Command("lessons", "wall-clock time of each lesson top to bottom (budget 5 minutes on 2 cores)",

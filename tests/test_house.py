@@ -1,0 +1,50 @@
+"""The house rules of issue 16 that a test can hold: library code never imports the command line."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "plm_highway"
+
+
+def _imported_modules(path: Path) -> set[str]:
+    """Every module a file imports, at any depth (lazy imports inside functions count too)."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module)
+            names.update(f"{node.module}.{alias.name}" for alias in node.names)
+    return names
+
+
+def _library_files() -> list[Path]:
+    return [path for path in sorted(PACKAGE.rglob("*.py"))
+            if "cli" not in path.relative_to(PACKAGE).parts[:1] and path.name != "__main__.py"]
+
+
+def test_library_modules_never_import_the_command_line():
+    offenders = {str(path.relative_to(PACKAGE)): sorted(name for name in _imported_modules(path)
+                                                          if name == "plm_highway.cli" or name.startswith("plm_highway.cli."))
+                 for path in _library_files()}
+    assert _library_files(), "no library files found: the walk itself is broken"
+    assert {file: names for file, names in offenders.items() if names} == {}
+
+
+def test_the_walk_sees_lazy_imports(tmp_path):
+    sample = tmp_path / "sample.py"
+    sample.write_text("def f():\n    from plm_highway.cli import main\n    import plm_highway.cli._common\n")
+    assert {"plm_highway.cli", "plm_highway.cli.main", "plm_highway.cli._common"} <= _imported_modules(sample)
+
+
+def test_no_library_module_defines_command_line_entry_points():
+    """configure(parser)/run(args) pairs belong to plm_highway/cli adapters, not to library rooms."""
+    pairs = []
+    for path in _library_files():
+        functions = {node.name for node in ast.parse(path.read_text(encoding="utf-8")).body
+                     if isinstance(node, ast.FunctionDef)}
+        if {"configure", "run"} <= functions:
+            pairs.append(str(path.relative_to(PACKAGE)))
+    assert pairs == []
