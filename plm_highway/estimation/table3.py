@@ -66,7 +66,7 @@ PAPER_TABLE3 = {
         "vn": {"rmse": (0.166, 0.216, 0.081), "peak": (0.357, 0.513, 0.196)}},
 }
 PAPER_SOURCE = ("M. Kim, W. Kang, C. Ahn, Delay-Compensated Lane-Coordinate Vehicle State Estimation Using "
-                "Low-Cost Sensors, Sensors 25, 6251 (2025), Table 3; /work/shared/papers/004_3cfa335d32db768f.txt")
+                "Low-Cost Sensors, Sensors 25, 6251 (2025), Table 3")
 
 # A dashcam of a passenger car: 320x160 grayscale, 60 deg wide, 1.3 m up, 1 m ahead of the centre of gravity.
 TABLE3_CAMERA = CameraConfig(height_px=160, width_px=320, fov_deg=60.0, mount_height_m=1.3, pitch_deg=10.0,
