@@ -82,20 +82,51 @@ def pose_matrix(x_m: float, y_m: float, heading_rad: float) -> np.ndarray:
 
 
 class PinholeCamera:
-    """Renders grayscale dashcam frames of a :class:`GroundMap` from a car pose."""
+    """Renders grayscale dashcam frames of a :class:`GroundMap` from a car pose.
+
+    Only the rows that see ground are warped; the rows above them (sky and haze) are filled. That is
+    what the frame showed before, at a fraction of the cost: sky pixels map to points far outside the
+    map, where OpenCV's warp takes its slow border path. Each frame is a new read-only array, so a
+    frame handed to a policy cannot be changed behind the env's (or a latency buffer's) back.
+    """
 
     def __init__(self, ground: GroundMap, config: CameraConfig = CameraConfig()):
         self.ground = ground
         self.config = config
         self._image_to_ground = image_to_ground(config)
         self._sky_rows = ~ground_rows(config)
+        # Ground rows form one block at the bottom of the image (farther rows are higher up).
+        self._first_ground_row = int(np.argmin(self._sky_rows)) if not self._sky_rows.all() else config.height_px
+        if self._sky_rows[self._first_ground_row:].any():
+            raise ValueError(f"camera config: pitch_deg={config.pitch_deg} puts sky below the ground in the image")
+        shift = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, float(self._first_ground_row)], [0.0, 0.0, 1.0]])
+        # Ground-row pixel (u, v') -> (forward, left, w) on the ground, as nine floats.
+        self._ground_rows_to_ground = tuple((self._image_to_ground @ shift).ravel().tolist())
         self._size = (config.width_px, config.height_px)
+        self._ground_size = (config.width_px, config.height_px - self._first_ground_row)
+
+    def homography(self, x_m: float, y_m: float, heading_rad: float) -> np.ndarray:
+        """Ground-row pixel -> map pixel: ``world_to_pixel @ pose_matrix(x, y, heading) @ image_to_ground``,
+        with the image rows counted from the first ground row, built from scalars."""
+        s = self.ground.px_per_m
+        c, sn = math.cos(heading_rad), math.sin(heading_rad)
+        a, b = s * c, s * sn
+        tx, ty = s * (x_m - self.ground.x_min_m), s * (self.ground.y_max_m - y_m)
+        g00, g01, g02, g10, g11, g12, g20, g21, g22 = self._ground_rows_to_ground
+        return np.array((
+            (a * g00 - b * g10 + tx * g20, a * g01 - b * g11 + tx * g21, a * g02 - b * g12 + tx * g22),
+            (-b * g00 - a * g10 + ty * g20, -b * g01 - a * g11 + ty * g21, -b * g02 - a * g12 + ty * g22),
+            (g20, g21, g22),
+        ))
 
     def render(self, x_m: float, y_m: float, heading_rad: float) -> np.ndarray:
-        homography = self.ground.world_to_pixel @ pose_matrix(x_m, y_m, heading_rad) @ self._image_to_ground
-        frame = cv2.warpPerspective(
-            self.ground.image, homography, self._size,
-            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE,
-        )
-        frame[self._sky_rows] = HORIZON_GRAY
+        frame = np.empty((self.config.height_px, self.config.width_px), np.uint8)
+        first = self._first_ground_row
+        frame[:first] = HORIZON_GRAY
+        if first < self.config.height_px:
+            cv2.warpPerspective(
+                self.ground.image, self.homography(x_m, y_m, heading_rad), self._ground_size, dst=frame[first:],
+                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE,
+            )
+        frame.flags.writeable = False
         return frame
