@@ -319,3 +319,36 @@ def test_sampled_reference_line_is_continuous(segments, spacing_m):
     assert (ref.x_m[-1], ref.y_m[-1]) == pytest.approx((end.real, end.imag), abs=1e-6)
     assert ref.heading_rad[-1] == pytest.approx(heading, abs=1e-9)
     assert set(np.unique(ref.segment_index)) == set(range(len(segments)))
+
+
+@settings(max_examples=40, deadline=None)
+@given(lengths=st.lists(st.floats(1.0, 200.0), min_size=1, max_size=8), closed=st.booleans(),
+       queries=st.lists(st.floats(-50.0, 2000.0), min_size=1, max_size=60))
+def test_segment_lookup_with_its_cache_agrees_with_the_vectorised_lookup(lengths, closed, queries):
+    """The scalar look-up remembers the last segment; any order of queries gives the searched answer."""
+    from plm_highway.road.geometry import SegmentLookup, segment_index_at
+    from plm_highway.road.track import Segment, TrackSpec
+
+    track = TrackSpec("q", 3, 4.0, tuple(Segment("straight", length) for length in lengths), closed)
+    lookup = SegmentLookup(track)
+    for s_m in queries:
+        assert lookup.segment_index(s_m) == int(segment_index_at(track, s_m)), s_m
+
+
+@settings(max_examples=60, deadline=None)
+@given(radius_m=st.floats(20.0, 500.0), angle_deg=st.floats(5.0, 169.0), direction=st.sampled_from(["left", "right"]),
+       offset_m=st.sampled_from([-4.0, 0.0, 4.0]), points=st.lists(st.tuples(st.floats(-300, 300), st.floats(-300, 300)),
+                                                                     min_size=1, max_size=10))
+def test_scalar_lane_frames_are_highway_env_lanes_bit_for_bit(radius_m, angle_deg, direction, offset_m, points):
+    """The env's tracker replaces highway-env's lane arithmetic; it must give exactly the same numbers."""
+    from plm_highway.road.builder import ArcFrame, StraightFrame
+
+    built = build_road(parse_track(spec(straight(37.5), arc(radius_m, angle_deg, direction))))
+    for edge in built.edges:
+        for lane in built.network.graph[edge.key[0]][edge.key[1]]:
+            frame = StraightFrame.of(lane) if isinstance(lane, StraightLane) else ArcFrame.of(lane)
+            assert frame.length_m == lane.length
+            for x_m, y_m in points:
+                expected = lane.local_coordinates(np.array([x_m, y_m]))
+                assert frame.local_coordinates(x_m, y_m) == (float(expected[0]), float(expected[1]))
+                assert frame.heading_at(expected[0]) == lane.heading_at(expected[0])

@@ -24,6 +24,10 @@ MARKING_WIDTH_M = 0.2
 DASH_LENGTH_M = 3.0
 DASH_PERIOD_M = 9.0  # 3 m painted, 6 m gap
 TEXTURE_SIGMA_GRAY = 10.0
+# The ground texture is one noise field per track, drawn on the grid it had at 10 px/m (one noise
+# sample per 0.5 m): every map resolution samples the same field, so frames at a coarser map
+# differ from the 10 px/m ones only by resolution, not by a new random texture.
+TEXTURE_REFERENCE_PX_PER_M = 10.0
 
 
 @dataclass(frozen=True)
@@ -61,22 +65,30 @@ def ground_map(track: TrackSpec, px_per_m: float = 10.0, margin_m: float = 60.0)
     gmap = GroundMap(np.empty((rows, cols), np.uint8), px_per_m, x_min_m, y_max_m)
 
     rng = np.random.default_rng(zlib.crc32(track.name.encode()))
-    image = _texture(rng, rows, cols, OFFROAD_GRAY, px_per_m)
+    grid_shape = _texture_grid_shape(x_max_m - x_min_m, y_max_m - y_min_m)
+    image = _texture(rng, grid_shape, rows, cols, OFFROAD_GRAY)
     asphalt = np.zeros((rows, cols), np.uint8)
     _fill_road(asphalt, gmap, ref, half_width_m, track)
     on_road = asphalt > 127
-    image[on_road] = _texture(rng, rows, cols, ASPHALT_GRAY, px_per_m)[on_road]
+    image[on_road] = _texture(rng, grid_shape, rows, cols, ASPHALT_GRAY)[on_road]
     _draw_markings(image, gmap, ref, track)
     gmap.image[:] = image
     gmap.image.flags.writeable = False
     return gmap
 
 
-def _texture(rng: np.random.Generator, rows: int, cols: int, mean_gray: float, px_per_m: float) -> np.ndarray:
+def _texture_grid_shape(width_m: float, height_m: float) -> tuple[int, int]:
+    reference_rows = int(np.ceil(height_m * TEXTURE_REFERENCE_PX_PER_M))
+    reference_cols = int(np.ceil(width_m * TEXTURE_REFERENCE_PX_PER_M))
+    scale = int(round(TEXTURE_REFERENCE_PX_PER_M / 2))
+    return reference_rows // scale + 2, reference_cols // scale + 2
+
+
+def _texture(rng: np.random.Generator, grid_shape: tuple[int, int], rows: int, cols: int,
+             mean_gray: float) -> np.ndarray:
     # Smooth noise at ~0.5 m scale gives the ground visible motion without fake features; drawn
     # at 2 px/m and upscaled, because full-resolution float noise would cost gigabytes.
-    scale = max(1, int(round(px_per_m / 2)))
-    noise = rng.standard_normal((rows // scale + 2, cols // scale + 2), dtype=np.float32)
+    noise = rng.standard_normal(grid_shape, dtype=np.float32)
     noise = cv2.GaussianBlur(noise, (0, 0), sigmaX=0.7)
     noise *= TEXTURE_SIGMA_GRAY / max(float(noise.std()), 1e-6)
     noise = cv2.resize(noise, (cols, rows), interpolation=cv2.INTER_LINEAR)

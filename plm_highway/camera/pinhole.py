@@ -16,6 +16,7 @@ import numpy as np
 from plm_highway.camera.ground_map import GroundMap
 
 HORIZON_GRAY = 180  # sky and haze beyond the visible range
+WARP_FLAGS = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
 
 
 @dataclass(frozen=True)
@@ -103,30 +104,36 @@ class PinholeCamera:
         # Ground-row pixel (u, v') -> (forward, left, w) on the ground, as nine floats.
         self._ground_rows_to_ground = tuple((self._image_to_ground @ shift).ravel().tolist())
         self._size = (config.width_px, config.height_px)
+        self._shape = (config.height_px, config.width_px)
         self._ground_size = (config.width_px, config.height_px - self._first_ground_row)
+        self._map_scale = (ground.px_per_m, ground.x_min_m, ground.y_max_m)
+        self._sky_frame = np.full(self._shape, HORIZON_GRAY, np.uint8)  # copied per frame, ground rows warped into it
+        # Filled in place per frame (OpenCV copies it); a flat view avoids building a new array.
+        self._homography = np.empty((3, 3))
+        self._homography_flat = self._homography.reshape(-1)
 
     def homography(self, x_m: float, y_m: float, heading_rad: float) -> np.ndarray:
         """Ground-row pixel -> map pixel: ``world_to_pixel @ pose_matrix(x, y, heading) @ image_to_ground``,
         with the image rows counted from the first ground row, built from scalars."""
-        s = self.ground.px_per_m
-        c, sn = math.cos(heading_rad), math.sin(heading_rad)
-        a, b = s * c, s * sn
-        tx, ty = s * (x_m - self.ground.x_min_m), s * (self.ground.y_max_m - y_m)
+        return self._fill_homography(x_m, y_m, heading_rad).copy()
+
+    def _fill_homography(self, x_m: float, y_m: float, heading_rad: float) -> np.ndarray:
+        s, x_min_m, y_max_m = self._map_scale
+        a, b = s * math.cos(heading_rad), s * math.sin(heading_rad)
+        tx, ty = s * (x_m - x_min_m), s * (y_max_m - y_m)
         g00, g01, g02, g10, g11, g12, g20, g21, g22 = self._ground_rows_to_ground
-        return np.array((
-            (a * g00 - b * g10 + tx * g20, a * g01 - b * g11 + tx * g21, a * g02 - b * g12 + tx * g22),
-            (-b * g00 - a * g10 + ty * g20, -b * g01 - a * g11 + ty * g21, -b * g02 - a * g12 + ty * g22),
-            (g20, g21, g22),
-        ))
+        self._homography_flat[:] = (
+            a * g00 - b * g10 + tx * g20, a * g01 - b * g11 + tx * g21, a * g02 - b * g12 + tx * g22,
+            -b * g00 - a * g10 + ty * g20, -b * g01 - a * g11 + ty * g21, -b * g02 - a * g12 + ty * g22,
+            g20, g21, g22,
+        )
+        return self._homography
 
     def render(self, x_m: float, y_m: float, heading_rad: float) -> np.ndarray:
-        frame = np.empty((self.config.height_px, self.config.width_px), np.uint8)
+        frame = self._sky_frame.copy()
         first = self._first_ground_row
-        frame[:first] = HORIZON_GRAY
-        if first < self.config.height_px:
-            cv2.warpPerspective(
-                self.ground.image, self.homography(x_m, y_m, heading_rad), self._ground_size, dst=frame[first:],
-                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE,
-            )
+        if first < self._shape[0]:
+            cv2.warpPerspective(self.ground.image, self._fill_homography(x_m, y_m, heading_rad), self._ground_size,
+                                frame[first:], WARP_FLAGS, cv2.BORDER_REPLICATE)
         frame.flags.writeable = False
         return frame

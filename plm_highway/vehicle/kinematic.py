@@ -21,6 +21,7 @@ vehicle is :data:`HIGHWAY_ENV_VEHICLE`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -58,12 +59,26 @@ def kinematic_bicycle_step(
     state: KinematicState, steer_rad: float, speed_mps: float, dt_s: float, params: KinematicBicycleParams
 ) -> KinematicState:
     """One forward-Euler step, operation for operation as highway-env's ``Vehicle.step``."""
-    beta = np.arctan(params.cg_to_rear_m / params.wheelbase_m * np.tan(steer_rad))
+    return KinematicState(*kinematic_bicycle_pose_step(
+        state.x_m, state.y_m, state.heading_rad, steer_rad, speed_mps, dt_s,
+        params.cg_to_rear_m / params.wheelbase_m, params.cg_to_rear_m,
+    ))
+
+
+def kinematic_bicycle_pose_step(
+    x_m: float, y_m: float, heading_rad: float, steer_rad: float, speed_mps: float, dt_s: float,
+    rear_fraction: float, cg_to_rear_m: float,
+) -> tuple[float, float, float]:
+    """:func:`kinematic_bicycle_step` on bare floats (``rear_fraction = lr / L``), for the env's hot path.
+
+    Scalar ``math`` rather than numpy: the same IEEE operations (numpy's float64 sin/cos/tan/arctan
+    give libm's results on this project's platforms), without the cost of numpy on scalars.
+    """
+    beta = math.atan(rear_fraction * math.tan(steer_rad))
     # The position uses the heading before this step's update, as highway-env does.
-    x_m = state.x_m + speed_mps * np.cos(state.heading_rad + beta) * dt_s
-    y_m = state.y_m + speed_mps * np.sin(state.heading_rad + beta) * dt_s
-    heading_rad = state.heading_rad + speed_mps * np.sin(beta) / params.cg_to_rear_m * dt_s
-    return KinematicState(float(x_m), float(y_m), float(heading_rad))
+    return (x_m + speed_mps * math.cos(heading_rad + beta) * dt_s,
+            y_m + speed_mps * math.sin(heading_rad + beta) * dt_s,
+            heading_rad + speed_mps * math.sin(beta) / cg_to_rear_m * dt_s)
 
 
 def kinematic_bicycle_rates(
