@@ -14,7 +14,16 @@ import cv2
 import numpy as np
 import pytest
 
-from plm_highway.camera.ground_map import ASPHALT_GRAY, MARKING_GRAY, OFFROAD_GRAY, GroundMap, ground_map
+from plm_highway.camera.ground_map import (
+    ASPHALT_GRAY,
+    DEFAULT_MAP_PX_PER_M,
+    FRAME_TOLERANCE_MEAN_GRAY,
+    FRAME_TOLERANCE_WORST_FRAME_GRAY,
+    MARKING_GRAY,
+    OFFROAD_GRAY,
+    GroundMap,
+    ground_map,
+)
 from plm_highway.camera.pinhole import HORIZON_GRAY, CameraConfig, PinholeCamera, pose_matrix
 from plm_highway.camera.topdown import TopDownView
 from plm_highway.road.geometry import reference_pose_at
@@ -243,3 +252,21 @@ def test_frames_are_fresh_read_only_arrays(camera3):
     assert np.array_equal(first, second)
     with pytest.raises(ValueError, match="read-only"):
         first[0, 0] = 0
+
+
+@pytest.mark.parametrize("camera_config", [CONFIG, CameraConfig(height_px=160, width_px=160)], ids=["200x66", "160x160"])
+def test_default_map_resolution_keeps_frames_within_the_stated_tolerance(camera_config, repo_root):
+    """The env draws its ground map coarser than 10 px/m; over the 400 poses of the golden run the
+    frames differ from the 10 px/m frames by at most the documented mean absolute pixel difference."""
+    import json
+
+    golden = json.loads((repo_root / "tests" / "data" / "env_golden.json").read_text())
+    poses = golden["runs"]["expert_no_latency"]["pose"]
+    track = load_track("test")
+    fine = PinholeCamera(ground_map(track, 10.0), camera_config)
+    coarse = PinholeCamera(ground_map(track, DEFAULT_MAP_PX_PER_M), camera_config)
+    means = [np.abs(coarse.render(*pose).astype(int) - fine.render(*pose).astype(int)).mean() for pose in poses]
+    assert DEFAULT_MAP_PX_PER_M < 10.0
+    assert np.mean(means) <= FRAME_TOLERANCE_MEAN_GRAY
+    assert max(means) <= FRAME_TOLERANCE_WORST_FRAME_GRAY
+    assert np.mean(means) > 0.1  # a different map was really drawn

@@ -32,7 +32,7 @@ from highway_env.envs.common.action import ContinuousAction
 from highway_env.envs.common.observation import ObservationType
 from highway_env.road.road import Road
 
-from plm_highway.camera.ground_map import ground_map
+from plm_highway.camera.ground_map import DEFAULT_MAP_PX_PER_M, ground_map
 from plm_highway.camera.pinhole import CameraConfig, PinholeCamera
 from plm_highway.camera.topdown import TopDownView
 from plm_highway.envs.ego_vehicle import TrackVehicle
@@ -172,7 +172,7 @@ class LaneKeepingCameraEnv(AbstractEnv):
             "simulation_frequency": 20,  # [Hz]
             "policy_frequency": 20,  # [Hz]
             "camera": {},  # overrides of CameraConfig fields, e.g. {"pitch_deg": 8}
-            "map_px_per_m": 10.0,
+            "map_px_per_m": DEFAULT_MAP_PX_PER_M,  # ground map resolution (see camera/ground_map.py)
             "duration_s": None,  # None: until the end of an open track
             "curvature_preview_s": 0.0,  # look-ahead of the privileged curvature preview (0: none; best for the expert)
             # Start pose; reset(options={...}) may override each for one episode.
