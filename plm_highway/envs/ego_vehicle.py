@@ -1,4 +1,4 @@
-"""The ego car: a vehicle model from :mod:`plm_highway.vehicle` with a cheap lane tracker.
+"""The ego car: a vehicle model from :mod:`plm_highway.vehicle.models` with a cheap lane tracker.
 
 highway-env's ``Vehicle.on_state_update`` searches every lane of the network each simulation
 step (~90% of step time once rendering is fast). A car on a track only ever moves from its
@@ -8,6 +8,10 @@ current road edge to the next one, so that is all we look at, with the scalar la
 The class stays a highway-env ``Vehicle`` (the env's road, top-down view and ``env.vehicle`` work
 as in highway-env), but its state is held in Python floats and stepped by the model's pure step
 function: numpy on scalars cost more than the physics.
+
+Steering: the commanded front-wheel angle reaches the wheels through a first-order actuator with
+time constant ``steering_time_constant_s`` (0: at once, highway-env's behaviour), integrated exactly
+over each step (``delta_end = command + (delta_start - command) exp(-dt / tau)``).
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ import numpy as np
 from highway_env.vehicle.kinematics import Vehicle
 
 from plm_highway.road.builder import BuiltRoad
-from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE, kinematic_bicycle_pose_step
+from plm_highway.vehicle.models import VEHICLE_MODELS, VehicleModel, VehicleState
 
 
 class TrackCoordinates(NamedTuple):
@@ -33,22 +37,28 @@ class TrackVehicle(Vehicle):
     """A :class:`Vehicle` that follows its position along the edges of a :class:`BuiltRoad`."""
 
     def __init__(self, road, position, heading: float, speed: float, built: BuiltRoad, edge_index: int = 0,
-                 closed: bool = False):
+                 closed: bool = False, model: VehicleModel = VEHICLE_MODELS["kinematic"], params=None,
+                 steering_time_constant_s: float = 0.0):
         self.built = built
         self.edge_index = edge_index
         self.closed = closed
         self.past_end = False
-        self.steering_rad = 0.0  # front-wheel angle applied now
+        self.model = model
+        self.params = model.default_params if params is None else params
+        self._model_step = model.step
+        self.steering_time_constant_s = float(steering_time_constant_s)
+        self.steering_command_rad = 0.0  # front-wheel angle asked for
+        self.steering_rad = 0.0  # front-wheel angle at the wheels now
         self._frames = built.reference_frames
         self._reference_offset_m = built.lane_offsets_m[built.reference_lane_id]
         self._lane_offsets_m = built.lane_offsets_m
         self._edges = built.edges
-        params = HIGHWAY_ENV_VEHICLE
-        self._rear_fraction, self._cg_to_rear_m = params.cg_to_rear_m / params.wheelbase_m, params.cg_to_rear_m
         # Track coordinates after the last update (see :attr:`coordinates`).
         self.arc_length_m = self.lateral_m = self.heading_error_rad = math.nan
         self.lane_id = 0
         super().__init__(road, position, float(heading), float(speed))
+        self.model_state: VehicleState = model.initial_state(self.x_m, self.y_m, self.heading, 0.0, self.speed,
+                                                             self.params)
 
     @property
     def coordinates(self) -> TrackCoordinates:
@@ -81,11 +91,22 @@ class TrackVehicle(Vehicle):
     def position(self, value) -> None:
         self.x_m, self.y_m = float(value[0]), float(value[1])
 
-    def step(self, dt: float) -> None:
-        """Advance the pose by one simulation step at the current steering and speed."""
-        self.x_m, self.y_m, self.heading = kinematic_bicycle_pose_step(
-            self.x_m, self.y_m, self.heading, self.steering_rad, self.speed, dt, self._rear_fraction,
-            self._cg_to_rear_m)
+    def step(self, dt: float, speed_end_mps: float | None = None) -> None:
+        """Advance by one simulation step: the actuator, then the model from this step's speed to
+        ``speed_end_mps`` (default: unchanged), then the track coordinates."""
+        command_rad = self.steering_command_rad
+        if self.steering_time_constant_s == 0.0:
+            steer_start_rad = steer_end_rad = command_rad
+        else:
+            steer_start_rad = self.steering_rad
+            steer_end_rad = command_rad + (steer_start_rad - command_rad) * math.exp(-dt / self.steering_time_constant_s)
+        speed_start_mps = self.speed
+        speed_end_mps = speed_start_mps if speed_end_mps is None else speed_end_mps
+        state = self._model_step(self.model_state, steer_start_rad, steer_end_rad, speed_start_mps, speed_end_mps,
+                                 dt, self.params)
+        self.model_state = state
+        self.x_m, self.y_m, self.heading = state[0], state[1], state[2]
+        self.steering_rad, self.speed = steer_end_rad, speed_end_mps
         self.on_state_update()
 
     def on_state_update(self) -> None:

@@ -7,8 +7,14 @@ Built like highway-env's own environments: ``default_config`` declares every set
   step (highway-env's lane-keeping-v0 observes before simulating, which is one step stale).
 - After every simulation step the env records a :class:`Snapshot` (frame + privileged state).
   The latency wrapper serves old snapshots from these; without it, the newest is observed.
-- Speed is constant; the action is normalised steering in [-1, 1], positive turns left,
-  mapped linearly to the front-wheel angle range +-``max_steering_rad``.
+- The ego car is a model from the vehicle-model table (``vehicle_model``: ``kinematic``, highway-env's
+  bicycle and the default, or ``dynamic``, a single-track car with linear tires; ``vehicle_params``
+  overrides fields of its parameter set). Its speed is a constant or a schedule (``speed_mps``, see
+  :mod:`plm_highway.envs.speed`). The action is normalised steering in [-1, 1], positive turns left,
+  mapped linearly to a front-wheel angle command in +-``max_steering_rad`` that reaches the wheels
+  through a first-order actuator (``steering_time_constant_s``, 0 = at once).
+- ``info`` and ``state()`` carry what a car's sensors measure (yaw rate, lateral acceleration,
+  front-wheel steering angle, speed) besides the privileged lane coordinates.
 
 Default rates: simulation 20 Hz and policy 20 Hz, so every latency that is a multiple of
 0.05 s falls exactly on a recorded snapshot (ages are then exact); other latencies are served
@@ -21,6 +27,7 @@ dicts are made only when read, and track look-ups are built once per track.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import NamedTuple
 
@@ -36,9 +43,11 @@ from plm_highway.camera.ground_map import DEFAULT_MAP_PX_PER_M, ground_map
 from plm_highway.camera.pinhole import CameraConfig, PinholeCamera
 from plm_highway.camera.topdown import TopDownView
 from plm_highway.envs.ego_vehicle import TrackVehicle
+from plm_highway.envs.speed import SpeedSchedule, parse_speed
 from plm_highway.road.builder import BuiltRoad, build_road
 from plm_highway.road.geometry import SegmentLookup, reference_pose_at
 from plm_highway.road.track import TrackSpec, load_track, parse_track
+from plm_highway.vehicle.models import vehicle_model
 
 PAPER_CAMERA = {"height_px": 160, "width_px": 160}  # the original PLM-Net input size
 ACTION_RANGE = (-1, 1)  # normalised steering
@@ -82,11 +91,14 @@ class CarValues(NamedTuple):
     y_m: float
     heading_rad: float
     speed_mps: float
-    steering_rad: float
+    steering_rad: float  # front-wheel angle at the wheels
     arc_length_m: float
     lateral_reference_m: float  # from the reference line, left positive
     heading_error_rad: float
     lane_index: int
+    steering_command_rad: float
+    lateral_velocity_mps: float  # body frame
+    yaw_rate_radps: float
 
 
 class EpisodeContext:
@@ -100,6 +112,7 @@ class EpisodeContext:
         self.max_steering_rad = float(config["max_steering_rad"])
         self.curvature_preview_s = config["curvature_preview_s"]
         self.road_half_width_m = env.track.road_half_width_m
+        self.vehicle_model, self.vehicle_params = env._ego.model, env._ego.params
         self.segment_directions = [segment.direction for segment in env.track.segments]
         # The starting lane's curvature per segment (the same function of the same numbers, once).
         self.lane_curvatures_1pm = [_lane_curvature(k, self.lane_offset_m) for k in self.lookup.curvatures_1pm]
@@ -112,6 +125,8 @@ class EpisodeContext:
         return self.lane_curvatures_1pm[lookup.segment_index(s_m) if segment_index is None else segment_index]
 
     def state_dict(self, time_s: float, car: CarValues) -> dict:
+        # CarValues has VehicleState's fields by name: the sensor model reads it as the state.
+        sensors = self.vehicle_model.sensors(car, car.steering_rad, car.speed_mps, self.vehicle_params)
         segment_index = self.lookup.segment_index(car.arc_length_m)
         curvature_1pm = self.lane_curvature_1pm(car.arc_length_m, segment_index)
         if self.curvature_preview_s == 0:
@@ -128,15 +143,21 @@ class EpisodeContext:
             "arc_length_m": car.arc_length_m,
             "lateral_offset_m": car.lateral_reference_m - self.lane_offset_m,
             "heading_error_rad": car.heading_error_rad,
-            # The bicycle's velocity points at heading + beta: tracking this course angle, not the
+            # The car's velocity points at heading + slip angle: tracking this course angle, not the
             # heading, is what leaves no steady offset in curves.
-            "course_error_rad": car.heading_error_rad + math.atan(0.5 * math.tan(car.steering_rad)),
+            "course_error_rad": car.heading_error_rad + sensors.slip_angle_rad,
             "curvature_1pm": curvature_1pm,
             "curvature_preview_1pm": curvature_preview_1pm,
             "segment": self.segment_directions[segment_index],
             "segment_index": segment_index,
             "lane_index": car.lane_index,
             "on_road": abs(car.lateral_reference_m) <= self.road_half_width_m,
+            # What the car's own sensors read (IMU at the reference point, steering-angle sensor).
+            "steering_command": car.steering_command_rad / self.max_steering_rad,
+            "steering_angle_rad": car.steering_rad,
+            "yaw_rate_radps": sensors.yaw_rate_radps,
+            "lateral_acceleration_mps2": sensors.lateral_acceleration_mps2,
+            "lateral_velocity_mps": car.lateral_velocity_mps,
         }
 
 
@@ -167,8 +188,11 @@ class LaneKeepingCameraEnv(AbstractEnv):
             "action": {"type": "ContinuousAction", "lateral": True, "longitudinal": False},
             "track": "test",  # shipped name, path to a JSON spec, or a spec dict
             "start_lane": None,  # lane index (0 = leftmost); None = the middle lane
-            "speed_mps": 16.7,  # about 60 km/h, the paper's test speed
+            "speed_mps": 16.7,  # about 60 km/h, the paper's test speed; or [[time_s, speed_mps], ...]
             "max_steering_rad": 0.2,  # front-wheel angle at action +-1
+            "steering_time_constant_s": 0.0,  # first-order steering actuator; 0 = the wheels follow at once
+            "vehicle_model": "kinematic",  # a name in plm_highway.vehicle.models.VEHICLE_MODELS
+            "vehicle_params": {},  # overrides of the model's default parameters, e.g. {"mass_kg": 1600}
             "simulation_frequency": 20,  # [Hz]
             "policy_frequency": 20,  # [Hz]
             "camera": {},  # overrides of CameraConfig fields, e.g. {"pitch_deg": 8}
@@ -254,9 +278,12 @@ class LaneKeepingCameraEnv(AbstractEnv):
         lateral_m = self.start_lane_offset_m + float(start["start_offset_m"])
         position = np.array([x_m - lateral_m * math.sin(road_heading), y_m + lateral_m * math.cos(road_heading)])
         edge_index = max(i for i, edge in enumerate(self.built.edges) if edge.start_s_m <= arc_length_m + 1e-9)
+        self.speed_schedule: SpeedSchedule = parse_speed(self.config["speed_mps"])
+        model = vehicle_model(self.config["vehicle_model"])
         vehicle = TrackVehicle(
             self.road, position, road_heading + float(start["start_heading_error_rad"]),
-            float(self.config["speed_mps"]), self.built, edge_index, self.track.closed,
+            self.speed_schedule.speed_at(0.0), self.built, edge_index, self.track.closed, model,
+            vehicle_params(model, self.config["vehicle_params"]), float(self.config["steering_time_constant_s"]),
         )
         vehicle.on_state_update()
         self.road.vehicles.append(vehicle)
@@ -321,16 +348,19 @@ class LaneKeepingCameraEnv(AbstractEnv):
         dt_s = self._simulation_dt_s
         self.new_snapshots = []
         if steering_rad is not None:  # held over the policy step
-            vehicle.steering_rad = steering_rad
+            vehicle.steering_command_rad = steering_rad
+        schedule = None if self.speed_schedule.constant else self.speed_schedule
         for _ in range(self._substeps):
-            vehicle.step(dt_s)
+            vehicle.step(dt_s, None if schedule is None else schedule.speed_at((self.steps + 1) / self._sim_hz))
             self.steps += 1
             self._record_snapshot()
 
     def _record_snapshot(self) -> None:
         v = self._ego
+        state = v.model_state
         snapshot = Snapshot(self.steps / self._sim_hz, CarValues(
             v.x_m, v.y_m, v.heading, v.speed, v.steering_rad, v.arc_length_m, v.lateral_m, v.heading_error_rad, v.lane_id,
+            v.steering_command_rad, state[3], state[4],
         ), self._episode)
         self.latest_snapshot = snapshot
         self.new_snapshots.append(snapshot)
@@ -376,6 +406,21 @@ class LaneKeepingCameraEnv(AbstractEnv):
         info["completed_fraction"] = min(1.0, car.arc_length_m / self.track_length_m)
         info["rewards"] = self._rewards(action) if rewards is None else rewards
         return info
+
+
+def vehicle_params(model, overrides: dict):
+    """The model's default parameters with ``overrides`` (field name -> positive number) applied."""
+    defaults = model.default_params
+    if not isinstance(overrides, dict):
+        raise ValueError(f"config['vehicle_params']: must be a dict of parameter overrides, got {overrides!r}")
+    fields = sorted(defaults.__dataclass_fields__)
+    for name, value in overrides.items():
+        if name not in fields:
+            raise ValueError(f"config['vehicle_params']: {name!r} is not a parameter of the {model.name} model; "
+                             f"allowed {fields}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+            raise ValueError(f"config['vehicle_params'][{name!r}]: must be a positive finite number, got {value!r}")
+    return dataclasses.replace(defaults, **{name: float(value) for name, value in overrides.items()})
 
 
 def _lane_curvature(reference_curvature_1pm: float, lane_offset_m: float) -> float:
