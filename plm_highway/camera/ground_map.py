@@ -34,6 +34,11 @@ TEXTURE_SIGMA_GRAY = 10.0
 # fail, although the mean difference stays small. At 8 px/m markings are two pixels (0.25 m).
 # A coarser map is also a smaller one: 0.64x the memory of 10 px/m.
 DEFAULT_MAP_PX_PER_M = 8.0
+# The map is one uint8 image (plus masks and a float32 texture while it is drawn: about 8 bytes per
+# pixel at the peak): at most this many pixels, checked before any drawing (640 MB peak). The shipped
+# train track is 68 million at 8 px/m; a closed circle of 1.5 km radius would be 625 million.
+MAX_MAP_PIXELS = 80_000_000
+MAP_PX_PER_M_RANGE = (1.0, 40.0)
 FRAME_TOLERANCE_MEAN_GRAY = 2.5  # mean absolute pixel difference, averaged over a run's frames
 FRAME_TOLERANCE_WORST_FRAME_GRAY = 4.0  # the same, in the worst frame of the run
 # The ground texture is one noise field per track, drawn on the grid it had at 10 px/m (one noise
@@ -64,6 +69,9 @@ class GroundMap:
 @functools.lru_cache(maxsize=8)
 def ground_map(track: TrackSpec, px_per_m: float = DEFAULT_MAP_PX_PER_M, margin_m: float = 60.0) -> GroundMap:
     """Draw ``track`` (cached: every env on the same track in a process shares one map)."""
+    low, high = MAP_PX_PER_M_RANGE
+    if not (isinstance(px_per_m, (int, float)) and low <= px_per_m <= high):  # False for NaN
+        raise ValueError(f"map_px_per_m {px_per_m!r} outside [{low:g}, {high:g}] px/m")
     ref = sample_reference(track, spacing_m=0.25)
     half_width_m = track.road_half_width_m
     edges_x = np.concatenate([ref.offset(half_width_m)[0], ref.offset(-half_width_m)[0]])
@@ -72,8 +80,11 @@ def ground_map(track: TrackSpec, px_per_m: float = DEFAULT_MAP_PX_PER_M, margin_
     y_min_m, y_max_m = edges_y.min() - margin_m, edges_y.max() + margin_m
     cols = int(np.ceil((x_max_m - x_min_m) * px_per_m))
     rows = int(np.ceil((y_max_m - y_min_m) * px_per_m))
-    if max(rows, cols) >= 32767:  # OpenCV's warp limit on source images
-        raise ValueError(f"track {track.name!r}: {cols}x{rows} px map is too large; lower px_per_m")
+    if max(rows, cols) >= 32767 or rows * cols > MAX_MAP_PIXELS:  # OpenCV's warp limit on sources; memory
+        raise ValueError(
+            f"{track.source}: track {track.name!r} spans {x_max_m - x_min_m:,.0f} x {y_max_m - y_min_m:,.0f} m "
+            f"with its margins; at {px_per_m:g} px/m its ground map would be {cols:,} x {rows:,} px, beyond the "
+            f"limit of {MAX_MAP_PIXELS:,} px and 32,767 px a side: make the track more compact or lower map_px_per_m")
     gmap = GroundMap(np.empty((rows, cols), np.uint8), px_per_m, x_min_m, y_max_m)
 
     rng = np.random.default_rng(zlib.crc32(track.name.encode()))
@@ -104,7 +115,8 @@ def _texture(rng: np.random.Generator, grid_shape: tuple[int, int], rows: int, c
     noise = cv2.GaussianBlur(noise, (0, 0), sigmaX=0.7)
     noise *= TEXTURE_SIGMA_GRAY / max(float(noise.std()), 1e-6)
     noise = cv2.resize(noise, (cols, rows), interpolation=cv2.INTER_LINEAR)
-    return np.clip(mean_gray + noise, 0, 255).astype(np.uint8)
+    noise += mean_gray  # in place: the full-size float texture is the largest temporary
+    return np.clip(noise, 0, 255, out=noise).astype(np.uint8)
 
 
 def _fill_road(mask: np.ndarray, gmap: GroundMap, ref, half_width_m: float, track: TrackSpec) -> None:

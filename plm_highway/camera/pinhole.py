@@ -19,6 +19,13 @@ HORIZON_GRAY = 180  # sky and haze beyond the visible range
 WARP_FLAGS = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
 
 
+# Accepted range of each CameraConfig field (closed intervals).
+CAMERA_RANGES = {
+    "height_px": (8, 1024), "width_px": (8, 1024), "fov_deg": (10.0, 150.0), "mount_height_m": (0.1, 10.0),
+    "pitch_deg": (-30.0, 80.0), "forward_offset_m": (-10.0, 10.0), "max_range_m": (1.0, 1000.0),
+}
+
+
 @dataclass(frozen=True)
 class CameraConfig:
     height_px: int = 66
@@ -31,16 +38,24 @@ class CameraConfig:
 
     @classmethod
     def from_dict(cls, values: dict) -> CameraConfig:
+        """Checked construction; every error names the field, its value and the accepted range
+        (:data:`CAMERA_RANGES`; NaN and infinities are outside every range)."""
+        if not isinstance(values, dict):
+            raise ValueError(f"camera config: must be a dict of CameraConfig fields, got {values!r}")
         unknown = sorted(set(values) - set(cls.__dataclass_fields__))
         if unknown:
             raise ValueError(f"camera config: unknown keys {unknown}; allowed {sorted(cls.__dataclass_fields__)}")
+        for name, value in values.items():
+            low, high = CAMERA_RANGES[name]
+            is_int_field = name in ("height_px", "width_px")
+            number_type_ok = isinstance(value, int) if is_int_field else isinstance(value, (int, float))
+            if isinstance(value, bool) or not number_type_ok or not (low <= value <= high):
+                kind = "an integer" if is_int_field else "a number"
+                raise ValueError(f"camera config: {name} = {value!r} must be {kind} in [{low:g}, {high:g}]")
         config = cls(**values)
-        if config.height_px < 8 or config.width_px < 8:
-            raise ValueError(f"camera config: image {config.height_px}x{config.width_px} is too small")
-        if not 10.0 <= config.fov_deg <= 150.0:
-            raise ValueError(f"camera config: fov_deg={config.fov_deg} outside [10, 150]")
-        if config.mount_height_m <= 0:
-            raise ValueError(f"camera config: mount_height_m={config.mount_height_m} must be positive")
+        if ground_rows(config).sum() == 0:
+            raise ValueError(f"camera config: pitch_deg={config.pitch_deg} with fov_deg={config.fov_deg} sees no "
+                             f"ground within max_range_m={config.max_range_m}")
         return config
 
     @property

@@ -42,6 +42,7 @@ from highway_env.road.road import Road
 from plm_highway.camera.ground_map import DEFAULT_MAP_PX_PER_M, ground_map
 from plm_highway.camera.pinhole import CameraConfig, PinholeCamera
 from plm_highway.camera.topdown import TopDownView
+from plm_highway.envs.config import check_env_config, check_start, check_unknown_keys
 from plm_highway.envs.ego_vehicle import TrackVehicle
 from plm_highway.envs.speed import SpeedSchedule, parse_speed
 from plm_highway.road.builder import BuiltRoad, build_road
@@ -219,6 +220,9 @@ class LaneKeepingCameraEnv(AbstractEnv):
         return super().reset(seed=seed, options=options)
 
     def define_spaces(self) -> None:
+        # Called by highway-env before every reset builds anything: the place to refuse bad settings.
+        check_unknown_keys(self.config, self.default_config())
+        check_env_config(self.config)
         self.camera_config = CameraConfig.from_dict(self.config["camera"])
         self.observation_type = DashCameraObservation(self)
         max_steer = float(self.config["max_steering_rad"])
@@ -241,7 +245,6 @@ class LaneKeepingCameraEnv(AbstractEnv):
     # -- scene -----------------------------------------------------------------------------------
 
     def _reset(self) -> None:
-        self._check_rates()
         self._make_road()
         self._make_vehicles()
         self._sim_hz = self.config["simulation_frequency"]
@@ -273,6 +276,7 @@ class LaneKeepingCameraEnv(AbstractEnv):
     def _make_vehicles(self) -> None:
         start = {key: self.config[key] for key in START_KEYS}
         start.update(self._start_overrides)
+        check_start(start, self.track, self.built.lane_offsets_m, self.config["start_lane"], self._start_overrides)
         arc_length_m = float(start["start_arc_length_m"])
         x_m, y_m, road_heading = reference_pose_at(self.track, arc_length_m)
         lateral_m = self.start_lane_offset_m + float(start["start_offset_m"])
@@ -298,18 +302,10 @@ class LaneKeepingCameraEnv(AbstractEnv):
             return parse_track(track, source="config['track']")
         return load_track(track)
 
-    def _check_rates(self) -> None:
-        sim_hz, policy_hz = self.config["simulation_frequency"], self.config["policy_frequency"]
-        if not (isinstance(sim_hz, int) and isinstance(policy_hz, int) and sim_hz > 0 and policy_hz > 0
-                and sim_hz % policy_hz == 0):
-            raise ValueError(
-                f"simulation_frequency={sim_hz!r} must be a positive integer multiple of policy_frequency={policy_hz!r}"
-            )
-
     @property
     def start_lane(self) -> int:
         lane = self.config["start_lane"]
-        return self.track.lanes // 2 if lane is None else int(lane)
+        return self.track.lanes // 2 if lane is None else lane
 
     @property
     def start_lane_offset_m(self) -> float:
@@ -335,8 +331,15 @@ class LaneKeepingCameraEnv(AbstractEnv):
     def _steering_command_rad(self, action) -> float:
         """Front-wheel angle for a normalised action, as highway-env's ``ContinuousAction`` maps it:
         clipped to [-1, 1] and mapped linearly in the action's own dtype (float32 actions give
-        float32-rounded angles, exactly as before)."""
-        value = np.asarray(action)[0]
+        float32-rounded angles, exactly as before). Anything but one finite number is refused: a
+        policy that produces NaN must stop the run, and a (1, 1) or (2,) action is a bug upstream."""
+        array = np.asarray(action)
+        if array.shape != (1,) or array.dtype.kind not in "fiu":
+            raise ValueError(f"action {_short(action)}: expected one number (normalised steering in [-1, 1]) in "
+                             f"an array of shape (1,), got shape {array.shape} and dtype {array.dtype}")
+        value = array[0]
+        if not math.isfinite(value):
+            raise ValueError(f"action {_short(action)}: steering must be finite; the policy produced {value}")
         if value < -1:
             value = value.dtype.type(-1)
         elif value > 1:
@@ -406,6 +409,11 @@ class LaneKeepingCameraEnv(AbstractEnv):
         info["completed_fraction"] = min(1.0, car.arc_length_m / self.track_length_m)
         info["rewards"] = self._rewards(action) if rewards is None else rewards
         return info
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def vehicle_params(model, overrides: dict):
