@@ -24,7 +24,6 @@ with the latency wrapper and reports resident memory (see :func:`long_run`).
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import statistics
@@ -36,7 +35,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from plm_highway.io.atomic import write_text_atomic
+from plm_highway.bench import BENCH_RESULT
+from plm_highway.errors import BadInput
+from plm_highway.io import check_target, write_json
 
 GRAYSCALE_200X66 = {"type": "GrayscaleObservation", "observation_shape": (200, 66), "stack_size": 1,
                     "weights": [0.2989, 0.5870, 0.1140]}
@@ -59,15 +60,16 @@ class EnvBenchConfig:
 
     def __post_init__(self):
         if not 10 <= self.steps <= 10_000_000:
-            raise ValueError(f"--steps {self.steps}: must be from 10 to 10,000,000")
+            raise BadInput(f"--steps {self.steps}: must be from 10 to 10,000,000")
         if not 1 <= self.repeats <= 100:
-            raise ValueError(f"--repeats {self.repeats}: must be from 1 to 100")
+            raise BadInput(f"--repeats {self.repeats}: must be from 1 to 100")
 
 
 def configure(parser) -> None:
     defaults = EnvBenchConfig()
     parser.add_argument("--steps", type=int, default=defaults.steps, help="policy steps per repeat and side")
-    parser.add_argument("--repeats", type=int, default=defaults.repeats)
+    parser.add_argument("--repeats", type=int, default=defaults.repeats,
+                        help="repeats per side, stepped in turn; the median is reported")
     parser.add_argument("--latency", default=defaults.latency, help="latency profile of our wrapped side")
     parser.add_argument("--long-run", type=int, metavar="STEPS", default=None,
                         help="instead: drive STEPS policy steps with the latency wrapper and report resident memory")
@@ -75,6 +77,8 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
+    if args.json:
+        check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
     if args.long_run is not None:
         result = long_run(args.long_run, args.latency)
         print(format_long_run(result))
@@ -82,7 +86,7 @@ def run(args) -> int:
         result = bench_env(EnvBenchConfig(args.steps, args.repeats, args.latency))
         print(format_bench(result))
     if args.json:
-        write_text_atomic(args.json, json.dumps(result, indent=2) + "\n")
+        write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
     return 0
 
 
@@ -279,7 +283,7 @@ def long_run(steps: int, latency: str = "const:0.2", track: str = "test", progre
     Flat means: end minus post-warm-up RSS within ``LONG_RUN_RSS_MARGIN_MIB``.
     """
     if not LONG_RUN_WARMUP_STEPS < steps <= 100_000_000:
-        raise ValueError(f"--long-run {steps}: must be more than {LONG_RUN_WARMUP_STEPS} (the warm-up) "
+        raise BadInput(f"--long-run {steps}: must be more than {LONG_RUN_WARMUP_STEPS} (the warm-up) "
                          "and at most 100,000,000 steps")
     from tqdm import tqdm
 

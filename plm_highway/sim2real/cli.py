@@ -7,7 +7,6 @@ warnings about still-usable data go to stderr. Output files are written whole or
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -48,8 +47,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                             help="vehicle physics (auto: single-track with tire_slip, else kinematic)")
         parser.add_argument("--seed", type=int, default=0, help="random seed (inputs and noise)")
         parser.add_argument("--out", required=True, metavar="REC.csv", help="output CSV (+ sidecar, + .truth.json)")
-        parser.add_argument("--duration-s", type=float, default=120.0)
-        parser.add_argument("--rate-hz", type=float, default=50.0)
+        parser.add_argument("--duration-s", type=float, default=120.0, help="length of the recording [s]")
+        parser.add_argument("--rate-hz", type=float, default=50.0, help="sample rate [Hz]")
         parser.add_argument("--noise-scale", type=float, default=1.0, help="multiply every noise level")
         parser.add_argument("--no-yaw-rate", action="store_true", help="leave out the yaw_rate column")
         parser.add_argument("--no-lat-accel", action="store_true", help="leave out the lat_accel column")
@@ -77,8 +76,10 @@ def parse_effect_specs(specs: list[str]) -> dict[str, float | None]:
 
 
 def _run_diagnose(args) -> int:
+    from plm_highway.io import check_target
     from plm_highway.sim2real.diagnose import diagnose, to_json
     from plm_highway.sim2real.recording import SIMULATOR_VEHICLE, read_recording, read_sidecar, read_sim_log
+    from plm_highway.sim2real.report import DIAGNOSIS_JSON, SIM2REAL_REPORT, publish_diagnosis
 
     started = time.perf_counter()
     if args.anchor_s <= 0:
@@ -96,9 +97,11 @@ def _run_diagnose(args) -> int:
     else:
         recording = read_recording(args.recording, sidecar=args.sidecar)
     sidecar = Path(args.sidecar) if args.sidecar else Path(args.recording).with_suffix(".json")
-    for output in (args.json, args.report):
+    for output, kind in ((args.json, DIAGNOSIS_JSON), (args.report, SIM2REAL_REPORT)):
         if output and Path(output).resolve() in (sidecar.resolve(), Path(args.recording).resolve()):
             raise ValueError(f"{output} would overwrite the recording or its sidecar; choose another output path")
+        if output:
+            check_target(output, kind, overwrite=args.overwrite)
     for warning in recording.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     result = diagnose(recording, block_s=args.block_s, anchor_s=args.anchor_s, split=args.split,
@@ -107,14 +110,8 @@ def _run_diagnose(args) -> int:
         print(f"warning: {note}", file=sys.stderr)
     data = to_json(result)
     data["elapsed_s"] = time.perf_counter() - started
-    if args.report:
-        from plm_highway.sim2real.report import write_report
-
-        write_report(result, args.report)
-    if args.json:
-        from plm_highway.io.atomic import write_text_atomic
-
-        write_text_atomic(args.json, json.dumps(data, indent=1) + "\n")
+    if args.json or args.report:
+        publish_diagnosis(result, data, args.json, args.report, overwrite=args.overwrite)
     if not args.quiet:
         print(result.summary)
         print(f"verdict: {result.verdict} ({time.perf_counter() - started:.1f} s)")
@@ -124,13 +121,14 @@ def _run_diagnose(args) -> int:
 def _run_make_recording(args) -> int:
     import numpy as np
 
-    from plm_highway.io.atomic import write_text_atomic
-    from plm_highway.sim2real.recording import write_recording
+    from plm_highway.io import check_target
+    from plm_highway.sim2real.recording import RECORDING_CSV, write_recording
     from plm_highway.sim2real.synth import NoiseLevels, make_recording
 
     if args.rate_hz <= 0 or args.noise_scale < 0:
         raise ValueError("--rate-hz must be positive and --noise-scale non-negative")
     effects = parse_effect_specs(args.effect)
+    check_target(args.out, RECORDING_CSV, overwrite=args.overwrite)
     recording, truth = make_recording(
         effects, rng=np.random.default_rng(args.seed), duration_s=args.duration_s, sample_hz=args.rate_hz,
         model=args.model, noise=NoiseLevels().scaled(args.noise_scale), with_yaw_rate=not args.no_yaw_rate,
@@ -138,8 +136,7 @@ def _run_make_recording(args) -> int:
     )
     out = Path(args.out)
     truth["seed"] = args.seed
-    write_recording(recording, out)
-    write_text_atomic(out.with_name(out.stem + ".truth.json"), json.dumps(truth, indent=1) + "\n")
+    write_recording(recording, out, truth=truth, overwrite=args.overwrite)
     print(f"wrote {out} ({recording.n} samples, {recording.duration_s:.0f} s, model {truth['model']}, "
           f"effects: {', '.join(truth['effects']) or 'none'})")
     return 0
