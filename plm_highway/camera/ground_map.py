@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from plm_highway.errors import BadInput
 from plm_highway.road.geometry import sample_reference
 from plm_highway.road.track import TrackSpec
 
@@ -71,7 +72,7 @@ def ground_map(track: TrackSpec, px_per_m: float = DEFAULT_MAP_PX_PER_M, margin_
     """Draw ``track`` (cached: every env on the same track in a process shares one map)."""
     low, high = MAP_PX_PER_M_RANGE
     if not (isinstance(px_per_m, (int, float)) and low <= px_per_m <= high):  # False for NaN
-        raise ValueError(f"map_px_per_m {px_per_m!r} outside [{low:g}, {high:g}] px/m")
+        raise BadInput(f"map_px_per_m {px_per_m!r} outside [{low:g}, {high:g}] px/m")
     ref = sample_reference(track, spacing_m=0.25)
     half_width_m = track.road_half_width_m
     edges_x = np.concatenate([ref.offset(half_width_m)[0], ref.offset(-half_width_m)[0]])
@@ -81,7 +82,7 @@ def ground_map(track: TrackSpec, px_per_m: float = DEFAULT_MAP_PX_PER_M, margin_
     cols = int(np.ceil((x_max_m - x_min_m) * px_per_m))
     rows = int(np.ceil((y_max_m - y_min_m) * px_per_m))
     if max(rows, cols) >= 32767 or rows * cols > MAX_MAP_PIXELS:  # OpenCV's warp limit on sources; memory
-        raise ValueError(
+        raise BadInput(
             f"{track.source}: track {track.name!r} spans {x_max_m - x_min_m:,.0f} x {y_max_m - y_min_m:,.0f} m "
             f"with its margins; at {px_per_m:g} px/m its ground map would be {cols:,} x {rows:,} px, beyond the "
             f"limit of {MAX_MAP_PIXELS:,} px and 32,767 px a side: make the track more compact or lower map_px_per_m")

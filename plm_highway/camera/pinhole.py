@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from plm_highway.camera.ground_map import GroundMap
+from plm_highway.errors import BadInput
 
 HORIZON_GRAY = 180  # sky and haze beyond the visible range
 WARP_FLAGS = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
@@ -41,20 +42,20 @@ class CameraConfig:
         """Checked construction; every error names the field, its value and the accepted range
         (:data:`CAMERA_RANGES`; NaN and infinities are outside every range)."""
         if not isinstance(values, dict):
-            raise ValueError(f"camera config: must be a dict of CameraConfig fields, got {values!r}")
+            raise BadInput(f"camera config: must be a dict of CameraConfig fields, got {values!r}")
         unknown = sorted(set(values) - set(cls.__dataclass_fields__))
         if unknown:
-            raise ValueError(f"camera config: unknown keys {unknown}; allowed {sorted(cls.__dataclass_fields__)}")
+            raise BadInput(f"camera config: unknown keys {unknown}; allowed {sorted(cls.__dataclass_fields__)}")
         for name, value in values.items():
             low, high = CAMERA_RANGES[name]
             is_int_field = name in ("height_px", "width_px")
             number_type_ok = isinstance(value, int) if is_int_field else isinstance(value, (int, float))
             if isinstance(value, bool) or not number_type_ok or not (low <= value <= high):
                 kind = "an integer" if is_int_field else "a number"
-                raise ValueError(f"camera config: {name} = {value!r} must be {kind} in [{low:g}, {high:g}]")
+                raise BadInput(f"camera config: {name} = {value!r} must be {kind} in [{low:g}, {high:g}]")
         config = cls(**values)
         if ground_rows(config).sum() == 0:
-            raise ValueError(f"camera config: pitch_deg={config.pitch_deg} with fov_deg={config.fov_deg} sees no "
+            raise BadInput(f"camera config: pitch_deg={config.pitch_deg} with fov_deg={config.fov_deg} sees no "
                              f"ground within max_range_m={config.max_range_m}")
         return config
 
@@ -114,7 +115,7 @@ class PinholeCamera:
         # Ground rows form one block at the bottom of the image (farther rows are higher up).
         self._first_ground_row = int(np.argmin(self._sky_rows)) if not self._sky_rows.all() else config.height_px
         if self._sky_rows[self._first_ground_row:].any():
-            raise ValueError(f"camera config: pitch_deg={config.pitch_deg} puts sky below the ground in the image")
+            raise BadInput(f"camera config: pitch_deg={config.pitch_deg} puts sky below the ground in the image")
         shift = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, float(self._first_ground_row)], [0.0, 0.0, 1.0]])
         # Ground-row pixel (u, v') -> (forward, left, w) on the ground, as nine floats.
         self._ground_rows_to_ground = tuple((self._image_to_ground @ shift).ravel().tolist())

@@ -1,7 +1,7 @@
 """Checks of the env's configuration and reset options, before anything is built.
 
 Every setting has a documented range; a value outside it (NaN and infinities included) is refused
-with a ``ValueError`` naming the key, the value and the range. The ranges:
+with a :class:`~plm_highway.errors.BadInput` naming the key, the value and the range. The ranges:
 
 ===============================  ===============================================================
 ``start_lane``                   None (the middle lane) or an integer lane index of the track
@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import math
 
+from plm_highway.errors import BadInput
+
 MAX_FREQUENCY_HZ = 1000
 
 
@@ -38,21 +40,21 @@ def number_in(config: dict, key: str, low: float, high: float, open_low: bool = 
     number = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
     if not ((low < number if open_low else low <= number) and number <= high):  # False for NaN
         bracket = "(" if open_low else "["
-        raise ValueError(f"{where}[{key!r}] = {value!r}: must be a number in {bracket}{low:g}, {high:g}]")
+        raise BadInput(f"{where}[{key!r}] = {value!r}: must be a number in {bracket}{low:g}, {high:g}]")
     return number
 
 
 def integer_in(config: dict, key: str, low: int, high: int, where: str = "config") -> int:
     value = config[key]
     if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        raise ValueError(f"{where}[{key!r}] = {value!r}: must be an integer from {low} to {high}")
+        raise BadInput(f"{where}[{key!r}] = {value!r}: must be an integer from {low} to {high}")
     return value
 
 
 def check_unknown_keys(config: dict, defaults: dict) -> None:
     unknown = sorted(set(config) - set(defaults))
     if unknown:
-        raise ValueError(f"config: unknown keys {unknown}; allowed {sorted(defaults)}")
+        raise BadInput(f"config: unknown keys {unknown}; allowed {sorted(defaults)}")
 
 
 def check_env_config(config: dict) -> None:
@@ -62,7 +64,7 @@ def check_env_config(config: dict) -> None:
     policy_hz = integer_in(config, "policy_frequency", 1, MAX_FREQUENCY_HZ)
     sim_hz = integer_in(config, "simulation_frequency", 1, MAX_FREQUENCY_HZ)
     if sim_hz % policy_hz:
-        raise ValueError(
+        raise BadInput(
             f"config['simulation_frequency'] = {sim_hz}: must be a positive integer multiple of "
             f"policy_frequency={policy_hz}"
         )
@@ -81,7 +83,7 @@ def check_start(start: dict, track, lane_offsets_m: tuple[float, ...], start_lan
     if start_lane is None:
         lane = track.lanes // 2
     elif isinstance(start_lane, bool) or not isinstance(start_lane, int) or not 0 <= start_lane < track.lanes:
-        raise ValueError(f"config['start_lane'] = {start_lane!r}: must be None or a lane index from 0 to "
+        raise BadInput(f"config['start_lane'] = {start_lane!r}: must be None or a lane index from 0 to "
                          f"{track.lanes - 1} (track {track.name!r} has {track.lanes} lanes)")
     else:
         lane = start_lane

@@ -27,7 +27,6 @@ dicts are made only when read, and track look-ups are built once per track.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import NamedTuple
 
@@ -45,10 +44,11 @@ from plm_highway.camera.topdown import TopDownView
 from plm_highway.envs.config import check_env_config, check_start, check_unknown_keys
 from plm_highway.envs.ego_vehicle import TrackVehicle
 from plm_highway.envs.speed import SpeedSchedule, parse_speed
+from plm_highway.errors import BadInput
 from plm_highway.road.builder import BuiltRoad, build_road
 from plm_highway.road.geometry import SegmentLookup, reference_pose_at
 from plm_highway.road.track import TrackSpec, load_track, parse_track
-from plm_highway.vehicle.models import vehicle_model
+from plm_highway.vehicle.models import checked_params, vehicle_model
 
 PAPER_CAMERA = {"height_px": 160, "width_px": 160}  # the original PLM-Net input size
 ACTION_RANGE = (-1, 1)  # normalised steering
@@ -216,7 +216,7 @@ class LaneKeepingCameraEnv(AbstractEnv):
         self._start_overrides = {k: v for k, v in (options or {}).items() if k in START_KEYS}
         unknown = sorted(set(options or {}) - set(self._start_overrides) - {"config"})
         if unknown:
-            raise ValueError(f"reset options: unknown keys {unknown}")
+            raise BadInput(f"reset options: unknown keys {unknown}")
         return super().reset(seed=seed, options=options)
 
     def define_spaces(self) -> None:
@@ -287,7 +287,7 @@ class LaneKeepingCameraEnv(AbstractEnv):
         vehicle = TrackVehicle(
             self.road, position, road_heading + float(start["start_heading_error_rad"]),
             self.speed_schedule.speed_at(0.0), self.built, edge_index, self.track.closed, model,
-            vehicle_params(model, self.config["vehicle_params"]), float(self.config["steering_time_constant_s"]),
+            checked_params(model, self.config["vehicle_params"], "config['vehicle_params']"), float(self.config["steering_time_constant_s"]),
         )
         vehicle.on_state_update()
         self.road.vehicles.append(vehicle)
@@ -335,11 +335,11 @@ class LaneKeepingCameraEnv(AbstractEnv):
         policy that produces NaN must stop the run, and a (1, 1) or (2,) action is a bug upstream."""
         array = np.asarray(action)
         if array.shape != (1,) or array.dtype.kind not in "fiu":
-            raise ValueError(f"action {_short(action)}: expected one number (normalised steering in [-1, 1]) in "
+            raise BadInput(f"action {_short(action)}: expected one number (normalised steering in [-1, 1]) in "
                              f"an array of shape (1,), got shape {array.shape} and dtype {array.dtype}")
         value = array[0]
         if not math.isfinite(value):
-            raise ValueError(f"action {_short(action)}: steering must be finite; the policy produced {value}")
+            raise BadInput(f"action {_short(action)}: steering must be finite; the policy produced {value}")
         if value < -1:
             value = value.dtype.type(-1)
         elif value > 1:
@@ -414,21 +414,6 @@ class LaneKeepingCameraEnv(AbstractEnv):
 def _short(value) -> str:
     text = repr(value)
     return text if len(text) <= 80 else text[:77] + "..."
-
-
-def vehicle_params(model, overrides: dict):
-    """The model's default parameters with ``overrides`` (field name -> positive number) applied."""
-    defaults = model.default_params
-    if not isinstance(overrides, dict):
-        raise ValueError(f"config['vehicle_params']: must be a dict of parameter overrides, got {overrides!r}")
-    fields = sorted(defaults.__dataclass_fields__)
-    for name, value in overrides.items():
-        if name not in fields:
-            raise ValueError(f"config['vehicle_params']: {name!r} is not a parameter of the {model.name} model; "
-                             f"allowed {fields}")
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
-            raise ValueError(f"config['vehicle_params'][{name!r}]: must be a positive finite number, got {value!r}")
-    return dataclasses.replace(defaults, **{name: float(value) for name, value in overrides.items()})
 
 
 def _lane_curvature(reference_curvature_1pm: float, lane_offset_m: float) -> float:

@@ -12,6 +12,8 @@ import bisect
 import math
 from dataclasses import dataclass
 
+from plm_highway.errors import BadInput
+
 MAX_SPEED_MPS = 70.0  # 252 km/h
 MAX_SCHEDULE_POINTS = 10_000
 MAX_SCHEDULE_TIME_S = 86_400.0
@@ -42,19 +44,19 @@ def parse_speed(value, where: str = "config['speed_mps']") -> SpeedSchedule:
     if _is_number(value):
         return SpeedSchedule((0.0,), (_speed(value, where),))
     if not isinstance(value, (list, tuple)) or not value:
-        raise ValueError(f"{where}: must be a speed in m/s or a non-empty list of [time_s, speed_mps] pairs, "
+        raise BadInput(f"{where}: must be a speed in m/s or a non-empty list of [time_s, speed_mps] pairs, "
                          f"got {value!r}")
     if len(value) > MAX_SCHEDULE_POINTS:
-        raise ValueError(f"{where}: {len(value)} schedule points exceed the limit of {MAX_SCHEDULE_POINTS}")
+        raise BadInput(f"{where}: {len(value)} schedule points exceed the limit of {MAX_SCHEDULE_POINTS}")
     times, speeds = [], []
     for index, point in enumerate(value):
         if not isinstance(point, (list, tuple)) or len(point) != 2 or not all(_is_number(v) for v in point):
-            raise ValueError(f"{where}[{index}]: must be a [time_s, speed_mps] pair of numbers, got {point!r}")
+            raise BadInput(f"{where}[{index}]: must be a [time_s, speed_mps] pair of numbers, got {point!r}")
         time_s = float(point[0])
         if not (math.isfinite(time_s) and 0.0 <= time_s <= MAX_SCHEDULE_TIME_S):
-            raise ValueError(f"{where}[{index}]: time_s {point[0]!r} outside [0, {MAX_SCHEDULE_TIME_S:.0f}] s")
+            raise BadInput(f"{where}[{index}]: time_s {point[0]!r} outside [0, {MAX_SCHEDULE_TIME_S:.0f}] s")
         if times and time_s <= times[-1]:
-            raise ValueError(f"{where}[{index}]: time_s {time_s} must be later than the previous {times[-1]}")
+            raise BadInput(f"{where}[{index}]: time_s {time_s} must be later than the previous {times[-1]}")
         times.append(time_s)
         speeds.append(_speed(point[1], f"{where}[{index}]"))
     return SpeedSchedule(tuple(times), tuple(speeds))
@@ -67,5 +69,5 @@ def _is_number(value) -> bool:
 def _speed(value, where: str) -> float:
     speed = float(value) if _is_number(value) else math.nan
     if not (math.isfinite(speed) and 0.0 < speed <= MAX_SPEED_MPS):
-        raise ValueError(f"{where}: speed {value!r} m/s outside (0, {MAX_SPEED_MPS:.0f}] m/s")
+        raise BadInput(f"{where}: speed {value!r} m/s outside (0, {MAX_SPEED_MPS:.0f}] m/s")
     return speed

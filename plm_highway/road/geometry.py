@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from plm_highway.errors import BadInput
 from plm_highway.road.track import TrackSpec, advance_pose
 
 SEGMENT_KINDS = ("straight", "left", "right")
@@ -132,7 +133,7 @@ def reference_pose_at(track: TrackSpec, s_m: float) -> tuple[float, float, float
     if track.closed:
         s_m = s_m % track.length_m
     if not 0.0 <= s_m <= track.length_m:
-        raise ValueError(f"track {track.name!r}: arc length {s_m} m outside [0, {track.length_m:.1f}] m")
+        raise BadInput(f"track {track.name!r}: arc length {s_m} m outside [0, {track.length_m:.1f}] m")
     pose = (0.0, 0.0, 0.0)
     for seg in track.segments:
         if s_m <= seg.length_m:

@@ -45,6 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
+from plm_highway.errors import BadInput
+
 TRACK_KEYS = {"name", "lanes", "lane_width_m", "segments", "closed"}
 SEGMENT_KEYS = {
     "straight": {"type", "length_m"},
@@ -114,7 +116,7 @@ def load_track(name_or_path: str | Path) -> TrackSpec:
         source = str(path)
         size = path.stat().st_size
         if size > MAX_TRACK_FILE_BYTES:
-            raise ValueError(f"{source}: {size:,} bytes is larger than a track file may be "
+            raise BadInput(f"{source}: {size:,} bytes is larger than a track file may be "
                              f"({MAX_TRACK_FILE_BYTES:,} bytes)")
         data = path.read_bytes()
     return parse_track(_json_of(data, source), source=source)
@@ -122,19 +124,19 @@ def load_track(name_or_path: str | Path) -> TrackSpec:
 
 def _json_of(data: bytes, source: str):
     if data.startswith(b"\xef\xbb\xbf"):
-        raise ValueError(f"{source}: starts with a UTF-8 byte-order mark; save it as UTF-8 without BOM")
+        raise BadInput(f"{source}: starts with a UTF-8 byte-order mark; save it as UTF-8 without BOM")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise ValueError(f"{source}: not a UTF-8 text file (byte 0x{data[exc.start]:02x} at offset {exc.start}); "
+        raise BadInput(f"{source}: not a UTF-8 text file (byte 0x{data[exc.start]:02x} at offset {exc.start}); "
                          "a track is a JSON text file") from None
     depth = _nesting_depth(text)
     if depth > MAX_NESTING_DEPTH:
-        raise ValueError(f"{source}: brackets nested {depth} deep; a track needs at most {MAX_NESTING_DEPTH}")
+        raise BadInput(f"{source}: brackets nested {depth} deep; a track needs at most {MAX_NESTING_DEPTH}")
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{source}: not valid JSON ({exc})") from None
+        raise BadInput(f"{source}: not valid JSON ({exc})") from None
 
 
 def _nesting_depth(text: str) -> int:
@@ -152,29 +154,29 @@ def _nesting_depth(text: str) -> int:
 def parse_track(spec: dict, source: str = "<dict>") -> TrackSpec:
     """Validate a track dict; every error names the source, segment and field."""
     if not isinstance(spec, dict):
-        raise ValueError(f"{source}: a track spec must be a JSON object, got {type(spec).__name__}")
+        raise BadInput(f"{source}: a track spec must be a JSON object, got {type(spec).__name__}")
     unknown = sorted(set(spec) - TRACK_KEYS)
     if unknown:
-        raise ValueError(f"{source}: unknown keys {unknown}; allowed: {sorted(TRACK_KEYS)}")
+        raise BadInput(f"{source}: unknown keys {unknown}; allowed: {sorted(TRACK_KEYS)}")
     missing = sorted({"name", "segments"} - set(spec))
     if missing:
-        raise ValueError(f"{source}: missing keys {missing}")
+        raise BadInput(f"{source}: missing keys {missing}")
     name = spec["name"]
     if not isinstance(name, str) or not 1 <= len(name) <= MAX_NAME_CHARS:
-        raise ValueError(f"{source}: field 'name' must be a string of 1 to {MAX_NAME_CHARS} characters, "
+        raise BadInput(f"{source}: field 'name' must be a string of 1 to {MAX_NAME_CHARS} characters, "
                          f"got {_short(name)}")
     lanes = spec.get("lanes", 3)
     if not isinstance(lanes, int) or isinstance(lanes, bool) or not 1 <= lanes <= 6:
-        raise ValueError(f"{source}: field 'lanes' must be an integer from 1 to 6, got {_short(lanes)}")
+        raise BadInput(f"{source}: field 'lanes' must be an integer from 1 to 6, got {_short(lanes)}")
     lane_width_m = _number_in(spec.get("lane_width_m", 4.0), f"{source}: field 'lane_width_m'", *LANE_WIDTH_RANGE_M)
     closed = spec.get("closed", False)
     if not isinstance(closed, bool):
-        raise ValueError(f"{source}: field 'closed' must be true or false, got {closed!r}")
+        raise BadInput(f"{source}: field 'closed' must be true or false, got {closed!r}")
     raw_segments = spec["segments"]
     if not isinstance(raw_segments, list) or not raw_segments:
-        raise ValueError(f"{source}: field 'segments' must be a non-empty list")
+        raise BadInput(f"{source}: field 'segments' must be a non-empty list")
     if len(raw_segments) > MAX_SEGMENTS:
-        raise ValueError(f"{source}: {len(raw_segments):,} segments exceed the limit of {MAX_SEGMENTS:,}")
+        raise BadInput(f"{source}: {len(raw_segments):,} segments exceed the limit of {MAX_SEGMENTS:,}")
     half_width_m = lanes * lane_width_m / 2.0
     segments = tuple(
         _parse_segment(raw, f"{source}: segment {index}", half_width_m, lane_width_m)
@@ -182,7 +184,7 @@ def parse_track(spec: dict, source: str = "<dict>") -> TrackSpec:
     )
     track = TrackSpec(name, lanes, lane_width_m, segments, closed, source)
     if track.length_m > MAX_TRACK_LENGTH_M:
-        raise ValueError(f"{source}: total length {track.length_m:,.0f} m exceeds the limit of "
+        raise BadInput(f"{source}: total length {track.length_m:,.0f} m exceeds the limit of "
                          f"{MAX_TRACK_LENGTH_M:,.0f} m")
     if closed:
         _check_closes(track)
@@ -192,16 +194,16 @@ def parse_track(spec: dict, source: str = "<dict>") -> TrackSpec:
 
 def _parse_segment(raw: dict, where: str, half_width_m: float, lane_width_m: float) -> Segment:
     if not isinstance(raw, dict):
-        raise ValueError(f"{where}: must be an object, got {raw!r}")
+        raise BadInput(f"{where}: must be an object, got {raw!r}")
     kind = raw.get("type")
     if kind not in SEGMENT_KEYS:
-        raise ValueError(f"{where}: field 'type' must be 'straight' or 'arc', got {kind!r}")
+        raise BadInput(f"{where}: field 'type' must be 'straight' or 'arc', got {kind!r}")
     unknown = sorted(set(raw) - SEGMENT_KEYS[kind])
     missing = sorted(SEGMENT_KEYS[kind] - set(raw))
     if unknown:
-        raise ValueError(f"{where} ({kind}): unknown keys {unknown}; allowed: {sorted(SEGMENT_KEYS[kind])}")
+        raise BadInput(f"{where} ({kind}): unknown keys {unknown}; allowed: {sorted(SEGMENT_KEYS[kind])}")
     if missing:
-        raise ValueError(f"{where} ({kind}): missing keys {missing}")
+        raise BadInput(f"{where} ({kind}): missing keys {missing}")
     if kind == "straight":
         return Segment("straight", _number_in(raw["length_m"], f"{where}: field 'length_m'", 0.0,
                                               MAX_SEGMENT_LENGTH_M, open_low=True))
@@ -209,14 +211,14 @@ def _parse_segment(raw: dict, where: str, half_width_m: float, lane_width_m: flo
     # The inner road edge must stay at least one lane width away from the arc's centre.
     min_radius_m = half_width_m + lane_width_m
     if radius_m < min_radius_m:
-        raise ValueError(
+        raise BadInput(
             f"{where}: field 'radius_m' = {radius_m} is too tight for the road width; "
             f"it must be at least {min_radius_m} m (half the road plus one lane of {lane_width_m} m)"
         )
     angle_deg = _number_in(raw["angle_deg"], f"{where}: field 'angle_deg'", 0.0, 360.0, open_low=True)
     direction = raw["direction"]
     if direction not in ("left", "right"):
-        raise ValueError(f"{where}: field 'direction' must be 'left' or 'right', got {_short(direction)}")
+        raise BadInput(f"{where}: field 'direction' must be 'left' or 'right', got {_short(direction)}")
     angle_rad = math.radians(angle_deg)
     return Segment("arc", radius_m * angle_rad, radius_m, angle_rad, direction)
 
@@ -227,7 +229,7 @@ def _number_in(value, where: str, low: float, high: float, open_low: bool = Fals
     inside = (low < number if open_low else low <= number) and number <= high  # False for NaN
     if not inside:
         bracket = "(" if open_low else "["
-        raise ValueError(f"{where} must be a number in {bracket}{low:g}, {high:g}], got {_short(value)}")
+        raise BadInput(f"{where} must be a number in {bracket}{low:g}, {high:g}], got {_short(value)}")
     return number
 
 
@@ -255,7 +257,7 @@ def _check_no_overlap(track: TrackSpec) -> None:
     far = np.flatnonzero(along_m > min_separation_m)
     if len(far):
         i, j = sorted(pairs[far[0]])
-        raise ValueError(
+        raise BadInput(
             f"{track.source}: the road overlaps itself: at {ref.s_m[i]:.0f} m (segment {ref.segment_index[i]}) and "
             f"{ref.s_m[j]:.0f} m (segment {ref.segment_index[j]}) along it, its centre lines are "
             f"{math.hypot(ref.x_m[i] - ref.x_m[j], ref.y_m[i] - ref.y_m[j]):.1f} m apart, less than the road's "
@@ -268,7 +270,7 @@ def _check_closes(track: TrackSpec) -> None:
     gap_m = math.hypot(x_m, y_m)
     heading_gap_rad = abs(math.remainder(heading_rad, 2 * math.pi))
     if gap_m > CLOSE_POSITION_TOL_M or heading_gap_rad > CLOSE_HEADING_TOL_RAD:
-        raise ValueError(
+        raise BadInput(
             f"{track.source}: field 'closed' is true but the last segment ends {gap_m:.2f} m and "
             f"{math.degrees(heading_gap_rad):.1f} deg away from the start"
         )

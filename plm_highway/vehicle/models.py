@@ -28,11 +28,13 @@ Adding a model is one :class:`VehicleModel` entry in :data:`VEHICLE_MODELS` plus
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+from plm_highway.errors import BadInput
 from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE, KinematicBicycleParams, kinematic_bicycle_update
 from plm_highway.vehicle.single_track import (
     SEED_PAPER_VEHICLE,
@@ -41,6 +43,18 @@ from plm_highway.vehicle.single_track import (
     single_track_matrices,
     single_track_tustin_step,
 )
+
+# Plausible range of each parameter field of the models' dataclasses (closed intervals, units in the
+# names): a car, from a go-kart to a truck. Outside them the integrators' step sizes lose meaning
+# (a 1e-9 m wheelbase turns a 0.05 s step into thousands of revolutions).
+PARAM_RANGES: dict[str, tuple[float, float]] = {
+    "cg_to_front_m": (0.1, 10.0),
+    "cg_to_rear_m": (0.1, 10.0),
+    "mass_kg": (50.0, 60_000.0),
+    "yaw_inertia_kgm2": (10.0, 1e6),
+    "cornering_stiffness_front": (1_000.0, 2e6),  # N/rad per axle
+    "cornering_stiffness_rear": (1_000.0, 2e6),
+}
 
 # Below this speed the tire model's slip angles are not defined; the integrator holds it here.
 TIRE_MIN_SPEED_MPS = 0.5
@@ -196,8 +210,23 @@ VEHICLE_MODELS: dict[str, VehicleModel] = {
 }
 
 
+def checked_params(model: VehicleModel, overrides: dict, where: str = "vehicle_params") -> Any:
+    """``model``'s default parameters with ``overrides`` (field name -> number in :data:`PARAM_RANGES`)."""
+    defaults = model.default_params
+    if not isinstance(overrides, dict):
+        raise BadInput(f"{where}: must be a dict of parameter overrides, got {overrides!r}")
+    fields = sorted(defaults.__dataclass_fields__)
+    for name, value in overrides.items():
+        if name not in fields:
+            raise BadInput(f"{where}: {name!r} is not a parameter of the {model.name} model; allowed {fields}")
+        low, high = PARAM_RANGES[name]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:  # NaN: False
+            raise BadInput(f"{where}[{name!r}] = {value!r}: must be a number in [{low:g}, {high:g}]")
+    return dataclasses.replace(defaults, **{name: float(value) for name, value in overrides.items()})
+
+
 def vehicle_model(name: str) -> VehicleModel:
     """The table entry for ``name``; a clear error listing the known names otherwise."""
     if not isinstance(name, str) or name not in VEHICLE_MODELS:
-        raise ValueError(f"vehicle_model {name!r} is not one of {sorted(VEHICLE_MODELS)}")
+        raise BadInput(f"vehicle_model {name!r} is not one of {sorted(VEHICLE_MODELS)}")
     return VEHICLE_MODELS[name]
