@@ -10,13 +10,24 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
-from plm_highway.camera.ground_map import ASPHALT_GRAY, MARKING_GRAY, OFFROAD_GRAY, GroundMap, ground_map
-from plm_highway.camera.pinhole import HORIZON_GRAY, CameraConfig, PinholeCamera
+from plm_highway.camera.ground_map import (
+    ASPHALT_GRAY,
+    DEFAULT_MAP_PX_PER_M,
+    FRAME_TOLERANCE_MEAN_GRAY,
+    FRAME_TOLERANCE_WORST_FRAME_GRAY,
+    MARKING_GRAY,
+    OFFROAD_GRAY,
+    GroundMap,
+    ground_map,
+)
+from plm_highway.camera.pinhole import HORIZON_GRAY, CameraConfig, PinholeCamera, pose_matrix
 from plm_highway.camera.topdown import TopDownView
-from plm_highway.road.track import parse_track
+from plm_highway.road.geometry import reference_pose_at
+from plm_highway.road.track import load_track, parse_track
 
 CONFIG = CameraConfig()  # 66 x 200, fov 70, 1.6 m high, 6 deg down, 1 m ahead of the car, 60 m range
 F_PX = 100.0 / math.tan(math.radians(35.0))
@@ -208,3 +219,54 @@ def test_top_down_view_is_north_up_with_the_car_in_the_middle():
     assert road.max() - road.min() < 10 and road.mean() < 100
     verge = image[40, 20].astype(int)
     assert verge[1] > verge[0] + 20 and verge[1] > verge[2] + 20
+
+
+def test_ground_row_warp_matches_the_full_frame_warp():
+    """Warping only the ground rows (a row-shifted homography) gives the full-frame warp's pixels to
+    within one gray level; the sky rows are haze either way."""
+    track = load_track("test")
+    gmap = ground_map(track, 10.0)
+    camera = PinholeCamera(gmap, CONFIG)
+    rng = np.random.default_rng(5)
+    differing, total = 0, 0
+    for s_m, offset_m, heading_rad in zip(rng.uniform(0, 1100, 60), rng.uniform(-3, 3, 60), rng.uniform(-0.2, 0.2, 60)):
+        x_m, y_m, road_heading = reference_pose_at(track, float(s_m))
+        pose = (x_m - offset_m * math.sin(road_heading), y_m + offset_m * math.cos(road_heading),
+                road_heading + heading_rad)
+        homography = gmap.world_to_pixel @ pose_matrix(*pose) @ camera._image_to_ground
+        full = cv2.warpPerspective(gmap.image, homography, (CONFIG.width_px, CONFIG.height_px),
+                                   flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+        full[camera._sky_rows] = HORIZON_GRAY
+        frame = camera.render(*pose)
+        difference = np.abs(frame.astype(int) - full.astype(int))
+        assert difference.max() <= 1
+        differing += int((difference > 0).sum())
+        total += difference.size
+    assert differing / total < 0.005
+
+
+def test_frames_are_fresh_read_only_arrays(camera3):
+    first = camera3.render(10.0, 0.0, 0.0)
+    second = camera3.render(10.0, 0.0, 0.0)
+    assert first is not second and not np.shares_memory(first, second)
+    assert np.array_equal(first, second)
+    with pytest.raises(ValueError, match="read-only"):
+        first[0, 0] = 0
+
+
+@pytest.mark.parametrize("camera_config", [CONFIG, CameraConfig(height_px=160, width_px=160)], ids=["200x66", "160x160"])
+def test_default_map_resolution_keeps_frames_within_the_stated_tolerance(camera_config, repo_root):
+    """The env draws its ground map coarser than 10 px/m; over the 400 poses of the golden run the
+    frames differ from the 10 px/m frames by at most the documented mean absolute pixel difference."""
+    import json
+
+    golden = json.loads((repo_root / "tests" / "data" / "env_golden.json").read_text())
+    poses = golden["runs"]["expert_no_latency"]["pose"]
+    track = load_track("test")
+    fine = PinholeCamera(ground_map(track, 10.0), camera_config)
+    coarse = PinholeCamera(ground_map(track, DEFAULT_MAP_PX_PER_M), camera_config)
+    means = [np.abs(coarse.render(*pose).astype(int) - fine.render(*pose).astype(int)).mean() for pose in poses]
+    assert DEFAULT_MAP_PX_PER_M < 10.0
+    assert np.mean(means) <= FRAME_TOLERANCE_MEAN_GRAY
+    assert max(means) <= FRAME_TOLERANCE_WORST_FRAME_GRAY
+    assert np.mean(means) > 0.1  # a different map was really drawn

@@ -184,21 +184,29 @@ def test_demo_zigzag_writes_a_png_and_prints_both_runs(tmp_path):
     assert "policy: expert" in result.stdout
 
 
-def test_bench_env_prints_both_rates_and_a_ratio(tmp_path):
+def test_bench_env_prints_every_side_and_the_ratios_of_one_run(tmp_path):
     out = tmp_path / "bench.json"
     result = plm("bench", "env", "--steps", "50", "--repeats", "1", "--json", str(out))
     assert result.returncode == 0, result.stderr
-    lines = result.stdout.splitlines()
-    racetrack = [line for line in lines if line.startswith("racetrack-large-v0 + Grayscale")]
-    ours = [line for line in lines if line.startswith("plm_highway LaneKeeping-v0")]
-    ratio = [line for line in lines if line.startswith("ratio")]
-    assert len(racetrack) == len(ours) == len(ratio) == 1
-    assert re.search(r"[0-9]+ steps/s$", racetrack[0]) and re.search(r"[0-9]+ steps/s$", ours[0])
-    assert re.search(r"[0-9.]+x$", ratio[0])
     data = json.loads(out.read_text())
-    assert data["ratio"] == pytest.approx(
-        data["plm_highway_camera_latency_steps_per_s"] / data["racetrack_large_grayscale_steps_per_s"])
-    assert data["steps"] == 50 and data["repeats"] == 1
+    median = data["steps_per_s_median"]
+    assert set(median) == {"lane_keeping_v0", "racetrack_large_v0", "ours", "ours_latency",
+                           "limit_warp_ground_rows", "limit_warp_whole_frame"}
+    assert all(value > 0 for value in median.values())
+    ratios = data["ratios"]
+    assert ratios["ours_over_lane_keeping_v0"] == pytest.approx(median["ours"] / median["lane_keeping_v0"])
+    assert ratios["ours_latency_over_racetrack_large_v0"] == pytest.approx(
+        median["ours_latency"] / median["racetrack_large_v0"])
+    assert ratios["ours_over_limit_ground_rows"] == pytest.approx(median["ours"] / median["limit_warp_ground_rows"])
+    assert data["config"]["steps"] == 50 and data["config"]["repeats"] == 1
+    lines = result.stdout.splitlines()
+    for label in ("highway-env lane-keeping-v0 + Grayscale 200x66", "highway-env racetrack-large-v0",
+                  "plm_highway LaneKeeping-v0 + LatencyWrapper (const:0.2)", "limit: warpPerspective alone"):
+        assert any(line.startswith(label) for line in lines), label
+    headline = [line for line in lines if line.startswith("ours / lane-keeping-v0 (headline)")]
+    assert len(headline) == 1
+    assert f"{ratios['ours_over_lane_keeping_v0']:6.1f}x" in headline[0]
+    assert "load average" in lines[0]
 
 
 def test_bench_env_rejects_too_few_steps():

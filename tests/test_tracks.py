@@ -29,6 +29,16 @@ def spec(*segments: dict, **top) -> dict:
     return {"name": "t", "lanes": 3, "lane_width_m": 4.0, "segments": list(segments), **top}
 
 
+def unchecked(raw: dict):
+    """Parse without the self-overlap check: geometry and builder tests use roads no car should drive."""
+    from unittest.mock import patch
+
+    from plm_highway.road import track as track_module
+
+    with patch.object(track_module, "_check_no_overlap", lambda track: None):
+        return parse_track(raw)
+
+
 def square_loop(side_m: float = 100.0, radius_m: float = 50.0) -> dict:
     return spec(*[s for _ in range(4) for s in (straight(side_m), arc(radius_m, 90))], closed=True)
 
@@ -204,7 +214,7 @@ def test_closed_loop_with_a_gap_is_rejected():
 
 @pytest.mark.parametrize(("angle_deg", "pieces"), [(90, 1), (169, 1), (180, 2), (270, 2), (340, 2), (360, 3)])
 def test_long_arcs_are_split_into_several_edges(angle_deg, pieces):
-    track = parse_track(spec(straight(20), arc(60, angle_deg), straight(20)))
+    track = unchecked(spec(straight(20), arc(60, angle_deg), straight(20)))
     built = build_road(track)
     arc_edges = [edge for edge in built.edges if edge.segment_index == 1]
     assert len(arc_edges) == pieces
@@ -303,7 +313,7 @@ def _independent_end(segments: list[dict]) -> tuple[complex, float]:
 @settings(max_examples=40, deadline=None)
 @given(segments=st.lists(segment_strategy, min_size=1, max_size=6), spacing_m=st.sampled_from([0.25, 0.5, 1.0, 2.0]))
 def test_sampled_reference_line_is_continuous(segments, spacing_m):
-    track = parse_track(spec(*segments))
+    track = unchecked(spec(*segments))
     ref = sample_reference(track, spacing_m=spacing_m)
     steps_m = np.hypot(np.diff(ref.x_m), np.diff(ref.y_m))
     assert np.all(steps_m <= spacing_m + 1e-6)
@@ -319,3 +329,36 @@ def test_sampled_reference_line_is_continuous(segments, spacing_m):
     assert (ref.x_m[-1], ref.y_m[-1]) == pytest.approx((end.real, end.imag), abs=1e-6)
     assert ref.heading_rad[-1] == pytest.approx(heading, abs=1e-9)
     assert set(np.unique(ref.segment_index)) == set(range(len(segments)))
+
+
+@settings(max_examples=40, deadline=None)
+@given(lengths=st.lists(st.floats(1.0, 200.0), min_size=1, max_size=8), closed=st.booleans(),
+       queries=st.lists(st.floats(-50.0, 2000.0), min_size=1, max_size=60))
+def test_segment_lookup_with_its_cache_agrees_with_the_vectorised_lookup(lengths, closed, queries):
+    """The scalar look-up remembers the last segment; any order of queries gives the searched answer."""
+    from plm_highway.road.geometry import SegmentLookup, segment_index_at
+    from plm_highway.road.track import Segment, TrackSpec
+
+    track = TrackSpec("q", 3, 4.0, tuple(Segment("straight", length) for length in lengths), closed)
+    lookup = SegmentLookup(track)
+    for s_m in queries:
+        assert lookup.segment_index(s_m) == int(segment_index_at(track, s_m)), s_m
+
+
+@settings(max_examples=60, deadline=None)
+@given(radius_m=st.floats(20.0, 500.0), angle_deg=st.floats(5.0, 169.0), direction=st.sampled_from(["left", "right"]),
+       offset_m=st.sampled_from([-4.0, 0.0, 4.0]), points=st.lists(st.tuples(st.floats(-300, 300), st.floats(-300, 300)),
+                                                                     min_size=1, max_size=10))
+def test_scalar_lane_frames_are_highway_env_lanes_bit_for_bit(radius_m, angle_deg, direction, offset_m, points):
+    """The env's tracker replaces highway-env's lane arithmetic; it must give exactly the same numbers."""
+    from plm_highway.road.builder import ArcFrame, StraightFrame
+
+    built = build_road(parse_track(spec(straight(37.5), arc(radius_m, angle_deg, direction))))
+    for edge in built.edges:
+        for lane in built.network.graph[edge.key[0]][edge.key[1]]:
+            frame = StraightFrame.of(lane) if isinstance(lane, StraightLane) else ArcFrame.of(lane)
+            assert frame.length_m == lane.length
+            for x_m, y_m in points:
+                expected = lane.local_coordinates(np.array([x_m, y_m]))
+                assert frame.local_coordinates(x_m, y_m) == (float(expected[0]), float(expected[1]))
+                assert frame.heading_at(expected[0]) == lane.heading_at(expected[0])

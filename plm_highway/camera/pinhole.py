@@ -14,8 +14,17 @@ import cv2
 import numpy as np
 
 from plm_highway.camera.ground_map import GroundMap
+from plm_highway.errors import BadInput
 
 HORIZON_GRAY = 180  # sky and haze beyond the visible range
+WARP_FLAGS = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+
+
+# Accepted range of each CameraConfig field (closed intervals).
+CAMERA_RANGES = {
+    "height_px": (8, 1024), "width_px": (8, 1024), "fov_deg": (10.0, 150.0), "mount_height_m": (0.1, 10.0),
+    "pitch_deg": (-30.0, 80.0), "forward_offset_m": (-10.0, 10.0), "max_range_m": (1.0, 1000.0),
+}
 
 
 @dataclass(frozen=True)
@@ -30,16 +39,24 @@ class CameraConfig:
 
     @classmethod
     def from_dict(cls, values: dict) -> CameraConfig:
+        """Checked construction; every error names the field, its value and the accepted range
+        (:data:`CAMERA_RANGES`; NaN and infinities are outside every range)."""
+        if not isinstance(values, dict):
+            raise BadInput(f"camera config: must be a dict of CameraConfig fields, got {values!r}")
         unknown = sorted(set(values) - set(cls.__dataclass_fields__))
         if unknown:
-            raise ValueError(f"camera config: unknown keys {unknown}; allowed {sorted(cls.__dataclass_fields__)}")
+            raise BadInput(f"camera config: unknown keys {unknown}; allowed {sorted(cls.__dataclass_fields__)}")
+        for name, value in values.items():
+            low, high = CAMERA_RANGES[name]
+            is_int_field = name in ("height_px", "width_px")
+            number_type_ok = isinstance(value, int) if is_int_field else isinstance(value, (int, float))
+            if isinstance(value, bool) or not number_type_ok or not (low <= value <= high):
+                kind = "an integer" if is_int_field else "a number"
+                raise BadInput(f"camera config: {name} = {value!r} must be {kind} in [{low:g}, {high:g}]")
         config = cls(**values)
-        if config.height_px < 8 or config.width_px < 8:
-            raise ValueError(f"camera config: image {config.height_px}x{config.width_px} is too small")
-        if not 10.0 <= config.fov_deg <= 150.0:
-            raise ValueError(f"camera config: fov_deg={config.fov_deg} outside [10, 150]")
-        if config.mount_height_m <= 0:
-            raise ValueError(f"camera config: mount_height_m={config.mount_height_m} must be positive")
+        if ground_rows(config).sum() == 0:
+            raise BadInput(f"camera config: pitch_deg={config.pitch_deg} with fov_deg={config.fov_deg} sees no "
+                             f"ground within max_range_m={config.max_range_m}")
         return config
 
     @property
@@ -82,20 +99,57 @@ def pose_matrix(x_m: float, y_m: float, heading_rad: float) -> np.ndarray:
 
 
 class PinholeCamera:
-    """Renders grayscale dashcam frames of a :class:`GroundMap` from a car pose."""
+    """Renders grayscale dashcam frames of a :class:`GroundMap` from a car pose.
+
+    Only the rows that see ground are warped; the rows above them (sky and haze) are filled. That is
+    what the frame showed before, at a fraction of the cost: sky pixels map to points far outside the
+    map, where OpenCV's warp takes its slow border path. Each frame is a new read-only array, so a
+    frame handed to a policy cannot be changed behind the env's (or a latency buffer's) back.
+    """
 
     def __init__(self, ground: GroundMap, config: CameraConfig = CameraConfig()):
         self.ground = ground
         self.config = config
         self._image_to_ground = image_to_ground(config)
         self._sky_rows = ~ground_rows(config)
+        # Ground rows form one block at the bottom of the image (farther rows are higher up).
+        self._first_ground_row = int(np.argmin(self._sky_rows)) if not self._sky_rows.all() else config.height_px
+        if self._sky_rows[self._first_ground_row:].any():
+            raise BadInput(f"camera config: pitch_deg={config.pitch_deg} puts sky below the ground in the image")
+        shift = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, float(self._first_ground_row)], [0.0, 0.0, 1.0]])
+        # Ground-row pixel (u, v') -> (forward, left, w) on the ground, as nine floats.
+        self._ground_rows_to_ground = tuple((self._image_to_ground @ shift).ravel().tolist())
         self._size = (config.width_px, config.height_px)
+        self._shape = (config.height_px, config.width_px)
+        self._ground_size = (config.width_px, config.height_px - self._first_ground_row)
+        self._map_scale = (ground.px_per_m, ground.x_min_m, ground.y_max_m)
+        self._sky_frame = np.full(self._shape, HORIZON_GRAY, np.uint8)  # copied per frame, ground rows warped into it
+        # Filled in place per frame (OpenCV copies it); a flat view avoids building a new array.
+        self._homography = np.empty((3, 3))
+        self._homography_flat = self._homography.reshape(-1)
+
+    def homography(self, x_m: float, y_m: float, heading_rad: float) -> np.ndarray:
+        """Ground-row pixel -> map pixel: ``world_to_pixel @ pose_matrix(x, y, heading) @ image_to_ground``,
+        with the image rows counted from the first ground row, built from scalars."""
+        return self._fill_homography(x_m, y_m, heading_rad).copy()
+
+    def _fill_homography(self, x_m: float, y_m: float, heading_rad: float) -> np.ndarray:
+        s, x_min_m, y_max_m = self._map_scale
+        a, b = s * math.cos(heading_rad), s * math.sin(heading_rad)
+        tx, ty = s * (x_m - x_min_m), s * (y_max_m - y_m)
+        g00, g01, g02, g10, g11, g12, g20, g21, g22 = self._ground_rows_to_ground
+        self._homography_flat[:] = (
+            a * g00 - b * g10 + tx * g20, a * g01 - b * g11 + tx * g21, a * g02 - b * g12 + tx * g22,
+            -b * g00 - a * g10 + ty * g20, -b * g01 - a * g11 + ty * g21, -b * g02 - a * g12 + ty * g22,
+            g20, g21, g22,
+        )
+        return self._homography
 
     def render(self, x_m: float, y_m: float, heading_rad: float) -> np.ndarray:
-        homography = self.ground.world_to_pixel @ pose_matrix(x_m, y_m, heading_rad) @ self._image_to_ground
-        frame = cv2.warpPerspective(
-            self.ground.image, homography, self._size,
-            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE,
-        )
-        frame[self._sky_rows] = HORIZON_GRAY
+        frame = self._sky_frame.copy()
+        first = self._first_ground_row
+        if first < self._shape[0]:
+            cv2.warpPerspective(self.ground.image, self._fill_homography(x_m, y_m, heading_rad), self._ground_size,
+                                frame[first:], WARP_FLAGS, cv2.BORDER_REPLICATE)
+        frame.flags.writeable = False
         return frame

@@ -7,45 +7,159 @@ Built like highway-env's own environments: ``default_config`` declares every set
   step (highway-env's lane-keeping-v0 observes before simulating, which is one step stale).
 - After every simulation step the env records a :class:`Snapshot` (frame + privileged state).
   The latency wrapper serves old snapshots from these; without it, the newest is observed.
-- Speed is constant; the action is normalised steering in [-1, 1], positive turns left,
-  mapped linearly to the front-wheel angle range +-``max_steering_rad``.
+- The ego car is a model from the vehicle-model table (``vehicle_model``: ``kinematic``, highway-env's
+  bicycle and the default, or ``dynamic``, a single-track car with linear tires; ``vehicle_params``
+  overrides fields of its parameter set). Its speed is a constant or a schedule (``speed_mps``, see
+  :mod:`plm_highway.envs.speed`). The action is normalised steering in [-1, 1], positive turns left,
+  mapped linearly to a front-wheel angle command in +-``max_steering_rad`` that reaches the wheels
+  through a first-order actuator (``steering_time_constant_s``, 0 = at once).
+- ``info`` and ``state()`` carry what a car's sensors measure (yaw rate, lateral acceleration,
+  front-wheel steering angle, speed) besides the privileged lane coordinates.
 
 Default rates: simulation 20 Hz and policy 20 Hz, so every latency that is a multiple of
 0.05 s falls exactly on a recorded snapshot (ages are then exact); other latencies are served
 by the next older snapshot, at most one simulation step (0.05 s) older than asked.
+
+The step is written for speed without changing what it computes (``tests/test_env_golden.py``):
+the vehicle, the lane tracker and the action mapping work on Python floats, frames and state
+dicts are made only when read, and track look-ups are built once per track.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from gymnasium import spaces
+from highway_env import utils
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import ContinuousAction
 from highway_env.envs.common.observation import ObservationType
 from highway_env.road.road import Road
 
-from plm_highway.camera.ground_map import ground_map
+from plm_highway.camera.ground_map import DEFAULT_MAP_PX_PER_M, ground_map
 from plm_highway.camera.pinhole import CameraConfig, PinholeCamera
 from plm_highway.camera.topdown import TopDownView
+from plm_highway.envs.config import check_env_config, check_start, check_unknown_keys
 from plm_highway.envs.ego_vehicle import TrackVehicle
+from plm_highway.envs.speed import SpeedSchedule, parse_speed
+from plm_highway.errors import BadInput
 from plm_highway.road.builder import BuiltRoad, build_road
-from plm_highway.road.geometry import reference_pose_at, segment_lookup
+from plm_highway.road.geometry import SegmentLookup, reference_pose_at
 from plm_highway.road.track import TrackSpec, load_track, parse_track
+from plm_highway.vehicle.models import checked_params, vehicle_model
 
 PAPER_CAMERA = {"height_px": 160, "width_px": 160}  # the original PLM-Net input size
+ACTION_RANGE = (-1, 1)  # normalised steering
 START_KEYS = ("start_arc_length_m", "start_offset_m", "start_heading_error_rad")  # per-episode reset options
 
 
-@dataclass(frozen=True)
 class Snapshot:
-    """What a policy may observe at one instant: the camera frame and the privileged state."""
+    """What a policy may observe at one instant: the camera frame and the privileged state.
 
-    time_s: float
-    frame: np.ndarray
-    state: dict
+    Both are made on first access and kept: a snapshot the latency wrapper never delivers costs no
+    warp, and a state dict is built once however often it is read.
+    """
+
+    __slots__ = ("time_s", "values", "_episode", "_frame", "_state")
+
+    def __init__(self, time_s: float, values: CarValues, episode: EpisodeContext):
+        self.time_s = time_s
+        self.values = values
+        self._episode = episode
+        self._frame: np.ndarray | None = None
+        self._state: dict | None = None
+
+    @property
+    def frame(self) -> np.ndarray:
+        if self._frame is None:
+            values = self.values
+            self._frame = self._episode.camera.render(values.x_m, values.y_m, values.heading_rad)
+        return self._frame
+
+    @property
+    def state(self) -> dict:
+        if self._state is None:
+            self._state = self._episode.state_dict(self.time_s, self.values)
+        return self._state
+
+
+class CarValues(NamedTuple):
+    """The car at one simulation step, as the simulation left it (the inputs of a :class:`Snapshot`)."""
+
+    x_m: float
+    y_m: float
+    heading_rad: float
+    speed_mps: float
+    steering_rad: float  # front-wheel angle at the wheels
+    arc_length_m: float
+    lateral_reference_m: float  # from the reference line, left positive
+    heading_error_rad: float
+    lane_index: int
+    steering_command_rad: float
+    lateral_velocity_mps: float  # body frame
+    yaw_rate_radps: float
+
+
+class EpisodeContext:
+    """What turns :class:`CarValues` into a frame and a state dict; fixed for one episode."""
+
+    def __init__(self, env: LaneKeepingCameraEnv):
+        config = env.config
+        self.camera = env.camera
+        self.lookup = env.segment_lookup
+        self.lane_offset_m = env.start_lane_offset_m
+        self.max_steering_rad = float(config["max_steering_rad"])
+        self.curvature_preview_s = config["curvature_preview_s"]
+        self.road_half_width_m = env.track.road_half_width_m
+        self.vehicle_model, self.vehicle_params = env._ego.model, env._ego.params
+        self.segment_directions = [segment.direction for segment in env.track.segments]
+        # The starting lane's curvature per segment (the same function of the same numbers, once).
+        self.lane_curvatures_1pm = [_lane_curvature(k, self.lane_offset_m) for k in self.lookup.curvatures_1pm]
+
+    def lane_curvature_1pm(self, s_m: float, segment_index: int | None = None) -> float:
+        """Curvature of the starting lane at arc length ``s_m`` (zero off the ends of an open track)."""
+        lookup = self.lookup
+        if not lookup.closed and not 0.0 <= s_m <= lookup.length_m:
+            return _lane_curvature(0.0, self.lane_offset_m)
+        return self.lane_curvatures_1pm[lookup.segment_index(s_m) if segment_index is None else segment_index]
+
+    def state_dict(self, time_s: float, car: CarValues) -> dict:
+        # CarValues has VehicleState's fields by name: the sensor model reads it as the state.
+        sensors = self.vehicle_model.sensors(car, car.steering_rad, car.speed_mps, self.vehicle_params)
+        segment_index = self.lookup.segment_index(car.arc_length_m)
+        curvature_1pm = self.lane_curvature_1pm(car.arc_length_m, segment_index)
+        if self.curvature_preview_s == 0:
+            curvature_preview_1pm = curvature_1pm
+        else:
+            curvature_preview_1pm = self.lane_curvature_1pm(car.arc_length_m + car.speed_mps * self.curvature_preview_s)
+        return {
+            "time_s": time_s,
+            "x_m": car.x_m,
+            "y_m": car.y_m,
+            "heading_rad": car.heading_rad,
+            "speed_mps": car.speed_mps,
+            "steering": car.steering_rad / self.max_steering_rad,
+            "arc_length_m": car.arc_length_m,
+            "lateral_offset_m": car.lateral_reference_m - self.lane_offset_m,
+            "heading_error_rad": car.heading_error_rad,
+            # The car's velocity points at heading + slip angle: tracking this course angle, not the
+            # heading, is what leaves no steady offset in curves.
+            "course_error_rad": car.heading_error_rad + sensors.slip_angle_rad,
+            "curvature_1pm": curvature_1pm,
+            "curvature_preview_1pm": curvature_preview_1pm,
+            "segment": self.segment_directions[segment_index],
+            "segment_index": segment_index,
+            "lane_index": car.lane_index,
+            "on_road": abs(car.lateral_reference_m) <= self.road_half_width_m,
+            # What the car's own sensors read (IMU at the reference point, steering-angle sensor).
+            "steering_command": car.steering_command_rad / self.max_steering_rad,
+            "steering_angle_rad": car.steering_rad,
+            "yaw_rate_radps": sensors.yaw_rate_radps,
+            "lateral_acceleration_mps2": sensors.lateral_acceleration_mps2,
+            "lateral_velocity_mps": car.lateral_velocity_mps,
+        }
 
 
 class DashCameraObservation(ObservationType):
@@ -75,12 +189,15 @@ class LaneKeepingCameraEnv(AbstractEnv):
             "action": {"type": "ContinuousAction", "lateral": True, "longitudinal": False},
             "track": "test",  # shipped name, path to a JSON spec, or a spec dict
             "start_lane": None,  # lane index (0 = leftmost); None = the middle lane
-            "speed_mps": 16.7,  # about 60 km/h, the paper's test speed
+            "speed_mps": 16.7,  # about 60 km/h, the paper's test speed; or [[time_s, speed_mps], ...]
             "max_steering_rad": 0.2,  # front-wheel angle at action +-1
+            "steering_time_constant_s": 0.0,  # first-order steering actuator; 0 = the wheels follow at once
+            "vehicle_model": "kinematic",  # a name in plm_highway.vehicle.models.VEHICLE_MODELS
+            "vehicle_params": {},  # overrides of the model's default parameters, e.g. {"mass_kg": 1600}
             "simulation_frequency": 20,  # [Hz]
             "policy_frequency": 20,  # [Hz]
             "camera": {},  # overrides of CameraConfig fields, e.g. {"pitch_deg": 8}
-            "map_px_per_m": 10.0,
+            "map_px_per_m": DEFAULT_MAP_PX_PER_M,  # ground map resolution (see camera/ground_map.py)
             "duration_s": None,  # None: until the end of an open track
             "curvature_preview_s": 0.0,  # look-ahead of the privileged curvature preview (0: none; best for the expert)
             # Start pose; reset(options={...}) may override each for one episode.
@@ -99,10 +216,13 @@ class LaneKeepingCameraEnv(AbstractEnv):
         self._start_overrides = {k: v for k, v in (options or {}).items() if k in START_KEYS}
         unknown = sorted(set(options or {}) - set(self._start_overrides) - {"config"})
         if unknown:
-            raise ValueError(f"reset options: unknown keys {unknown}")
+            raise BadInput(f"reset options: unknown keys {unknown}")
         return super().reset(seed=seed, options=options)
 
     def define_spaces(self) -> None:
+        # Called by highway-env before every reset builds anything: the place to refuse bad settings.
+        check_unknown_keys(self.config, self.default_config())
+        check_env_config(self.config)
         self.camera_config = CameraConfig.from_dict(self.config["camera"])
         self.observation_type = DashCameraObservation(self)
         max_steer = float(self.config["max_steering_rad"])
@@ -125,9 +245,17 @@ class LaneKeepingCameraEnv(AbstractEnv):
     # -- scene -----------------------------------------------------------------------------------
 
     def _reset(self) -> None:
-        self._check_rates()
         self._make_road()
         self._make_vehicles()
+        self._sim_hz = self.config["simulation_frequency"]
+        self._substeps = self._sim_hz // self.config["policy_frequency"]
+        self._simulation_dt_s = 1.0 / self._sim_hz
+        self._policy_dt_s = 1 / self.config["policy_frequency"]
+        self._duration_s = self.config["duration_s"]
+        self._half_lane_m = self.track.lane_width_m / 2
+        self._max_steering_rad = float(self.config["max_steering_rad"])
+        self._steering_range_rad = [-self._max_steering_rad, self._max_steering_rad]
+        self._episode = EpisodeContext(self)
         self.new_snapshots: list[Snapshot] = []
         self._record_snapshot()
 
@@ -136,6 +264,8 @@ class LaneKeepingCameraEnv(AbstractEnv):
         if getattr(self, "track", None) != track:
             self.track: TrackSpec = track
             self.built: BuiltRoad = build_road(track)
+            self.segment_lookup = SegmentLookup(track)
+            self.track_length_m = track.length_m
             self.ground = ground_map(track, float(self.config["map_px_per_m"]))
         camera_config = CameraConfig.from_dict(self.config["camera"])
         if getattr(self, "camera", None) is None or self.camera.config != camera_config \
@@ -146,18 +276,23 @@ class LaneKeepingCameraEnv(AbstractEnv):
     def _make_vehicles(self) -> None:
         start = {key: self.config[key] for key in START_KEYS}
         start.update(self._start_overrides)
+        check_start(start, self.track, self.built.lane_offsets_m, self.config["start_lane"], self._start_overrides)
         arc_length_m = float(start["start_arc_length_m"])
         x_m, y_m, road_heading = reference_pose_at(self.track, arc_length_m)
         lateral_m = self.start_lane_offset_m + float(start["start_offset_m"])
         position = np.array([x_m - lateral_m * math.sin(road_heading), y_m + lateral_m * math.cos(road_heading)])
         edge_index = max(i for i, edge in enumerate(self.built.edges) if edge.start_s_m <= arc_length_m + 1e-9)
+        self.speed_schedule: SpeedSchedule = parse_speed(self.config["speed_mps"])
+        model = vehicle_model(self.config["vehicle_model"])
         vehicle = TrackVehicle(
             self.road, position, road_heading + float(start["start_heading_error_rad"]),
-            float(self.config["speed_mps"]), self.built, edge_index, self.track.closed,
+            self.speed_schedule.speed_at(0.0), self.built, edge_index, self.track.closed, model,
+            checked_params(model, self.config["vehicle_params"], "config['vehicle_params']"), float(self.config["steering_time_constant_s"]),
         )
         vehicle.on_state_update()
         self.road.vehicles.append(vehicle)
         self.vehicle = vehicle
+        self._ego = vehicle  # the same car, without highway-env's property lookup in the hot path
 
     def _track_from_config(self) -> TrackSpec:
         track = self.config["track"]
@@ -167,18 +302,10 @@ class LaneKeepingCameraEnv(AbstractEnv):
             return parse_track(track, source="config['track']")
         return load_track(track)
 
-    def _check_rates(self) -> None:
-        sim_hz, policy_hz = self.config["simulation_frequency"], self.config["policy_frequency"]
-        if not (isinstance(sim_hz, int) and isinstance(policy_hz, int) and sim_hz > 0 and policy_hz > 0
-                and sim_hz % policy_hz == 0):
-            raise ValueError(
-                f"simulation_frequency={sim_hz!r} must be a positive integer multiple of policy_frequency={policy_hz!r}"
-            )
-
     @property
     def start_lane(self) -> int:
         lane = self.config["start_lane"]
-        return self.track.lanes // 2 if lane is None else int(lane)
+        return self.track.lanes // 2 if lane is None else lane
 
     @property
     def start_lane_offset_m(self) -> float:
@@ -190,87 +317,103 @@ class LaneKeepingCameraEnv(AbstractEnv):
 
     # -- stepping --------------------------------------------------------------------------------
 
-    def _simulate(self, action=None) -> None:
-        frames = self.config["simulation_frequency"] // self.config["policy_frequency"]
+    def step(self, action):
+        """One policy step: map the action to a steering angle, simulate, observe the newest frame."""
+        steering_rad = self._steering_command_rad(action)
+        self.time += self._policy_dt_s
+        self._simulate(steering_rad)
+        snapshot = self.latest_snapshot
+        obs = snapshot.frame
+        rewards = self._rewards(action)
+        info = self._info(obs, action, rewards)
+        return obs, rewards["lane_centering"], not info["on_road"], self._is_truncated(), info
+
+    def _steering_command_rad(self, action) -> float:
+        """Front-wheel angle for a normalised action, as highway-env's ``ContinuousAction`` maps it:
+        clipped to [-1, 1] and mapped linearly in the action's own dtype (float32 actions give
+        float32-rounded angles, exactly as before). Anything but one finite number is refused: a
+        policy that produces NaN must stop the run, and a (1, 1) or (2,) action is a bug upstream."""
+        array = np.asarray(action)
+        if array.shape != (1,) or array.dtype.kind not in "fiu":
+            raise BadInput(f"action {_short(action)}: expected one number (normalised steering in [-1, 1]) in "
+                             f"an array of shape (1,), got shape {array.shape} and dtype {array.dtype}")
+        value = array[0]
+        if not math.isfinite(value):
+            raise BadInput(f"action {_short(action)}: steering must be finite; the policy produced {value}")
+        if value < -1:
+            value = value.dtype.type(-1)
+        elif value > 1:
+            value = value.dtype.type(1)
+        return float(utils.lmap(value, ACTION_RANGE, self._steering_range_rad))
+
+    def _simulate(self, steering_rad: float | None = None) -> None:
+        vehicle = self._ego
+        dt_s = self._simulation_dt_s
         self.new_snapshots = []
-        for frame in range(frames):
-            if action is not None and frame == 0:
-                self.action_type.act(action)
-            self.road.act()
-            self.road.step(self.simulation_dt_s)
+        if steering_rad is not None:  # held over the policy step
+            vehicle.steering_command_rad = steering_rad
+        schedule = None if self.speed_schedule.constant else self.speed_schedule
+        for _ in range(self._substeps):
+            vehicle.step(dt_s, None if schedule is None else schedule.speed_at((self.steps + 1) / self._sim_hz))
             self.steps += 1
             self._record_snapshot()
 
     def _record_snapshot(self) -> None:
-        snapshot = Snapshot(self.steps / self.config["simulation_frequency"], self._render_camera(), self.state())
+        v = self._ego
+        state = v.model_state
+        snapshot = Snapshot(self.steps / self._sim_hz, CarValues(
+            v.x_m, v.y_m, v.heading, v.speed, v.steering_rad, v.arc_length_m, v.lateral_m, v.heading_error_rad, v.lane_id,
+            v.steering_command_rad, state[3], state[4],
+        ), self._episode)
         self.latest_snapshot = snapshot
         self.new_snapshots.append(snapshot)
 
     def _render_camera(self) -> np.ndarray:
-        vehicle = self.vehicle
-        return self.camera.render(vehicle.position[0], vehicle.position[1], vehicle.heading)
+        return self.latest_snapshot.frame
 
     def state(self) -> dict:
         """The privileged state of the ego car now, relative to the centre of its starting lane."""
-        vehicle = self.vehicle
-        coords = vehicle.coordinates
-        speed_mps = float(vehicle.speed)
-        steering_rad = float(vehicle.action.get("steering", 0.0))
-        lane_offset_m = self.start_lane_offset_m
-        lookup = segment_lookup(self.track)
-        segment_index = lookup.segment_index(coords.arc_length_m)
-        preview_s_m = coords.arc_length_m + speed_mps * self.config["curvature_preview_s"]
-        return {
-            "time_s": self.steps / self.config["simulation_frequency"],
-            "x_m": float(vehicle.position[0]),
-            "y_m": float(vehicle.position[1]),
-            "heading_rad": float(vehicle.heading),
-            "speed_mps": speed_mps,
-            "steering": steering_rad / self.config["max_steering_rad"],
-            "arc_length_m": coords.arc_length_m,
-            "lateral_offset_m": coords.lateral_m - lane_offset_m,
-            "heading_error_rad": coords.heading_error_rad,
-            # The bicycle's velocity points at heading + beta: tracking this course angle, not the
-            # heading, is what leaves no steady offset in curves.
-            "course_error_rad": coords.heading_error_rad + math.atan(0.5 * math.tan(steering_rad)),
-            "curvature_1pm": _lane_curvature(lookup.curvature(coords.arc_length_m), lane_offset_m),
-            "curvature_preview_1pm": _lane_curvature(lookup.curvature(preview_s_m), lane_offset_m),
-            "segment": self.track.segments[segment_index].direction,
-            "segment_index": segment_index,
-            "lane_index": int(vehicle.lane_index[2]),
-            "on_road": abs(coords.lateral_m) <= self.track.road_half_width_m,
-        }
+        return dict(self.latest_snapshot.state)
 
     # -- task ------------------------------------------------------------------------------------
 
     def _rewards(self, action) -> dict[str, float]:
-        state = self.latest_snapshot.state
-        half_lane_m = self.track.lane_width_m / 2
-        centring = max(0.0, 1.0 - (state["lateral_offset_m"] / half_lane_m) ** 2) if state["on_road"] else 0.0
-        return {"lane_centering": centring, "on_road": float(state["on_road"])}
+        # From the car's values, as the state dict computes them (the dict itself is built only for info).
+        car, episode = self.latest_snapshot.values, self._episode
+        on_road = abs(car.lateral_reference_m) <= episode.road_half_width_m
+        lateral_offset_m = car.lateral_reference_m - episode.lane_offset_m
+        centring = max(0.0, 1.0 - (lateral_offset_m / self._half_lane_m) ** 2) if on_road else 0.0
+        return {"lane_centering": centring, "on_road": float(on_road)}
 
     def _reward(self, action) -> float:
         return self._rewards(action)["lane_centering"]
 
     def _is_terminated(self) -> bool:
-        return not self.latest_snapshot.state["on_road"]
+        car = self.latest_snapshot.values
+        return not abs(car.lateral_reference_m) <= self._episode.road_half_width_m
 
     def _is_truncated(self) -> bool:
-        duration_s = self.config["duration_s"]
+        duration_s = self._duration_s
         timed_out = duration_s is not None and self.latest_snapshot.time_s >= duration_s - 1e-9
-        return bool(self.vehicle.past_end or timed_out)
+        return bool(self._ego.past_end or timed_out)
 
-    def _info(self, obs, action=None) -> dict:
-        state = self.latest_snapshot.state
-        info = dict(state)
-        info.update({
-            "position": np.array([state["x_m"], state["y_m"]]),
-            "time": state["time_s"],
-            "speed": state["speed_mps"],
-            "completed_fraction": min(1.0, state["arc_length_m"] / self.track.length_m),
-            "rewards": self._rewards(action),
-        })
+    def _info(self, obs, action=None, rewards: dict | None = None) -> dict:
+        """The state now plus highway-env's usual keys; a new dict (the snapshot's own state dict is
+        built only if something asks for it, e.g. the latency wrapper delivering this snapshot later)."""
+        snapshot = self.latest_snapshot
+        car = snapshot.values
+        info = self._episode.state_dict(snapshot.time_s, car)
+        info["position"] = np.array([car.x_m, car.y_m])
+        info["time"] = snapshot.time_s
+        info["speed"] = car.speed_mps
+        info["completed_fraction"] = min(1.0, car.arc_length_m / self.track_length_m)
+        info["rewards"] = self._rewards(action) if rewards is None else rewards
         return info
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def _lane_curvature(reference_curvature_1pm: float, lane_offset_m: float) -> float:

@@ -30,11 +30,67 @@ class Edge:
     length_m: float  # along the reference line
 
 
+@dataclass(frozen=True, slots=True)
+class StraightFrame:
+    """Local coordinates on one straight lane in scalar arithmetic, operation for operation as
+    highway-env's ``StraightLane`` (its numpy ops on two-element arrays cost more than the maths)."""
+
+    start_x_m: float
+    start_y_m: float
+    direction_x: float
+    direction_y: float
+    heading_rad: float
+    length_m: float
+
+    @classmethod
+    def of(cls, lane: StraightLane) -> StraightFrame:
+        return cls(float(lane.start[0]), float(lane.start[1]), float(lane.direction[0]), float(lane.direction[1]),
+                   float(lane.heading), float(lane.length))
+
+    def local_coordinates(self, x_m: float, y_m: float) -> tuple[float, float]:
+        dx, dy = x_m - self.start_x_m, y_m - self.start_y_m
+        return dx * self.direction_x + dy * self.direction_y, dx * -self.direction_y + dy * self.direction_x
+
+    def heading_at(self, longitudinal_m: float) -> float:
+        return self.heading_rad
+
+
+@dataclass(frozen=True, slots=True)
+class ArcFrame:
+    """Local coordinates on one circular lane, operation for operation as highway-env's ``CircularLane``."""
+
+    centre_x_m: float
+    centre_y_m: float
+    radius_m: float
+    start_phase_rad: float
+    direction: int  # +1: the phase grows along the lane (a left turn here), -1: it shrinks
+    length_m: float
+
+    @classmethod
+    def of(cls, lane: CircularLane) -> ArcFrame:
+        return cls(float(lane.center[0]), float(lane.center[1]), float(lane.radius), float(lane.start_phase),
+                   int(lane.direction), float(lane.length))
+
+    def local_coordinates(self, x_m: float, y_m: float) -> tuple[float, float]:
+        dx, dy = x_m - self.centre_x_m, y_m - self.centre_y_m
+        phase_rad = self.start_phase_rad + (((math.atan2(dy, dx) - self.start_phase_rad) + math.pi)
+                                            % (2 * math.pi) - math.pi)
+        r_m = math.sqrt(dx * dx + dy * dy)
+        return self.direction * (phase_rad - self.start_phase_rad) * self.radius_m, self.direction * (self.radius_m - r_m)
+
+    def heading_at(self, longitudinal_m: float) -> float:
+        return (self.direction * longitudinal_m / self.radius_m + self.start_phase_rad) + math.pi / 2 * self.direction
+
+
 @dataclass(frozen=True)
 class BuiltRoad:
     network: RoadNetwork
     edges: tuple[Edge, ...]
     lane_offsets_m: tuple[float, ...]  # lateral position of each lane's centre, left positive
+    # The lane the car's track coordinates are measured on (the one nearest the reference line) and
+    # its scalar local-coordinate frame on every edge.
+    reference_lane_id: int = 0
+    reference_frames: tuple[StraightFrame | ArcFrame, ...] = ()
 
 
 def lane_offsets_m(track: TrackSpec) -> tuple[float, ...]:
@@ -56,7 +112,13 @@ def build_road(track: TrackSpec) -> BuiltRoad:
         edges.append(Edge(key, seg_index, s_m, piece.length_m))
         pose = advance_pose(pose, piece)
         s_m += piece.length_m
-    return BuiltRoad(network, tuple(edges), offsets_m)
+    reference_lane_id = min(range(len(offsets_m)), key=lambda i: abs(offsets_m[i]))
+    frames = tuple(_frame_of(network.graph[edge.key[0]][edge.key[1]][reference_lane_id]) for edge in edges)
+    return BuiltRoad(network, tuple(edges), offsets_m, reference_lane_id, frames)
+
+
+def _frame_of(lane) -> StraightFrame | ArcFrame:
+    return StraightFrame.of(lane) if isinstance(lane, StraightLane) else ArcFrame.of(lane)
 
 
 def _split_arc(seg: Segment) -> list[Segment]:

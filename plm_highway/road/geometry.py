@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from plm_highway.errors import BadInput
 from plm_highway.road.track import TrackSpec, advance_pose
 
 SEGMENT_KINDS = ("straight", "left", "right")
@@ -71,11 +72,20 @@ class SegmentLookup:
         self.length_m = track.length_m
         self.starts_m = segment_starts_m(track)[:-1].tolist()
         self.curvatures_1pm = [seg.curvature_1pm for seg in track.segments]
+        # [start, end) of the segment found last: a car stays on one segment for many steps.
+        self._last = (0, self.starts_m[0], self.starts_m[1] if len(self.starts_m) > 1 else math.inf)
 
     def segment_index(self, s_m: float) -> int:
         if self.closed:
             s_m %= self.length_m
-        return min(max(bisect.bisect_right(self.starts_m, s_m) - 1, 0), len(self.starts_m) - 1)
+        index, start_m, end_m = self._last
+        if start_m <= s_m < end_m:
+            return index
+        index = min(max(bisect.bisect_right(self.starts_m, s_m) - 1, 0), len(self.starts_m) - 1)
+        if self.starts_m[index] <= s_m:  # below the first start the clamp answers; do not cache that
+            end_m = self.starts_m[index + 1] if index + 1 < len(self.starts_m) else math.inf
+            self._last = (index, self.starts_m[index], end_m)
+        return index
 
     def curvature(self, s_m: float) -> float:
         if not self.closed and not 0.0 <= s_m <= self.length_m:
@@ -123,7 +133,7 @@ def reference_pose_at(track: TrackSpec, s_m: float) -> tuple[float, float, float
     if track.closed:
         s_m = s_m % track.length_m
     if not 0.0 <= s_m <= track.length_m:
-        raise ValueError(f"track {track.name!r}: arc length {s_m} m outside [0, {track.length_m:.1f}] m")
+        raise BadInput(f"track {track.name!r}: arc length {s_m} m outside [0, {track.length_m:.1f}] m")
     pose = (0.0, 0.0, 0.0)
     for seg in track.segments:
         if s_m <= seg.length_m:

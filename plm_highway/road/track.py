@@ -9,15 +9,43 @@ A track is a JSON object::
 Coordinates: x east, y north (y up, as in the figures). The reference line is the centre of the
 middle of the road; it starts at the origin heading east. ``radius_m`` is measured on that line.
 "left"/"right" are as the driver sees them: a left arc raises the heading.
+
+Bounds, checked before anything is built (every error names the file or source, the segment and
+the field, and the accepted range):
+
+==========================  =====================================================================
+file                        at most ``MAX_TRACK_FILE_BYTES`` (1 MiB) of UTF-8 JSON, no byte-order
+                            mark, brackets nested at most ``MAX_NESTING_DEPTH`` (16) deep
+``name``                    a string of 1 to ``MAX_NAME_CHARS`` (100) characters
+``lanes``                   an integer from 1 to 6
+``lane_width_m``            from 2 to 8 m
+``segments``                1 to ``MAX_SEGMENTS`` (1,000)
+straight ``length_m``       (0, ``MAX_SEGMENT_LENGTH_M``] = (0, 10,000] m
+arc ``radius_m``            [half the road + one lane, ``MAX_RADIUS_M``] = [.., 50,000] m
+arc ``angle_deg``           (0, 360]
+total length                at most ``MAX_TRACK_LENGTH_M`` (20,000 m)
+the road itself             must not overlap itself (e.g. a 360-degree arc on an open track):
+                            no two points of the reference line more than half a circle of the
+                            tightest allowed radius apart along the road may be closer than the
+                            road's width
+==========================  =====================================================================
+
+The camera's ground map adds one more bound, on its pixel count (see ``camera/ground_map.py``):
+a track that spans too large an area (e.g. a closed circle of 1.5 km radius) is refused there.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+
+import numpy as np
+
+from plm_highway.errors import BadInput
 
 TRACK_KEYS = {"name", "lanes", "lane_width_m", "segments", "closed"}
 SEGMENT_KEYS = {
@@ -25,6 +53,15 @@ SEGMENT_KEYS = {
     "arc": {"type", "radius_m", "angle_deg", "direction"},
 }
 SHIPPED_TRACKS = ("train", "test", "unseen")
+MAX_TRACK_FILE_BYTES = 1 << 20
+MAX_NESTING_DEPTH = 16
+MAX_NAME_CHARS = 100
+LANE_WIDTH_RANGE_M = (2.0, 8.0)
+MAX_SEGMENTS = 1_000
+MAX_SEGMENT_LENGTH_M = 10_000.0
+MAX_RADIUS_M = 50_000.0
+MAX_TRACK_LENGTH_M = 20_000.0
+OVERLAP_SAMPLE_SPACING_M = 1.0
 # A closed track must come back to its start within these tolerances.
 CLOSE_POSITION_TOL_M = 0.5
 CLOSE_HEADING_TOL_RAD = math.radians(1.0)
@@ -68,7 +105,7 @@ def load_track(name_or_path: str | Path) -> TrackSpec:
     """Load a shipped track by name (``train``, ``test``, ``unseen``) or a spec file by path."""
     text_name = str(name_or_path)
     if text_name in SHIPPED_TRACKS:
-        text = resources.files("plm_highway.road").joinpath("tracks", f"{text_name}.json").read_text()
+        data = resources.files("plm_highway.road").joinpath("tracks", f"{text_name}.json").read_bytes()
         source = f"track '{text_name}'"
     else:
         path = Path(name_or_path)
@@ -76,82 +113,156 @@ def load_track(name_or_path: str | Path) -> TrackSpec:
             raise FileNotFoundError(
                 f"track {text_name!r}: neither a shipped track {list(SHIPPED_TRACKS)} nor an existing file"
             )
-        text = path.read_text()
         source = str(path)
+        size = path.stat().st_size
+        if size > MAX_TRACK_FILE_BYTES:
+            raise BadInput(f"{source}: {size:,} bytes is larger than a track file may be "
+                             f"({MAX_TRACK_FILE_BYTES:,} bytes)")
+        data = path.read_bytes()
+    return parse_track(_json_of(data, source), source=source)
+
+
+def _json_of(data: bytes, source: str):
+    if data.startswith(b"\xef\xbb\xbf"):
+        raise BadInput(f"{source}: starts with a UTF-8 byte-order mark; save it as UTF-8 without BOM")
     try:
-        spec = json.loads(text)
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise BadInput(f"{source}: not a UTF-8 text file (byte 0x{data[exc.start]:02x} at offset {exc.start}); "
+                         "a track is a JSON text file") from None
+    depth = _nesting_depth(text)
+    if depth > MAX_NESTING_DEPTH:
+        raise BadInput(f"{source}: brackets nested {depth} deep; a track needs at most {MAX_NESTING_DEPTH}")
+    try:
+        return json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{source}: not valid JSON ({exc})") from None
-    return parse_track(spec, source=source)
+        raise BadInput(f"{source}: not valid JSON ({exc})") from None
+
+
+def _nesting_depth(text: str) -> int:
+    """Deepest bracket nesting outside JSON strings (checked before the parser recurses into it)."""
+    depth = deepest = 0
+    for char in re.sub(r'"(?:[^"\\]|\\.)*"', "", text):
+        if char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}":
+            depth -= 1
+    return deepest
 
 
 def parse_track(spec: dict, source: str = "<dict>") -> TrackSpec:
     """Validate a track dict; every error names the source, segment and field."""
     if not isinstance(spec, dict):
-        raise ValueError(f"{source}: a track spec must be a JSON object, got {type(spec).__name__}")
+        raise BadInput(f"{source}: a track spec must be a JSON object, got {type(spec).__name__}")
     unknown = sorted(set(spec) - TRACK_KEYS)
     if unknown:
-        raise ValueError(f"{source}: unknown keys {unknown}; allowed: {sorted(TRACK_KEYS)}")
+        raise BadInput(f"{source}: unknown keys {unknown}; allowed: {sorted(TRACK_KEYS)}")
     missing = sorted({"name", "segments"} - set(spec))
     if missing:
-        raise ValueError(f"{source}: missing keys {missing}")
+        raise BadInput(f"{source}: missing keys {missing}")
+    name = spec["name"]
+    if not isinstance(name, str) or not 1 <= len(name) <= MAX_NAME_CHARS:
+        raise BadInput(f"{source}: field 'name' must be a string of 1 to {MAX_NAME_CHARS} characters, "
+                         f"got {_short(name)}")
     lanes = spec.get("lanes", 3)
     if not isinstance(lanes, int) or isinstance(lanes, bool) or not 1 <= lanes <= 6:
-        raise ValueError(f"{source}: field 'lanes' must be an integer from 1 to 6, got {lanes!r}")
-    lane_width_m = _positive_number(spec.get("lane_width_m", 4.0), f"{source}: field 'lane_width_m'")
+        raise BadInput(f"{source}: field 'lanes' must be an integer from 1 to 6, got {_short(lanes)}")
+    lane_width_m = _number_in(spec.get("lane_width_m", 4.0), f"{source}: field 'lane_width_m'", *LANE_WIDTH_RANGE_M)
     closed = spec.get("closed", False)
     if not isinstance(closed, bool):
-        raise ValueError(f"{source}: field 'closed' must be true or false, got {closed!r}")
+        raise BadInput(f"{source}: field 'closed' must be true or false, got {closed!r}")
     raw_segments = spec["segments"]
     if not isinstance(raw_segments, list) or not raw_segments:
-        raise ValueError(f"{source}: field 'segments' must be a non-empty list")
+        raise BadInput(f"{source}: field 'segments' must be a non-empty list")
+    if len(raw_segments) > MAX_SEGMENTS:
+        raise BadInput(f"{source}: {len(raw_segments):,} segments exceed the limit of {MAX_SEGMENTS:,}")
     half_width_m = lanes * lane_width_m / 2.0
     segments = tuple(
         _parse_segment(raw, f"{source}: segment {index}", half_width_m, lane_width_m)
         for index, raw in enumerate(raw_segments)
     )
-    track = TrackSpec(str(spec["name"]), lanes, lane_width_m, segments, closed, source)
+    track = TrackSpec(name, lanes, lane_width_m, segments, closed, source)
+    if track.length_m > MAX_TRACK_LENGTH_M:
+        raise BadInput(f"{source}: total length {track.length_m:,.0f} m exceeds the limit of "
+                         f"{MAX_TRACK_LENGTH_M:,.0f} m")
     if closed:
         _check_closes(track)
+    _check_no_overlap(track)
     return track
 
 
 def _parse_segment(raw: dict, where: str, half_width_m: float, lane_width_m: float) -> Segment:
     if not isinstance(raw, dict):
-        raise ValueError(f"{where}: must be an object, got {raw!r}")
+        raise BadInput(f"{where}: must be an object, got {raw!r}")
     kind = raw.get("type")
     if kind not in SEGMENT_KEYS:
-        raise ValueError(f"{where}: field 'type' must be 'straight' or 'arc', got {kind!r}")
+        raise BadInput(f"{where}: field 'type' must be 'straight' or 'arc', got {kind!r}")
     unknown = sorted(set(raw) - SEGMENT_KEYS[kind])
     missing = sorted(SEGMENT_KEYS[kind] - set(raw))
     if unknown:
-        raise ValueError(f"{where} ({kind}): unknown keys {unknown}; allowed: {sorted(SEGMENT_KEYS[kind])}")
+        raise BadInput(f"{where} ({kind}): unknown keys {unknown}; allowed: {sorted(SEGMENT_KEYS[kind])}")
     if missing:
-        raise ValueError(f"{where} ({kind}): missing keys {missing}")
+        raise BadInput(f"{where} ({kind}): missing keys {missing}")
     if kind == "straight":
-        return Segment("straight", _positive_number(raw["length_m"], f"{where}: field 'length_m'"))
-    radius_m = _positive_number(raw["radius_m"], f"{where}: field 'radius_m'")
+        return Segment("straight", _number_in(raw["length_m"], f"{where}: field 'length_m'", 0.0,
+                                              MAX_SEGMENT_LENGTH_M, open_low=True))
+    radius_m = _number_in(raw["radius_m"], f"{where}: field 'radius_m'", 0.0, MAX_RADIUS_M, open_low=True)
     # The inner road edge must stay at least one lane width away from the arc's centre.
     min_radius_m = half_width_m + lane_width_m
     if radius_m < min_radius_m:
-        raise ValueError(
+        raise BadInput(
             f"{where}: field 'radius_m' = {radius_m} is too tight for the road width; "
             f"it must be at least {min_radius_m} m (half the road plus one lane of {lane_width_m} m)"
         )
-    angle_deg = _positive_number(raw["angle_deg"], f"{where}: field 'angle_deg'")
-    if angle_deg > 360:
-        raise ValueError(f"{where}: field 'angle_deg' = {angle_deg} exceeds 360")
+    angle_deg = _number_in(raw["angle_deg"], f"{where}: field 'angle_deg'", 0.0, 360.0, open_low=True)
     direction = raw["direction"]
     if direction not in ("left", "right"):
-        raise ValueError(f"{where}: field 'direction' must be 'left' or 'right', got {direction!r}")
+        raise BadInput(f"{where}: field 'direction' must be 'left' or 'right', got {_short(direction)}")
     angle_rad = math.radians(angle_deg)
     return Segment("arc", radius_m * angle_rad, radius_m, angle_rad, direction)
 
 
-def _positive_number(value, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-        raise ValueError(f"{where} must be a positive number, got {value!r}")
-    return float(value)
+def _number_in(value, where: str, low: float, high: float, open_low: bool = False) -> float:
+    """``value`` as a float in [low, high] ((low, high] with ``open_low``); a clear error otherwise."""
+    number = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
+    inside = (low < number if open_low else low <= number) and number <= high  # False for NaN
+    if not inside:
+        bracket = "(" if open_low else "["
+        raise BadInput(f"{where} must be a number in {bracket}{low:g}, {high:g}], got {_short(value)}")
+    return number
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _check_no_overlap(track: TrackSpec) -> None:
+    """Refuse a road that runs over itself: two reference points far apart along the road (more than
+    half a circle of the tightest allowed radius) yet closer than the road is wide."""
+    from scipy.spatial import cKDTree
+
+    from plm_highway.road.geometry import sample_reference
+
+    ref = sample_reference(track, spacing_m=OVERLAP_SAMPLE_SPACING_M)
+    road_width_m = 2.0 * track.road_half_width_m
+    min_separation_m = math.pi * (track.road_half_width_m + track.lane_width_m)
+    pairs = cKDTree(np.column_stack([ref.x_m, ref.y_m])).query_pairs(road_width_m - 1e-6, output_type="ndarray")
+    if len(pairs) == 0:
+        return
+    along_m = np.abs(ref.s_m[pairs[:, 0]] - ref.s_m[pairs[:, 1]])
+    if track.closed:
+        along_m = np.minimum(along_m, track.length_m - along_m)
+    far = np.flatnonzero(along_m > min_separation_m)
+    if len(far):
+        i, j = sorted(pairs[far[0]])
+        raise BadInput(
+            f"{track.source}: the road overlaps itself: at {ref.s_m[i]:.0f} m (segment {ref.segment_index[i]}) and "
+            f"{ref.s_m[j]:.0f} m (segment {ref.segment_index[j]}) along it, its centre lines are "
+            f"{math.hypot(ref.x_m[i] - ref.x_m[j], ref.y_m[i] - ref.y_m[j]):.1f} m apart, less than the road's "
+            f"{road_width_m:g} m width (a closed loop needs 'closed': true)"
+        )
 
 
 def _check_closes(track: TrackSpec) -> None:
@@ -159,7 +270,7 @@ def _check_closes(track: TrackSpec) -> None:
     gap_m = math.hypot(x_m, y_m)
     heading_gap_rad = abs(math.remainder(heading_rad, 2 * math.pi))
     if gap_m > CLOSE_POSITION_TOL_M or heading_gap_rad > CLOSE_HEADING_TOL_RAD:
-        raise ValueError(
+        raise BadInput(
             f"{track.source}: field 'closed' is true but the last segment ends {gap_m:.2f} m and "
             f"{math.degrees(heading_gap_rad):.1f} deg away from the start"
         )

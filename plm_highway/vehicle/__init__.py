@@ -1,5 +1,8 @@
 """Vehicle models as pure functions with their parameters as data (in the style of CommonRoad's).
 
+- :mod:`plm_highway.vehicle.models`: the table (``VEHICLE_MODELS``, ``vehicle_model(name)``) that the
+  env, sim2real and the estimator pick models from: name -> step, sensors, derivatives, parameters.
+
 - :mod:`plm_highway.vehicle.kinematic`: the simulator's model, highway-env's kinematic bicycle
   (``Vehicle.step``), bit for bit; a step function and vectorised rollouts over time and batches.
 - :mod:`plm_highway.vehicle.single_track`: a dynamic single-track model with linear tires (the

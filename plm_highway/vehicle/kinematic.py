@@ -21,6 +21,7 @@ vehicle is :data:`HIGHWAY_ENV_VEHICLE`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -58,12 +59,43 @@ def kinematic_bicycle_step(
     state: KinematicState, steer_rad: float, speed_mps: float, dt_s: float, params: KinematicBicycleParams
 ) -> KinematicState:
     """One forward-Euler step, operation for operation as highway-env's ``Vehicle.step``."""
-    beta = np.arctan(params.cg_to_rear_m / params.wheelbase_m * np.tan(steer_rad))
+    return KinematicState(*kinematic_bicycle_pose_step(
+        state.x_m, state.y_m, state.heading_rad, steer_rad, speed_mps, dt_s,
+        params.cg_to_rear_m / params.wheelbase_m, params.cg_to_rear_m,
+    ))
+
+
+def kinematic_bicycle_pose_step(
+    x_m: float, y_m: float, heading_rad: float, steer_rad: float, speed_mps: float, dt_s: float,
+    rear_fraction: float, cg_to_rear_m: float,
+) -> tuple[float, float, float]:
+    """:func:`kinematic_bicycle_step` on bare floats (``rear_fraction = lr / L``)."""
+    return kinematic_bicycle_update(x_m, y_m, heading_rad, steer_rad, speed_mps, steer_rad, speed_mps, dt_s,
+                                    rear_fraction, cg_to_rear_m)[:3]
+
+
+def kinematic_bicycle_update(
+    x_m: float, y_m: float, heading_rad: float, steer_rad: float, speed_mps: float, steer_end_rad: float,
+    speed_end_mps: float, dt_s: float, rear_fraction: float, cg_to_rear_m: float,
+) -> tuple[float, float, float, float, float]:
+    """The one implementation of the step: pose after ``dt_s`` (inputs at the start of the step, as
+    highway-env), then the body lateral velocity and yaw rate with the inputs at its end.
+
+    Returns (x_m, y_m, heading_rad, lateral_velocity_mps, yaw_rate_radps). Scalar ``math`` rather
+    than numpy: the same IEEE operations (numpy's float64 sin/cos/tan/arctan give libm's results on
+    this project's platforms), without the cost of numpy on scalars.
+    """
+    beta = math.atan(rear_fraction * math.tan(steer_rad))
+    sin_beta = math.sin(beta)
+    yaw_rate_radps = speed_mps * sin_beta / cg_to_rear_m
     # The position uses the heading before this step's update, as highway-env does.
-    x_m = state.x_m + speed_mps * np.cos(state.heading_rad + beta) * dt_s
-    y_m = state.y_m + speed_mps * np.sin(state.heading_rad + beta) * dt_s
-    heading_rad = state.heading_rad + speed_mps * np.sin(beta) / params.cg_to_rear_m * dt_s
-    return KinematicState(float(x_m), float(y_m), float(heading_rad))
+    x_m = x_m + speed_mps * math.cos(heading_rad + beta) * dt_s
+    y_m = y_m + speed_mps * math.sin(heading_rad + beta) * dt_s
+    heading_rad = heading_rad + yaw_rate_radps * dt_s
+    if steer_end_rad != steer_rad or speed_end_mps != speed_mps:
+        sin_beta = math.sin(math.atan(rear_fraction * math.tan(steer_end_rad)))
+        yaw_rate_radps = speed_end_mps * sin_beta / cg_to_rear_m
+    return x_m, y_m, heading_rad, speed_end_mps * sin_beta, yaw_rate_radps
 
 
 def kinematic_bicycle_rates(

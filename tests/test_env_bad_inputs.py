@@ -1,0 +1,211 @@
+"""Bad inputs to the env and its tracks (issue 17 items 3, 5, 6, 7): each is refused before any work
+with a BadInput that names the field or file, the value and the accepted range."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import gymnasium
+import numpy as np
+import pytest
+
+import plm_highway  # noqa: F401  (registers the env)
+from plm_highway.envs import ENV_ID
+from plm_highway.errors import BadInput
+from plm_highway.latency import LatencyWrapper
+from plm_highway.road.track import MAX_SEGMENTS, MAX_TRACK_FILE_BYTES, load_track, parse_track
+
+NAN, INF = float("nan"), float("inf")
+STRAIGHT = {"name": "straight", "lanes": 3, "lane_width_m": 4.0, "segments": [{"type": "straight", "length_m": 300}]}
+
+
+def straight(length_m) -> dict:
+    return {"type": "straight", "length_m": length_m}
+
+
+def arc(radius_m, angle_deg, direction: str = "left") -> dict:
+    return {"type": "arc", "radius_m": radius_m, "angle_deg": angle_deg, "direction": direction}
+
+
+def spec(*segments, **top) -> dict:
+    return {"name": "t", "lanes": 3, "lane_width_m": 4.0, "segments": list(segments), **top}
+
+
+def make(track=STRAIGHT, **config):
+    return gymnasium.make(ENV_ID, config={"track": track, **config})
+
+
+def refused(fragments, call, *args, **kwargs) -> str:
+    with pytest.raises(BadInput) as excinfo:
+        call(*args, **kwargs)
+    message = str(excinfo.value)
+    for fragment in fragments:
+        assert fragment in message, (fragment, message)
+    return message
+
+
+# -- track specs -------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("raw", "fragments"), [
+    # A full circle on an open track: the following straight runs over the first one.
+    (spec(straight(50), arc(60, 360), straight(50)), ["overlaps itself", "(segment 0)", "(segment 1)", "a closed loop needs"]),
+    (spec(arc(60, 360)), ["overlaps itself"]),
+    (spec(straight(100), arc(30, 180), straight(100), arc(30, 180), straight(100)), ["overlaps itself"]),
+    (spec(straight(10), name=42), ["'name'", "string", "42"]),
+    (spec(straight(10), name=""), ["'name'", "1 to 100"]),
+    (spec(straight(10), name=["x"]), ["'name'"]),
+    (spec(straight(1e300)), ["segment 0", "length_m", "(0, 10000]", "1e+300"]),
+    (spec(straight(10), arc(1e300, 90)), ["segment 1", "radius_m", "50000"]),
+    (spec(straight(10), arc(50, NAN)), ["segment 1", "angle_deg", "nan"]),
+    (spec(straight(10), arc(50, INF)), ["segment 1", "angle_deg"]),
+    (spec(straight(10), lane_width_m=NAN), ["lane_width_m", "[2, 8]"]),
+    (spec(straight(10), lane_width_m=100), ["lane_width_m", "[2, 8]"]),
+    (spec(straight(9_000), straight(9_000), straight(9_000)), ["total length", "27,000", "20,000"]),
+    (spec(*[straight(0.01)] * (MAX_SEGMENTS + 1)), ["1,001 segments", "1,000"]),
+])
+def test_bad_track_specs_are_refused(raw, fragments):
+    message = refused(fragments, parse_track, raw, source="unit")
+    assert message.startswith("unit")
+
+
+def test_300k_segments_are_refused_without_building_them():
+    # Issue 17 item 5: 300k one-centimetre segments ran for minutes; the count is checked first.
+    refused(["300,000 segments"], parse_track, spec(*[straight(0.01)] * 300_000))
+
+
+def test_a_long_arc_that_does_not_come_back_is_accepted():
+    track = parse_track(spec(straight(20), arc(60, 270), straight(20)))
+    assert track.length_m == pytest.approx(40 + 60 * 1.5 * np.pi)
+
+
+# -- track files -------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("content", "fragments"), [
+    (bytes(range(256)) * 4, ["not a UTF-8 text file", "byte 0x80 at offset 128"]),
+    (b"\xef\xbb\xbf" + json.dumps(STRAIGHT).encode(), ["byte-order mark", "without BOM"]),
+    (b"[" * 100_000 + b"]" * 100_000, ["nested 100000 deep", "at most 16"]),
+    (json.dumps(spec(straight(1e300))).encode(), ["segment 0", "length_m", "(0, 10000]"]),
+    (b"{\"name\": \"t\", \"segments\": [", ["not valid JSON"]),
+    (b" " * (MAX_TRACK_FILE_BYTES + 1), ["larger than a track file may be", "1,048,576"]),
+])
+def test_bad_track_files_are_refused_naming_the_file(tmp_path, content, fragments):
+    path = tmp_path / "track.json"
+    path.write_bytes(content)
+    message = refused(fragments, load_track, path)
+    assert message.startswith(str(path))
+
+
+def test_the_command_line_refuses_a_binary_track_file_with_exit_2(tmp_path):
+    path = tmp_path / "garbage.json"
+    path.write_bytes(os.urandom(64) + b"\xff")
+    env = {**os.environ, "MPLBACKEND": "Agg", "SDL_VIDEODRIVER": "offscreen"}
+    result = subprocess.run([sys.executable, "-m", "plm_highway", "demo", "zigzag", "--track", str(path),
+                             "--policy", "expert", "--out", str(tmp_path / "z.png")],
+                            capture_output=True, text=True, timeout=300, check=False, env=env)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr and str(path) in result.stderr and "UTF-8" in result.stderr
+    assert not (tmp_path / "z.png").exists()
+
+
+# -- env config -------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("config", "fragments"), [
+    ({"max_steering_rad": NAN}, ["'max_steering_rad'", "nan", "(0, 1]"]),
+    ({"max_steering_rad": 0}, ["'max_steering_rad'", "(0, 1]"]),
+    ({"steering_time_constant_s": -1}, ["'steering_time_constant_s'", "[0, 5]"]),
+    ({"start_offset_m": NAN}, ["'start_offset_m'", "nan"]),
+    ({"start_offset_m": 50}, ["'start_offset_m'", "50"]),
+    ({"start_heading_error_rad": INF}, ["'start_heading_error_rad'", "inf"]),
+    ({"start_arc_length_m": 1e6}, ["'start_arc_length_m'", "[0, 300]"]),
+    ({"start_lane": 5}, ["'start_lane'", "5", "from 0 to 2", "3 lanes"]),
+    ({"start_lane": -1}, ["'start_lane'", "from 0 to 2"]),
+    ({"start_lane": "1"}, ["'start_lane'", "'1'"]),
+    ({"start_lane": True}, ["'start_lane'"]),
+    ({"map_px_per_m": 0}, ["'map_px_per_m'", "[1, 40]"]),
+    ({"map_px_per_m": NAN}, ["'map_px_per_m'", "nan"]),
+    ({"speed_mps": 0}, ["speed", "(0, 70]"]),
+    ({"speed_mps": -10}, ["speed", "(0, 70]"]),
+    ({"speed_mps": NAN}, ["speed", "nan"]),
+    ({"policy_frequency": 0}, ["'policy_frequency'", "1 to 1000"]),
+    ({"duration_s": NAN}, ["'duration_s'", "nan"]),
+    ({"curvature_preview_s": -0.5}, ["'curvature_preview_s'", "[0, 10]"]),
+    ({"camera": {"mount_height_m": NAN}}, ["mount_height_m", "nan", "[0.1, 10]"]),
+    ({"camera": {"mount_height_m": 0}}, ["mount_height_m", "[0.1, 10]"]),
+    ({"camera": {"width_px": 200.5}}, ["width_px", "an integer"]),
+    ({"camera": {"pitch_deg": -30, "fov_deg": 10}}, ["sees no ground"]),
+    ({"camera": "wide"}, ["camera config", "dict"]),
+    ({"vehicle_model": "dynamic", "vehicle_params": {"cg_to_front_m": 1e-9}}, ["'cg_to_front_m'", "[0.1, 10]"]),
+    ({"vehicle_model": "dynamic", "vehicle_params": {"mass_kg": NAN}}, ["'mass_kg'", "nan"]),
+    ({"vehicle_model": 3}, ["vehicle_model", "['dynamic', 'kinematic']"]),
+    ({"speed": 20}, ["unknown keys", "'speed'"]),
+    ({"track": {**STRAIGHT, "name": 7}}, ["'name'", "string"]),
+    ({"track": spec(straight(50), arc(60, 360), straight(50))}, ["overlaps itself"]),
+    # A closed circle of 1.5 km radius: its ground map would be 625 million pixels (14.5 GB at the peak before).
+    ({"track": spec(arc(1500, 360), closed=True)}, ["ground map", "80,000,000 px"]),
+])
+def test_bad_env_configs_are_refused_before_the_first_step(config, fragments):
+    def make_and_reset():
+        env = gymnasium.make(ENV_ID, config={"track": STRAIGHT, **config})
+        env.reset(seed=0)
+
+    refused(fragments, make_and_reset)
+
+
+@pytest.mark.parametrize(("options", "fragments"), [
+    ({"start_offset_m": NAN}, ["reset options", "'start_offset_m'", "nan"]),
+    ({"start_arc_length_m": -1}, ["reset options", "'start_arc_length_m'"]),
+    ({"start_lane": 1}, ["reset options", "unknown keys", "start_lane"]),
+])
+def test_bad_reset_options_are_refused(options, fragments):
+    env = make()
+    refused(fragments, env.reset, seed=0, options=options)
+
+
+# -- actions ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("action", "fragments"), [
+    (np.array([NAN], np.float32), ["must be finite", "nan"]),
+    (np.array([INF]), ["must be finite", "inf"]),
+    (np.array([-INF], np.float32), ["must be finite"]),
+    (np.array([0.1, 0.2], np.float32), ["shape (1,)", "got shape (2,)"]),
+    (np.array([[0.1]], np.float32), ["got shape (1, 1)"]),
+    (np.array([], np.float32), ["got shape (0,)"]),
+    (np.float32(0.1), ["got shape ()"]),
+    (np.array(["0.1"]), ["dtype <U3"]),
+    ([None], ["dtype object"]),
+])
+@pytest.mark.parametrize("wrapped", [False, True])
+def test_bad_actions_are_refused(action, fragments, wrapped):
+    env = make()
+    if wrapped:
+        env = LatencyWrapper(env, "const:0.1")
+    env.reset(seed=0)
+    refused(["action", *fragments], env.step, action)
+
+
+def test_a_refused_action_leaves_the_env_where_it_was():
+    env = make()
+    _, info = env.reset(seed=0)
+    with pytest.raises(BadInput):
+        env.step(np.array([NAN], np.float32))
+    _, _, _, _, after = env.step(np.array([0.0], np.float32))
+    reference = make()
+    reference.reset(seed=0)
+    _, _, _, _, expected = reference.step(np.array([0.0], np.float32))
+    assert after["arc_length_m"] == expected["arc_length_m"] and after["time"] == expected["time"]
+    assert after["lateral_offset_m"] == expected["lateral_offset_m"]
+
+
+def test_integer_and_float64_actions_of_the_right_shape_are_accepted():
+    env = make()
+    env.reset(seed=0)
+    for action in (np.array([0]), np.array([0.05]), [0.05], (-2.0,)):
+        _, _, terminated, _, info = env.step(action)
+        assert not terminated and np.isfinite(info["lateral_offset_m"])
