@@ -204,8 +204,11 @@ def test_the_local_pool_gives_the_in_process_results(expert_sweep, tmp_path):
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed (pip install ray)")
 def test_a_local_ray_head_on_127_0_0_1_gives_the_in_process_results(expert_sweep, tmp_path):
     _, in_process = expert_sweep
-    ray_run = run_sweep(SweepGrid(**EXPERT_GRID), tmp_path / "ray", workers=2, backend="ray", batch_size=2,
-                        progress=False)
+    try:
+        ray_run = run_sweep(SweepGrid(**EXPERT_GRID), tmp_path / "ray", workers=2, backend="ray", batch_size=2,
+                            progress=False)
+    except ConnectionError as exc:  # reported as a skip, never as a pass
+        pytest.skip(f"Ray is installed but did not start on this machine: {exc}")
     assert ray_run["rows"] == in_process["rows"]
 
 

@@ -115,7 +115,7 @@ def run_cells(cells: Sequence[RunCell], checkpoints=None, batch_size: int = DEFA
         if cell.max_steps is not None and cell.max_steps < 1:
             raise ValueError(f"cell {i} ({cell.name!r}): max_steps {cell.max_steps} must be at least 1")
     _check_no_shared_callables(cells)
-    models = _named_models(cells, checkpoints, batch_invariant)
+    models = _named_models(cells, checkpoints)
     logs: list[RunLog | None] = [None] * len(cells)
     pending = list(range(len(cells)))
     live: dict[int, _Run] = {}
@@ -123,7 +123,7 @@ def run_cells(cells: Sequence[RunCell], checkpoints=None, batch_size: int = DEFA
         while pending and len(live) < batch_size:  # refill the batch as runs end
             index = pending.pop(0)
             live[index] = _start(cells[index], models)
-        _steer_and_step(list(live.values()))
+        _steer_and_step(list(live.values()), batch_invariant)
         for index in [i for i, run in live.items() if run.done]:
             logs[index] = live.pop(index).log()
             if on_done is not None:
@@ -142,12 +142,11 @@ def _check_no_shared_callables(cells: Sequence[RunCell]) -> None:
         seen[id(cell.policy)] = i
 
 
-def _named_models(cells: Sequence[RunCell], checkpoints, batch_invariant: bool) -> dict[str, VisionPolicy]:
+def _named_models(cells: Sequence[RunCell], checkpoints) -> dict[str, VisionPolicy]:
     """One policy per model name the cells use (loaded once, shared by the batch)."""
     models = {}
     for name in sorted({cell.policy for cell in cells if isinstance(cell.policy, str) and cell.policy != "expert"}):
         models[name] = make_policy(name, checkpoints)
-        models[name].model_policy.batch_invariant = batch_invariant
     return models
 
 
@@ -164,7 +163,7 @@ def _start(cell: RunCell, models: dict[str, VisionPolicy]) -> _Run:
     return _Run(cell, env, policy, obs, info)
 
 
-def _steer_and_step(runs: list[_Run]) -> None:
+def _steer_and_step(runs: list[_Run], batch_invariant: bool) -> None:
     """One policy step of every live run: batched model calls, then each env steps."""
     steering: dict[int, float] = {}
     by_model: dict[int, list[_Run]] = {}
@@ -178,8 +177,13 @@ def _steer_and_step(runs: list[_Run]) -> None:
         # The same latency (and float32 rounding) as VisionPolicy.__call__ gives the model per frame.
         latencies_s = np.asarray([max(0.0, run.info["observation_age_s"] + run.policy.latency_bias_s)
                                   for run in group], dtype=np.float32)
-        actions = model.steer_batch(np.stack([run.obs for run in group]),
-                                    [run.info["speed_mps"] for run in group], latencies_s)
+        frames = np.stack([run.obs for run in group])
+        speeds_mps = [run.info["speed_mps"] for run in group]
+        if batch_invariant:  # also for policy objects the caller passed, without changing them
+            actions = np.concatenate([model.steer_batch(frames[i:i + 1], speeds_mps[i:i + 1], latencies_s[i:i + 1])
+                                      for i in range(len(group))])
+        else:
+            actions = model.steer_batch(frames, speeds_mps, latencies_s)
         above_grid = latencies_s > np.float32(model.max_latency_s)
         for run, action, clamped in zip(group, actions, above_grid):
             steering[id(run)] = float(action)
