@@ -138,6 +138,8 @@ def run_models(args) -> int:
 COMMANDS = [
     Command("env", "env + camera + latency steps/s against highway-env's own camera envs", *_delegate("env")),
     Command("models", "parameter counts and inference time of BM and PLM-Net", configure_models, run_models),
+    Command("sweep", "N closed-loop runs one env at a time vs batched (own envs, gymnasium vector API) vs a "
+            "process pool", *_delegate("sweep")),
     Command("metrics", "trajectory metrics against similaritymeasures", configure_metrics, run_metrics),
     Command("estimation", "EKF costs per step with and without delay compensation, camera lane fit accuracy",
             configure_estimation, run_estimation),

@@ -1,0 +1,195 @@
+"""Batched closed loop: N runs stepped together, one forward pass of each model per step.
+
+:func:`run_cells` drives a list of :class:`RunCell` (the arguments of
+:func:`~plm_highway.evaluation.closed_loop.drive` as data: policy, track, latency profile, seed,
+...) and returns one :class:`~plm_highway.evaluation.closed_loop.RunLog` per cell, in order.
+Up to ``batch_size`` envs are live at once; at every policy step the frames of all live envs that
+use one model (the Base Model, or PLM-Net with each env's own measured latency) go through that
+model in one ``steer_batch`` call; the expert and other callables are called per env. An env that
+ends drops out of the batch, the others go on.
+
+Why the project's own envs in a list and not gymnasium's vector API: ``SyncVectorEnv`` steps the
+same envs one after another in one process, like this loop, but every run here ends at its own
+step (leaving the road, the end of the track), which its autoreset modes handle by resetting the
+env (``NEXT_STEP``/``SAME_STEP``) or by leaving a finished env in the batch (``DISABLED``, with
+``reset_mask``); it also stacks every info dict into arrays each step, which this module would
+only have to undo. ``plm-highway bench sweep`` drives the same 16 runs both ways in one run: on a
+loaded 2-core machine (load average 17) the own loop took 16.8 s and SyncVectorEnv 18.0 s against
+32.5 s one env at a time (1.93x and 1.80x). The forward pass costs 10-20x the env step, so the
+vector API's bookkeeping is small but never a gain. ``AsyncVectorEnv`` puts one env per
+subprocess: on 2 cores the sweep's process pool (:mod:`plm_highway.sweep`) already uses both.
+
+Same results as one env at a time: env stepping, resets and latency realisations are per env and
+seeded exactly as :func:`drive` does. The model's batched forward pass equals its batch-1 pass
+up to float rounding (the BLAS kernels sum in an order that depends on the batch size, see
+:mod:`plm_highway.models.inference`); the closed loop amplifies that a little (a nanometre moves a
+rendered pixel sooner or later): batched model runs match the one-env runs to ~1e-7 in steering
+over 30 steps and ~1e-4 over 100 (measured, PLM-Net, 16 seeds); ``batch_invariant=True`` runs each sample as its own batch-1 pass and is then
+bit-identical to :func:`drive` (at batch-1 cost). Expert runs are always bit-identical.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from plm_highway.evaluation.closed_loop import LOG_COLUMNS, RunLog, make_env
+from plm_highway.evaluation.policies import POLICY_NAMES, VisionPolicy, make_policy
+
+DEFAULT_BATCH_SIZE = 32
+
+
+@dataclass(frozen=True)
+class RunCell:
+    """One closed-loop run. ``policy`` is a name of :data:`POLICY_NAMES` or a policy object.
+
+    A policy object is either a :class:`VisionPolicy` (cells sharing its model are batched
+    together) or any ``policy(frame, info)`` callable with ``reset()``, called per env: a
+    stateful one (a filter) must be a distinct object in every cell.
+    """
+
+    name: str
+    policy: object
+    track: object = "test"
+    latency: str = "const:0"
+    seed: int = 0
+    latency_bias_s: float = 0.0  # PLM-Net told measured age + bias (named policies only)
+    camera: dict | None = None
+    env_config: dict | None = None
+    max_steps: int | None = None
+
+
+@dataclass
+class _Run:
+    """One live env of the batch and what has been logged of it."""
+
+    cell: RunCell
+    env: object
+    policy: object
+    obs: np.ndarray
+    info: dict
+    rows: dict[str, list] = field(default_factory=lambda: {column: [] for column in LOG_COLUMNS})
+    step: int = 0
+    clamped_steps: int = 0
+    done: bool = False
+    terminated: bool = False
+
+    def record(self, steering: float) -> None:
+        self.rows["steering"].append(steering)
+        for column in LOG_COLUMNS[2:]:
+            self.rows[column].append(self.info[column])
+        self.rows["t_s"].append(self.info["time_s"])
+
+    def advance(self, steering: float) -> None:
+        self.obs, _, self.terminated, truncated, self.info = self.env.step(np.array([steering], dtype=np.float32))
+        self.step += 1
+        limit = self.cell.max_steps
+        self.done = bool(self.terminated or truncated or (limit is not None and self.step >= limit))
+
+    def log(self) -> RunLog:
+        columns = {column: np.asarray(values) for column, values in self.rows.items()}
+        policy = self.policy
+        if isinstance(policy, VisionPolicy):
+            extras = {"latency_clamped_steps": self.clamped_steps}
+        elif hasattr(policy, "clamped_count"):
+            extras = {"latency_clamped_steps": int(policy.clamped_count)}
+        else:
+            extras = {}
+        self.env.close()
+        return RunLog(self.cell.name, columns, bool(self.terminated), float(self.info["completed_fraction"]), extras)
+
+
+def run_cells(cells: Sequence[RunCell], checkpoints=None, batch_size: int = DEFAULT_BATCH_SIZE,
+              batch_invariant: bool = False, on_done: Callable[[int, RunLog], None] | None = None) -> list[RunLog]:
+    """Drive every cell, ``batch_size`` envs at a time; the logs in the order of ``cells``.
+
+    Named model policies load the checkpoint pair once (``checkpoints`` as for
+    :func:`~plm_highway.evaluation.policies.make_policy`). ``on_done(index, log)`` is called as each
+    run ends (progress, or saving results as they come).
+    """
+    if not 1 <= batch_size <= 4096:
+        raise ValueError(f"batch_size {batch_size}: must lie in [1, 4096]")
+    for i, cell in enumerate(cells):
+        if isinstance(cell.policy, str) and cell.policy not in POLICY_NAMES:
+            raise ValueError(f"cell {i} ({cell.name!r}): policy {cell.policy!r} is not one of {list(POLICY_NAMES)}")
+        if cell.max_steps is not None and cell.max_steps < 1:
+            raise ValueError(f"cell {i} ({cell.name!r}): max_steps {cell.max_steps} must be at least 1")
+    _check_no_shared_callables(cells)
+    models = _named_models(cells, checkpoints)
+    logs: list[RunLog | None] = [None] * len(cells)
+    pending = list(range(len(cells)))
+    live: dict[int, _Run] = {}
+    while pending or live:
+        while pending and len(live) < batch_size:  # refill the batch as runs end
+            index = pending.pop(0)
+            live[index] = _start(cells[index], models)
+        _steer_and_step(list(live.values()), batch_invariant)
+        for index in [i for i, run in live.items() if run.done]:
+            logs[index] = live.pop(index).log()
+            if on_done is not None:
+                on_done(index, logs[index])
+    return logs
+
+
+def _check_no_shared_callables(cells: Sequence[RunCell]) -> None:
+    seen: dict[int, int] = {}
+    for i, cell in enumerate(cells):
+        if isinstance(cell.policy, (str, VisionPolicy)):
+            continue
+        if id(cell.policy) in seen:
+            raise ValueError(f"cells {seen[id(cell.policy)]} and {i}: one policy object in two cells; runs "
+                             "stepped together would share its state. Give each cell its own object")
+        seen[id(cell.policy)] = i
+
+
+def _named_models(cells: Sequence[RunCell], checkpoints) -> dict[str, VisionPolicy]:
+    """One policy per model name the cells use (loaded once, shared by the batch)."""
+    models = {}
+    for name in sorted({cell.policy for cell in cells if isinstance(cell.policy, str) and cell.policy != "expert"}):
+        models[name] = make_policy(name, checkpoints)
+    return models
+
+
+def _start(cell: RunCell, models: dict[str, VisionPolicy]) -> _Run:
+    if cell.policy == "expert":
+        policy = make_policy("expert")
+    elif isinstance(cell.policy, str):
+        policy = VisionPolicy(models[cell.policy].model_policy, latency_bias_s=cell.latency_bias_s)
+    else:
+        policy = cell.policy
+    env = make_env(cell.track, cell.latency, cell.camera, cell.env_config)
+    obs, info = env.reset(seed=cell.seed)
+    policy.reset()
+    return _Run(cell, env, policy, obs, info)
+
+
+def _steer_and_step(runs: list[_Run], batch_invariant: bool) -> None:
+    """One policy step of every live run: batched model calls, then each env steps."""
+    steering: dict[int, float] = {}
+    by_model: dict[int, list[_Run]] = {}
+    for run in runs:
+        if isinstance(run.policy, VisionPolicy):
+            by_model.setdefault(id(run.policy.model_policy), []).append(run)
+        else:
+            steering[id(run)] = float(run.policy(run.obs, run.info))
+    for group in by_model.values():
+        model = group[0].policy.model_policy
+        # The same latency (and float32 rounding) as VisionPolicy.__call__ gives the model per frame.
+        latencies_s = np.asarray([max(0.0, run.info["observation_age_s"] + run.policy.latency_bias_s)
+                                  for run in group], dtype=np.float32)
+        frames = np.stack([run.obs for run in group])
+        speeds_mps = [run.info["speed_mps"] for run in group]
+        if batch_invariant:  # also for policy objects the caller passed, without changing them
+            actions = np.concatenate([model.steer_batch(frames[i:i + 1], speeds_mps[i:i + 1], latencies_s[i:i + 1])
+                                      for i in range(len(group))])
+        else:
+            actions = model.steer_batch(frames, speeds_mps, latencies_s)
+        above_grid = latencies_s > np.float32(model.max_latency_s)
+        for run, action, clamped in zip(group, actions, above_grid):
+            steering[id(run)] = float(action)
+            run.clamped_steps += int(clamped)
+    for run in runs:
+        run.record(steering[id(run)])
+        run.advance(steering[id(run)])

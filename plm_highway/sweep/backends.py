@@ -1,0 +1,116 @@
+"""Where a sweep's chunks of cells run: in this process, a local process pool, or a Ray cluster.
+
+Every backend has one method, ``map_unordered(function, chunks)``, yielding ``(chunk index,
+function(chunk))`` as chunks finish. Workers only compute and return results; the parent process
+writes every file (so a Ray cluster needs no shared filesystem and a cell is written whole once).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+from plm_highway.errors import BadInput
+
+BACKENDS = ("local", "ray")
+MAX_WORKERS = 256
+
+
+def default_workers() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+class InProcess:
+    """Chunks one after another in this process (``--workers 0``; tests, benchmarks)."""
+
+    def map_unordered(self, function: Callable, chunks: Sequence) -> Iterator[tuple[int, object]]:
+        for index, chunk in enumerate(chunks):
+            yield index, function(chunk)
+
+    def close(self) -> None:
+        pass
+
+
+class LocalPool:
+    """A pool of ``workers`` processes on this machine (spawned: no torch state is forked)."""
+
+    def __init__(self, workers: int):
+        self.workers = workers
+
+    def map_unordered(self, function: Callable, chunks: Sequence) -> Iterator[tuple[int, object]]:
+        with ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = {pool.submit(function, chunk): index for index, chunk in enumerate(chunks)}
+            try:
+                while futures:
+                    done, _ = wait(futures, return_when=FIRST_COMPLETED)
+                    for future in done:
+                        yield futures.pop(future), future.result()
+            finally:
+                for future in futures:  # an error or an interrupt: drop what has not started
+                    future.cancel()
+
+    def close(self) -> None:
+        pass
+
+
+class RayCluster:
+    """Chunks as Ray tasks (one CPU each) on a cluster at ``address``, or on a local Ray started here.
+
+    ``address=None`` starts a private local Ray with ``workers`` CPUs and stops it on close;
+    ``"auto"`` or ``"HOST:PORT"`` joins a running cluster (``ray start --head`` on one machine,
+    ``ray start --address HOST:PORT`` on the others, plm-highway installed on every node).
+    """
+
+    def __init__(self, address: str | None, workers: int):
+        try:
+            import ray
+        except ImportError:
+            raise BadInput("--backend ray: Ray is not installed; pip install 'plm-highway[cluster]' "
+                           "(or pip install ray)") from None
+        self.ray = ray
+        self.started_here = not ray.is_initialized()
+        if self.started_here:
+            options = {"include_dashboard": False, "log_to_driver": False}
+            if address is None:
+                options.update(num_cpus=workers, _node_ip_address="127.0.0.1")
+            # Workers import plm_highway from where this process does (a source tree on PYTHONPATH).
+            env_vars = {k: os.environ[k] for k in ("PYTHONPATH", "SDL_VIDEODRIVER") if k in os.environ}
+            try:
+                ray.init(address=address, runtime_env={"env_vars": env_vars} if env_vars else None, **options)
+            except Exception as exc:  # Ray raises bare Exception when its node does not come up
+                raise ConnectionError(
+                    f"--backend ray: Ray did not start or could not be reached ({exc}). On a heavily loaded machine "
+                    "a new local Ray can fail this way: its raylet gives up when its dashboard agent takes over "
+                    "~15 s to start; the logs are in /tmp/ray/session_latest/logs"
+                ) from None
+
+    def map_unordered(self, function: Callable, chunks: Sequence) -> Iterator[tuple[int, object]]:
+        remote = self.ray.remote(num_cpus=1)(function)
+        pending = {remote.remote(chunk): index for index, chunk in enumerate(chunks)}
+        try:
+            while pending:
+                done, _ = self.ray.wait(list(pending), num_returns=1)
+                yield pending.pop(done[0]), self.ray.get(done[0])
+        finally:
+            for ref in pending:
+                self.ray.cancel(ref)
+
+    def close(self) -> None:
+        if self.started_here:
+            self.ray.shutdown()
+
+
+def make_backend(backend: str = "local", workers: int | None = None, address: str | None = None):
+    """The backend by name; ``workers`` 0 runs in this process (local backend only)."""
+    if backend not in BACKENDS:
+        raise BadInput(f"--backend {backend!r}: expected one of {list(BACKENDS)}")
+    workers = default_workers() if workers is None else workers
+    if not 0 <= workers <= MAX_WORKERS:
+        raise BadInput(f"--workers {workers}: must lie in [0, {MAX_WORKERS}]")
+    if address is not None and backend != "ray":
+        raise BadInput("--address: only with --backend ray")
+    if backend == "ray":
+        return RayCluster(address, max(1, workers))
+    return InProcess() if workers == 0 else LocalPool(workers)

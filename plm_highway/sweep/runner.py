@@ -1,0 +1,146 @@
+"""Run a sweep grid into an output directory, resumably.
+
+The directory (``OUT``) holds ``grid.json`` (the last grid run into it), ``cells/KEY.json`` (one
+per finished run, written whole through :mod:`plm_highway.io` as its chunk comes back),
+``results.csv`` (the tidy table of the grid's cells, :mod:`plm_highway.sweep.table`) and
+``figures/``. Run again with the same ``OUT``, a sweep skips the cells whose result is there and
+runs the rest (also after a crash or Ctrl-C: what was written is whole); a grid with more seeds
+or latencies reuses the cells it shares with the earlier one. ``overwrite=True`` starts afresh.
+
+Cells are run in chunks of at most ``batch_size`` through
+:func:`~plm_highway.evaluation.batched.run_cells` (one batched forward pass per model and step),
+chunks spread over the backend's workers (:mod:`plm_highway.sweep.backends`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from plm_highway.errors import BadInput
+from plm_highway.io import (
+    JSON_MARKER_KEY,
+    check_target,
+    directory_kind,
+    file_kind,
+    json_text,
+    write_csv,
+    write_json,
+    write_output,
+)
+from plm_highway.sweep.backends import make_backend
+from plm_highway.sweep.grid import SweepCell, SweepGrid
+from plm_highway.sweep.table import SWEEP_TABLE, TABLE_COLUMNS, cell_result, save_figures, table_rows
+
+SWEEP_DIR = directory_kind("sweep", "a plm-highway sweep directory")
+SWEEP_CELL = file_kind("sweep-cell", "a sweep cell result JSON file")
+SWEEP_GRID = file_kind("sweep-grid", "a sweep grid JSON file")
+SWEEP_FIGURES = directory_kind("sweep-figures", "a sweep figures directory")
+DEFAULT_BATCH_SIZE = 16
+
+
+@dataclass(frozen=True)
+class ChunkJob:
+    """What a worker needs to run some cells (plain data: it travels to other processes and machines)."""
+
+    cells: tuple[SweepCell, ...]
+    grid: SweepGrid
+    checkpoints: str | None
+    batch_size: int
+
+
+def run_chunk(job: ChunkJob) -> list[dict]:
+    """Run the job's cells together; one result dict per cell (:func:`~plm_highway.sweep.table.cell_result`)."""
+    import os
+
+    os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    from plm_highway.evaluation.batched import RunCell, run_cells
+    from plm_highway.evaluation.policies import single_threaded_inference
+
+    run_cells_list = []
+    for cell in job.cells:
+        condition = job.grid.conditions[cell.condition]
+        run_cells_list.append(RunCell(f"{cell.policy} {cell.latency} seed {cell.seed}", cell.policy, cell.track,
+                                      cell.latency, cell.seed, camera=dict(condition.get("camera", {})) or None,
+                                      env_config=dict(condition.get("env_config", {})) or None,
+                                      max_steps=job.grid.max_steps))
+    with single_threaded_inference():
+        logs = run_cells(run_cells_list, job.checkpoints, batch_size=job.batch_size)
+    return [cell_result(log) for log in logs]
+
+
+def run_sweep(grid: SweepGrid, out, workers: int | None = None, backend: str = "local", address: str | None = None,
+              batch_size: int = DEFAULT_BATCH_SIZE, checkpoints=None, overwrite: bool = False,
+              progress: bool = True) -> dict:
+    """Run every cell of ``grid`` not yet in ``out``; write the table and figures. Returns a summary dict."""
+    if not 1 <= batch_size <= 4096:
+        raise BadInput(f"--batch-size {batch_size}: must lie in [1, 4096]")
+    out = Path(out)
+    if checkpoints is not None:
+        from plm_highway.evaluation.policies import checkpoint_pair
+
+        checkpoint_pair(checkpoints)  # fails now, naming what is missing, rather than in a worker
+    runner = make_backend(backend, workers, address)
+    try:
+        _open_directory(out, grid, overwrite)
+        cells = grid.cells()
+        keys = {cell: cell.key(grid.settings(cell.condition, checkpoints)) for cell in cells}
+        results = {cell: r for cell in cells if (r := _read_cell(out, keys[cell], cell)) is not None}
+        todo = [cell for cell in cells if cell not in results]
+        n_workers = getattr(runner, "workers", 1)
+        chunk_size = max(1, min(batch_size, math.ceil(len(todo) / max(1, n_workers))))
+        jobs = [ChunkJob(tuple(todo[i:i + chunk_size]), grid, None if checkpoints is None else str(checkpoints),
+                         batch_size) for i in range(0, len(todo), chunk_size)]
+        bar = _progress(len(cells), len(results), progress)
+        try:
+            for index, chunk_results in runner.map_unordered(run_chunk, jobs):
+                for cell, result in zip(jobs[index].cells, chunk_results):
+                    write_json(out / "cells" / f"{keys[cell]}.json", {"cell": asdict(cell), **result}, SWEEP_CELL)
+                    results[cell] = result
+                bar.update(len(jobs[index].cells))
+        finally:
+            bar.close()
+    finally:
+        runner.close()
+    rows = table_rows(cells, results)
+    write_csv(out / "results.csv", TABLE_COLUMNS, [[row[c] for c in TABLE_COLUMNS] for row in rows], SWEEP_TABLE,
+              overwrite=True)
+    with write_output(out / "figures", SWEEP_FIGURES, overwrite=True) as staged:
+        figures = save_figures(rows, grid, staged)
+    return {"out": str(out), "cells": len(cells), "ran": len(todo), "resumed": len(cells) - len(todo),
+            "table": str(out / "results.csv"), "figures": [str(out / "figures" / p.name) for p in figures],
+            "rows": rows}
+
+
+def _open_directory(out: Path, grid: SweepGrid, overwrite: bool) -> None:
+    """A new sweep directory, or an earlier one to resume (``overwrite``: replaced by a new one)."""
+    if out.is_dir() and SWEEP_DIR.recognises(out) and not overwrite:
+        write_json(out / "grid.json", grid.as_dict(), SWEEP_GRID, overwrite=True)
+        return
+    check_target(out, SWEEP_DIR, overwrite=overwrite)
+    with write_output(out, SWEEP_DIR, overwrite=overwrite) as staged:
+        (staged / "cells").mkdir()
+        (staged / "grid.json").write_text(json_text(grid.as_dict(), SWEEP_GRID), encoding="utf-8")
+
+
+def _read_cell(out: Path, key: str, cell: SweepCell) -> dict | None:
+    """A finished cell's result, or None. Files are written whole, so one that is there is complete."""
+    path = out / "cells" / f"{key}.json"
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        raise BadInput(f"{path}: not a readable sweep cell result; remove it to run the cell again") from None
+    if not isinstance(data, dict) or data.get(JSON_MARKER_KEY) != SWEEP_CELL.name or data.get("cell") != asdict(cell):
+        raise BadInput(f"{path}: not the result of cell {asdict(cell)}; remove it to run the cell again")
+    return data
+
+
+def _progress(total: int, done: int, enabled: bool):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, initial=done, unit="run", desc="sweep", file=sys.stderr, disable=not enabled)

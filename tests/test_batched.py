@@ -1,0 +1,116 @@
+"""Batched closed loop (issue 13.1): N runs stepped together give the one-env runs, step by step."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from plm_highway.evaluation.batched import RunCell, run_cells
+from plm_highway.evaluation.closed_loop import LOG_COLUMNS, drive
+from plm_highway.evaluation.policies import make_policy
+
+# Different seeds, latency profiles (a random one among them), tracks and lengths, so the batch shrinks.
+MODEL_CELLS = [
+    RunCell("plm steps s0", "plm", "test", "steps:0.0-0.35:1.0", 0, max_steps=30),
+    RunCell("plm steps s1", "plm", "test", "steps:0.0-0.35:1.0", 1, max_steps=22),
+    RunCell("bm const", "bm", "unseen", "const:0.25", 3, max_steps=26),
+    RunCell("plm beyond grid", "plm", "test", "const:0.5", 2, max_steps=18),
+    RunCell("plm biased", "plm", "test", "const:0.2", 0, latency_bias_s=0.05, max_steps=20),
+    RunCell("expert", "expert", "train", "const:0.1", 4, max_steps=24),
+]
+
+
+def one_env(cell: RunCell):
+    policy = make_policy(cell.policy, latency_bias_s=cell.latency_bias_s) if cell.policy == "plm" \
+        else make_policy(cell.policy)
+    return drive(cell.name, policy, cell.track, cell.latency, cell.seed, cell.camera, cell.env_config,
+                 max_steps=cell.max_steps)
+
+
+@pytest.fixture(scope="module")
+def one_env_logs():
+    return [one_env(cell) for cell in MODEL_CELLS]
+
+
+@pytest.mark.slow
+def test_batch_invariant_runs_equal_one_env_runs_bit_for_bit(one_env_logs):
+    logs = run_cells(MODEL_CELLS, batch_size=4, batch_invariant=True)
+    assert [log.name for log in logs] == [cell.name for cell in MODEL_CELLS]
+    for log, reference in zip(logs, one_env_logs):
+        assert log.steps == reference.steps
+        for column in LOG_COLUMNS:
+            np.testing.assert_array_equal(log.columns[column], reference.columns[column], err_msg=f"{log.name} {column}")
+        assert (log.left_road, log.completed_fraction, log.extras) == \
+            (reference.left_road, reference.completed_fraction, reference.extras)
+
+
+@pytest.mark.slow
+def test_batched_forward_runs_match_one_env_runs_to_float_rounding(one_env_logs):
+    logs = run_cells(MODEL_CELLS, batch_size=len(MODEL_CELLS))
+    for log, reference in zip(logs, one_env_logs):
+        assert log.steps == reference.steps
+        np.testing.assert_allclose(log.columns["steering"], reference.columns["steering"], rtol=0, atol=1e-5)
+        for column in ("x_m", "y_m", "lateral_offset_m"):
+            np.testing.assert_allclose(log.columns[column], reference.columns[column], rtol=0, atol=1e-6)
+        # time, latency and its realisation do not depend on the model at all
+        for column in ("t_s", "latency_s", "observation_age_s", "segment"):
+            np.testing.assert_array_equal(log.columns[column], reference.columns[column])
+        assert log.extras == reference.extras
+
+
+def test_the_plm_run_beyond_the_grid_counts_its_clamped_steps(one_env_logs):
+    beyond = one_env_logs[3]
+    # 0.5 s is beyond the 0.35 s grid once the history is that old (after the first 0.5 s = 10 steps)
+    assert 0 < beyond.extras["latency_clamped_steps"] < beyond.steps
+
+
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.tuples(st.sampled_from(["test", "unseen"]), st.sampled_from(["const:0", "const:0.15", "sine:0.2:0.1:2"]),
+                          st.integers(0, 2**32 - 1), st.integers(1, 12)), min_size=1, max_size=5),
+       st.integers(1, 6))
+def test_any_batch_of_expert_runs_equals_its_one_env_runs(specs, batch_size):
+    cells = [RunCell(f"run {i}", "expert", track, latency, seed, max_steps=steps)
+             for i, (track, latency, seed, steps) in enumerate(specs)]
+    logs = run_cells(cells, batch_size=batch_size)
+    for cell, log in zip(cells, logs):
+        reference = one_env(cell)
+        for column in LOG_COLUMNS:
+            np.testing.assert_array_equal(log.columns[column], reference.columns[column])
+
+
+def test_a_stateful_policy_object_in_two_cells_is_refused():
+    class Counting:
+        def reset(self):
+            self.n = 0
+
+        def __call__(self, frame, info):
+            self.n += 1
+            return 0.0
+
+    shared = Counting()
+    with pytest.raises(ValueError, match="one policy object in two cells"):
+        run_cells([RunCell("a", shared, max_steps=2), RunCell("b", shared, max_steps=2)])
+    logs = run_cells([RunCell("a", Counting(), max_steps=3), RunCell("b", Counting(), max_steps=2)])
+    assert [log.steps for log in logs] == [3, 2]
+
+
+def test_bad_cells_are_refused_before_any_run():
+    with pytest.raises(ValueError, match="policy 'pid'"):
+        run_cells([RunCell("a", "pid")])
+    with pytest.raises(ValueError, match="max_steps 0"):
+        run_cells([RunCell("a", "expert", max_steps=0)])
+    with pytest.raises(ValueError, match="batch_size"):
+        run_cells([RunCell("a", "expert")], batch_size=0)
+
+
+@pytest.mark.slow
+def test_a_policy_object_shared_by_cells_is_batched_and_batch_invariant_on_request(one_env_logs):
+    shared = make_policy("plm")
+    cells = [RunCell(c.name, shared, c.track, c.latency, c.seed, max_steps=c.max_steps) for c in MODEL_CELLS[:2]]
+    logs = run_cells(cells, batch_invariant=True)
+    for log, reference in zip(logs, one_env_logs[:2]):
+        for column in LOG_COLUMNS:
+            np.testing.assert_array_equal(log.columns[column], reference.columns[column])
+    assert shared.model_policy.batch_invariant is False  # the caller's object is left as it was

@@ -1,0 +1,43 @@
+"""plm-highway bench sweep (issue 13): every side drives the same runs; the report prints them side by side."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from plm_highway.bench.sweep import bench_sweep, report_lines
+from plm_highway.cli import main
+
+
+@pytest.mark.slow
+def test_every_side_drives_the_same_runs(tmp_path, capsys):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "sweep", "--envs", "3", "--steps", "4", "--workers", "1", "--policy", "bm",
+                 "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    sides = result["sides"]
+    assert len(sides) == 5 and sides["one env at a time"]["speed_up"] == 1.0
+    assert sides["batched, batch-invariant"]["max_steering_difference"] == 0.0
+    for name, figures in sides.items():
+        if name != "one env at a time":
+            assert figures["max_steering_difference"] < 1e-5, name
+        assert figures["policy_steps_per_s"] == pytest.approx(3 * 4 / figures["wall_s"])
+    printed = capsys.readouterr().out
+    assert all(name in printed for name in sides) and "load average" in printed
+
+
+def test_report_lines_show_every_side_and_its_ratio():
+    result = {"envs": 2, "steps": 5, "policy": "plm", "track": "test", "latency": "const:0.1",
+              "load_average_1min": 3.0, "cpus": 2,
+              "sides": {"one env at a time": {"wall_s": 4.0, "policy_steps_per_s": 2.5, "speed_up": 1.0},
+                        "batched, own envs": {"wall_s": 1.0, "policy_steps_per_s": 10.0, "speed_up": 4.0,
+                                              "max_steering_difference": 1e-8}}}
+    lines = report_lines(result)
+    assert "4.00x" in lines[-1] and "1.00e-08" in lines[-1] and "load average 3.00" in lines[0]
+
+
+def test_bad_sizes_are_refused_before_work():
+    assert main(["bench", "sweep", "--envs", "0"]) == 2
+    with pytest.raises(ValueError):
+        bench_sweep(n_envs=1, steps=3, policy="bm", latency="const:abc")
