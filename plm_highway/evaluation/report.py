@@ -369,8 +369,11 @@ PLM-Net's reduction against the BM with latency (negative: PLM-Net is worse).
 
 {% endfor -%}
 {% endfor -%}
+{% if generalisation %}
+## Generalisation: tracks the models never saw in training
+{% endif -%}
 {% for g in generalisation %}
-## Generalisation: the `{{ g.name }}` track
+### The `{{ g.name }}` track
 
 The same settings, seeds and checkpoints on the `{{ g.name }}` track, which the models never saw (no paper numbers
 exist for it; the `{{ r.track.name }}` track's reductions are beside ours).
@@ -384,7 +387,7 @@ Where PLM-Net is worse on the `{{ g.name }}` track:
 {% endfor %}
 {% endif -%}
 {% for t in g.tables %}
-### `{{ g.name }}` track, latency {{ t.label }}: trajectory similarity
+#### `{{ g.name }}` track, latency {{ t.label }}: trajectory similarity
 
 {{ table(t.table) }}
 {% endfor -%}
