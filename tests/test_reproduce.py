@@ -102,7 +102,7 @@ def test_reproduce_writes_report_tables_and_figures(checkpoints, tmp_path, capsy
         assert heading in report
     # only the paper's own targets (one MAE reduction per setting), judged on its test track only
     assert report.count("| **met** |") + report.count("| **missed** |") == 5
-    assert "Frechet <=" not in report
+    assert "Frechet <=" not in report.split("## Protocol")[0]  # the Protocol section says the invented ones are gone
     assert "Figure 9: steering over time" in report and "Figure 14: trajectories against the lane centre" in report
     for tag in ("0.15s", "0.20s", "0.25s", "0.30s", "time_varying"):
         for kind in ("steering", "trajectories", "comparison"):
@@ -126,6 +126,10 @@ def test_reproduce_writes_report_tables_and_figures(checkpoints, tmp_path, capsy
     assert float(table3[("reduction_pct", "mae")]["paper"]) == pytest.approx(62.1, abs=0.05)
     ours = results["settings"]["const:0.2"]["steering"]
     assert float(table3[("reduction_pct", "mae")]["ours"]) == pytest.approx(ours["mae_reduction_pct"]["mean"], rel=1e-5)
+    with open(out / "targets.csv", newline="") as handle:
+        targets = list(csv.DictReader(handle))
+    assert [t["setting"] for t in targets] == list(reproduce.DEFAULT_SETTINGS)
+    assert all(t["target"].endswith("(paper)") and float(t["paper"]) > 60 for t in targets)
     with open(out / "trajectory_tables.csv", newline="") as handle:
         trajectory_rows = list(csv.DictReader(handle))
     assert len([r for r in trajectory_rows if r["track"] == "test"]) == 5 * 4 * 4 * 6  # settings x parts x rows x metrics
