@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -238,3 +239,12 @@ def test_plm_net_is_told_the_requested_or_the_measured_latency():
     assert requested.told == [0.3] and measured.told == [0.0]
     with pytest.raises(ValueError, match="latency_source"):
         VisionPolicy(measured, latency_source="guessed")
+
+
+def test_reports_of_the_two_conditions_live_apart():
+    from plm_highway.evaluation.reproduce import output_dir
+
+    ideal, paper = output_dir(None, "test", "test"), output_dir(None, "test", "test", "paper")
+    assert ideal == Path("figures/reproduce") and paper == Path("figures/reproduce-paper-conditions")
+    assert ideal not in paper.parents  # replacing one report never deletes the other
+    assert output_dir(None, "unseen", "unseen", "paper") == paper / "unseen"

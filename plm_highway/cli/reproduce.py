@@ -11,7 +11,7 @@ def configure(parser) -> None:
 
     d = defaults_of(reproduce)
     parser.add_argument("--out", help="output directory (default: figures/reproduce, figures/reproduce/TRACK for a "
-                                      "track other than test, figures/reproduce/paper-conditions[/TRACK] under "
+                                      "track other than test, figures/reproduce-paper-conditions[/TRACK] under "
                                       "--conditions paper)")
     parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],
                         help="ideal: this project's setup; paper: the paper's loop rate, latency profiles and the "

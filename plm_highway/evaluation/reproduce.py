@@ -10,7 +10,7 @@ latency realisation (``mitigated``); both are compared with the Base Model drivi
 without latency (``reference``, driven once per seed and track).
 
 Outputs (``--out``; default ``figures/reproduce`` for the test track under ``ideal`` conditions,
-``figures/reproduce/TRACK`` for another track, ``figures/reproduce/paper-conditions[/TRACK]`` under
+``figures/reproduce/TRACK`` for another track, ``figures/reproduce-paper-conditions[/TRACK]`` under
 ``paper``), written only after every run succeeded: ``report.md``, ``steering_tables.csv``,
 ``trajectory_tables.csv``, ``targets.csv``, ``per_seed.csv``, ``sweep.csv`` (``--sweep``),
 ``results.json`` and the figures (seed ``seeds[0]``'s runs).
@@ -51,10 +51,11 @@ __all__ = ["DEFAULT_OUT", "DEFAULT_SETTINGS", "REPRODUCE_REPORT", "default_setti
 
 
 def output_dir(out, track, track_name: str, conditions: str = "ideal") -> Path:
-    """``--out``, or ``figures/reproduce[/paper-conditions]`` for the test track and ``.../NAME`` for others."""
+    """``--out``, or ``figures/reproduce`` (``figures/reproduce-paper-conditions`` under ``paper``) for the test
+    track and ``.../NAME`` for others. Apart, not nested: publishing one report replaces its whole directory."""
     if out is not None:
         return Path(out)
-    base = DEFAULT_OUT if conditions == "ideal" else DEFAULT_OUT / f"{conditions}-conditions"
+    base = DEFAULT_OUT if conditions == "ideal" else DEFAULT_OUT.with_name(f"{DEFAULT_OUT.name}-{conditions}-conditions")
     return base if str(track) == "test" else base / track_name
 
 
