@@ -91,7 +91,7 @@ def test_settings_labels_and_tags():
 def test_reproduce_writes_report_tables_and_figures(checkpoints, tmp_path, capsys):
     out = tmp_path / "figures" / "reproduce"
     code = cli.main(["reproduce", "--out", str(out), "--checkpoints", str(checkpoints), "--max-steps", "40",
-                     "--sweep", "--sweep-max", "0.1", "--sweep-step", "0.1"])
+                     "--seeds", "2", "--sweep", "--sweep-max", "0.1", "--sweep-step", "0.1"])
     assert code == 0
     printed = capsys.readouterr()
     assert "report:" in printed.out and "reproduce" in printed.err  # the tqdm bar
@@ -100,7 +100,9 @@ def test_reproduce_writes_report_tables_and_figures(checkpoints, tmp_path, capsy
         assert f"### {name}:" in report, name
     for heading in ("## Targets", "## Generalisation", "### The `unseen` track", "## Beyond the paper", "## Methods"):
         assert heading in report
-    assert report.count("| **met** |") + report.count("| **missed** |") == 2 * 2 * 5  # 2 targets x 5 settings x 2 tracks
+    # only the paper's own targets (one MAE reduction per setting), judged on its test track only
+    assert report.count("| **met** |") + report.count("| **missed** |") == 5
+    assert "Frechet <=" not in report.split("## Protocol")[0]  # the Protocol section says the invented ones are gone
     assert "Figure 9: steering over time" in report and "Figure 14: trajectories against the lane centre" in report
     for tag in ("0.15s", "0.20s", "0.25s", "0.30s", "time_varying"):
         for kind in ("steering", "trajectories", "comparison"):
@@ -114,15 +116,20 @@ def test_reproduce_writes_report_tables_and_figures(checkpoints, tmp_path, capsy
     assert list(results["generalisation"]) == ["unseen"]
     assert {row["policy"] for row in results["sweep"]["rows"]} == {"bm", "plm", "plm_bias-0.05", "plm_bias+0.05"}
     # the reference is one run, shared by every setting
-    steps = {r["runs"]["reference"]["steps"] for r in results["settings"].values()}
+    steps = {r["runs"]["reference"]["steps"] for s in results["settings"].values() for r in s["per_seed"]}
     assert steps == {40}
+    assert results["seeds"] == [0, 1] and all(len(s["per_seed"]) == 2 for s in results["settings"].values())
     with open(out / "steering_tables.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
     table3 = {(r["run"], r["metric"]): r for r in rows if r["track"] == "test" and r["setting"] == "const:0.2"}
     assert table3[("baseline", "mae")]["paper"] == "0.1915" and table3[("mitigated", "mae")]["paper"] == "0.0726"
     assert float(table3[("reduction_pct", "mae")]["paper"]) == pytest.approx(62.1, abs=0.05)
     ours = results["settings"]["const:0.2"]["steering"]
-    assert float(table3[("reduction_pct", "mae")]["ours"]) == pytest.approx(ours["mae_reduction_pct"], rel=1e-5)
+    assert float(table3[("reduction_pct", "mae")]["ours"]) == pytest.approx(ours["mae_reduction_pct"]["mean"], rel=1e-5)
+    with open(out / "targets.csv", newline="") as handle:
+        targets = list(csv.DictReader(handle))
+    assert [t["setting"] for t in targets] == list(reproduce.DEFAULT_SETTINGS)
+    assert all(t["target"].endswith("(paper)") and float(t["paper"]) > 60 for t in targets)
     with open(out / "trajectory_tables.csv", newline="") as handle:
         trajectory_rows = list(csv.DictReader(handle))
     assert len([r for r in trajectory_rows if r["track"] == "test"]) == 5 * 4 * 4 * 6  # settings x parts x rows x metrics
@@ -136,6 +143,11 @@ def test_reproduce_writes_report_tables_and_figures(checkpoints, tmp_path, capsy
     (["--generalise", "{tmp}/missing.json"], "neither a shipped track"),
     (["--max-steps", "-3"], "argument --max-steps: -3 is outside the accepted range"),
     (["--sweep", "--sweep-step", "0"], "argument --sweep-step: 0 is outside the accepted range"),
+    (["--seeds", "0"], "--seeds 0: a count must lie in [1, 1000]"),
+    (["--seeds", "1,x"], "expected a count"),
+    (["--seeds", "3,3"], "a seed is repeated"),
+    (["--conditions", "lab"], "invalid choice: 'lab'"),
+    (["--conditions", "paper", "--settings", "frames:9-21:60@30", "const:2"], "beyond the buffer"),
 ])
 def test_bad_input_exits_2_before_any_run(tmp_path, capsys, arguments, message, monkeypatch):
     bad_track = tmp_path / "bad.json"
@@ -169,7 +181,7 @@ def test_a_failing_run_leaves_previous_outputs_untouched(checkpoints, tmp_path, 
 
     monkeypatch.setattr(reproduce, "drive", failing_drive)
     code = cli.main(["reproduce", "--out", str(out), "--checkpoints", str(checkpoints), "--max-steps", "20",
-                     "--settings", "const:0.2", "--generalise", "--no-progress", "--overwrite"])
+                     "--seeds", "1", "--settings", "const:0.2", "--generalise", "--no-progress", "--overwrite"])
     assert code == 2
     assert "simulated failure" in capsys.readouterr().err
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
@@ -182,7 +194,7 @@ def test_a_failing_run_leaves_previous_outputs_untouched(checkpoints, tmp_path, 
 def test_reproduce_on_the_unseen_track(checkpoints, tmp_path):
     out = tmp_path / "unseen"
     assert cli.main(["reproduce", "--track", "unseen", "--out", str(out), "--checkpoints", str(checkpoints),
-                     "--max-steps", "30", "--settings", "const:0.2", "--no-progress"]) == 0
+                     "--max-steps", "30", "--seeds", "2", "--settings", "const:0.2", "--no-progress"]) == 0
     report = (out / "report.md").read_text()
     assert report.startswith("# Reproducing PLM-Net on the `unseen` track")
     assert "on the `unseen` track they are shown for orientation only" in report

@@ -22,6 +22,8 @@ def configure(parser) -> None:
                         help="plm: reference + BM baseline + PLM-Net; bm: the first two; expert: the expert twice")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: shipped)")
     add_seed(parser, d["seed"])
+    parser.add_argument("--seeds", help="run every run once per seed: a count N (seeds --seed .. --seed+N-1) or a "
+                                        "list a,b,c; the JSON adds per_seed and over_seeds (mean, 95%% CI)")
     parser.add_argument("--max-steps", type=bounded_int(1, MAX_STEPS), help="stop each run after this many policy steps")
     parser.add_argument("--json", metavar="OUT.json", help="write the result JSON here")
     parser.add_argument("--out", metavar="DIR", help="write result.json and per-step CSV logs (one per run, and "
@@ -38,7 +40,8 @@ def run(args) -> int:
         if path is not None:
             check_target(path, kind, overwrite=args.overwrite)
     with single_threaded_inference():
-        result, logs = evaluate(args.track, args.latency, args.policy, args.seed, args.max_steps, args.checkpoints)
+        result, logs = evaluate(args.track, args.latency, args.policy, args.seed, args.max_steps, args.checkpoints,
+                                args.seeds)
     sys.stdout.write(json_text(result, EVALUATION_JSON))
     if args.json or args.out:
         publish_results(result, logs, args.json, args.out, overwrite=args.overwrite)

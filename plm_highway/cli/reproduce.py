@@ -7,14 +7,22 @@ from plm_highway.cli._common import Command, add_overwrite, add_seed, bounded_fl
 
 def configure(parser) -> None:
     from plm_highway.evaluation.reproduce import reproduce
+    from plm_highway.evaluation.run import CONDITION_NAMES
 
     d = defaults_of(reproduce)
-    parser.add_argument("--out", help="output directory (default: figures/reproduce, or figures/reproduce/TRACK "
-                                      "for a track other than test)")
+    parser.add_argument("--out", help="output directory (default: figures/reproduce, figures/reproduce/TRACK for a "
+                                      "track other than test, figures/reproduce-paper-conditions[/TRACK] under "
+                                      "--conditions paper)")
+    parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],
+                        help="ideal: this project's setup; paper: the paper's loop rate, latency profiles and the "
+                             "original's FIFO injection (see the report's Conditions section)")
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: shipped)")
-    parser.add_argument("--settings", nargs="+", default=list(d["settings"]), metavar="SPEC",
-                        help="latency specs, space or comma separated")
+    parser.add_argument("--settings", nargs="+", metavar="SPEC",
+                        help="latency specs, space or comma separated (default: 0.15, 0.2, 0.25, 0.3 s and the "
+                             "conditions' time-varying profiles)")
+    parser.add_argument("--seeds", default=str(d["seeds"]),
+                        help="seeds per setting: a count N (seeds --seed .. --seed+N-1) or a list a,b,c")
     parser.add_argument("--generalise", nargs="*", metavar="TRACK",
                         help="tracks for the generalisation section (default: unseen when --track is test; "
                              "give the flag alone for none)")
@@ -32,13 +40,14 @@ def configure(parser) -> None:
 
 def run(args) -> int:
     from plm_highway.evaluation.policies import single_threaded_inference
-    from plm_highway.evaluation.reproduce import output_dir, reproduce, setting_label
+    from plm_highway.evaluation.protocol import setting_label
+    from plm_highway.evaluation.reproduce import output_dir, reproduce
 
     with single_threaded_inference():
         results = reproduce(args.track, args.settings, args.checkpoints, args.seed, args.max_steps, args.out,
                             args.generalise, args.sweep, args.sweep_max, args.sweep_step, not args.no_progress,
-                            args.command_line, overwrite=args.overwrite)
-    out = output_dir(args.out, args.track, results["track"])
+                            args.command_line, overwrite=args.overwrite, seeds=args.seeds, conditions=args.conditions)
+    out = output_dir(args.out, args.track, results["track"], args.conditions)
     for target in results["targets"]:
         print(f"{'met   ' if target['met'] else 'MISSED'} {setting_label(target['setting']):>26}: {target['target']}: "
               f"{target['detail']}")
@@ -46,4 +55,5 @@ def run(args) -> int:
     return 0
 
 
-COMMANDS = [Command("reproduce", "the paper's tables and figures on the test track", configure, run)]
+COMMANDS = [Command("reproduce", "the paper's tables and figures on the test track, over seeds, with CIs", configure,
+                    run)]

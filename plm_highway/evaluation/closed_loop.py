@@ -1,14 +1,16 @@
 """Closed-loop runs: a policy drives a track, optionally seeing late observations, and is logged.
 
-A policy is any callable ``policy(frame, info) -> normalised steering`` with a ``reset()``;
-``info`` carries the observed (possibly delayed) privileged state, the requested ``latency_s``
-and the measured ``observation_age_s``. Runs compared with each other use the same track,
-seed and so the same latency realisation.
+A policy is anything that satisfies :class:`Policy`: ``policy(frame, info) -> normalised steering``
+and ``reset()``; ``info`` carries the observed (possibly delayed) privileged state, the requested
+``latency_s`` and the measured ``observation_age_s``. A policy that also counts the steps whose
+latency lay beyond what it can compensate satisfies :class:`CountsClampedLatency`, and its count is
+logged. Runs compared with each other use the same track, seed and so the same latency realisation.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
 
 import gymnasium
 import numpy as np
@@ -18,6 +20,23 @@ from plm_highway.latency import LatencyWrapper, parse_profile
 
 LOG_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_m", "heading_rad", "speed_mps",
                "lateral_offset_m", "heading_error_rad", "arc_length_m", "segment")
+NOISE_STREAM = 7  # the image-noise generator is np.random.default_rng([seed, NOISE_STREAM]): apart from the env's
+
+
+class Policy(Protocol):
+    """What a closed-loop run drives with."""
+
+    def reset(self) -> None: ...
+
+    def __call__(self, frame: np.ndarray, info: dict) -> float: ...
+
+
+@runtime_checkable
+class CountsClampedLatency(Protocol):
+    """A policy that counts the steps whose latency was beyond its compensation range (PLM-Net's grid)."""
+
+    @property
+    def clamped_count(self) -> int: ...
 
 
 @dataclass
@@ -46,29 +65,44 @@ class RunLog:
         }
 
 
-def make_env(track, latency, camera: dict | None = None, env_config: dict | None = None) -> LatencyWrapper:
+def make_env(track, latency, camera: dict | None = None, env_config: dict | None = None,
+             injection: str = "time") -> LatencyWrapper:
     config = {"track": track, **({"camera": camera} if camera else {}), **(env_config or {})}
-    return LatencyWrapper(gymnasium.make("plm_highway/LaneKeeping-v0", config=config), parse_profile(latency))
+    return LatencyWrapper(gymnasium.make("plm_highway/LaneKeeping-v0", config=config), parse_profile(latency),
+                          injection=injection)
 
 
-def drive(name: str, policy, track="test", latency="const:0", seed: int = 0, camera: dict | None = None,
-          env_config: dict | None = None, max_steps: int | None = None) -> RunLog:
-    env = make_env(track, latency, camera, env_config)
-    obs, info = env.reset(seed=seed)
-    policy.reset()
-    rows: dict[str, list] = {column: [] for column in LOG_COLUMNS}
-    terminated = False
-    step = 0
-    while max_steps is None or step < max_steps:
-        steering = float(policy(obs, info))
-        rows["steering"].append(steering)
-        for column in LOG_COLUMNS[2:]:
-            rows[column].append(info[column])
-        rows["t_s"].append(info["time_s"])
-        obs, _, terminated, truncated, info = env.step(np.array([steering], dtype=np.float32))
-        step += 1
-        if terminated or truncated:
-            break
+def add_image_noise(frame: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
+    """``frame`` (uint8) plus Gaussian pixel noise of ``std`` grey levels, clipped to 0..255."""
+    noisy = frame.astype(np.float32) + rng.normal(0.0, std, frame.shape).astype(np.float32)
+    return np.clip(np.rint(noisy), 0, 255).astype(frame.dtype)
+
+
+def drive(name: str, policy: Policy, track="test", latency="const:0", seed: int = 0, camera: dict | None = None,
+          env_config: dict | None = None, max_steps: int | None = None, injection: str = "time",
+          image_noise_std: float = 0.0) -> RunLog:
+    """Drive one run until the track ends, the car leaves the road or ``max_steps``; the env is closed after."""
+    env = make_env(track, latency, camera, env_config, injection)
+    noise_rng = np.random.default_rng([seed, NOISE_STREAM])
+    try:
+        obs, info = env.reset(seed=seed)
+        policy.reset()
+        rows: dict[str, list] = {column: [] for column in LOG_COLUMNS}
+        terminated = False
+        step = 0
+        while max_steps is None or step < max_steps:
+            frame = add_image_noise(obs, image_noise_std, noise_rng) if image_noise_std > 0 else obs
+            steering = float(policy(frame, info))
+            rows["steering"].append(steering)
+            for column in LOG_COLUMNS[2:]:
+                rows[column].append(info[column])
+            rows["t_s"].append(info["time_s"])
+            obs, _, terminated, truncated, info = env.step(np.array([steering], dtype=np.float32))
+            step += 1
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
     columns = {column: np.asarray(values) for column, values in rows.items()}
-    extras = {"latency_clamped_steps": int(policy.clamped_count)} if hasattr(policy, "clamped_count") else {}
+    extras = {"latency_clamped_steps": int(policy.clamped_count)} if isinstance(policy, CountsClampedLatency) else {}
     return RunLog(name, columns, bool(terminated), float(info["completed_fraction"]), extras)

@@ -17,8 +17,6 @@ run and metric succeeded.
 
 from __future__ import annotations
 
-import math
-
 from plm_highway.evaluation.closed_loop import LOG_COLUMNS, RunLog, drive, make_env
 from plm_highway.evaluation.policies import make_policy
 from plm_highway.evaluation.trajectory import trajectory_method, trajectory_metrics
@@ -44,40 +42,89 @@ def check_inputs(track, latency, max_steps=None) -> tuple[TrackSpec, str]:
 
 
 def run_steps(track, max_steps: int | None) -> int | None:
-    """``max_steps``, or on a closed track (which never ends by itself) the steps of one lap."""
+    """Steps each run drives under ``ideal`` conditions: one lap of a closed track, an open track until the
+    camera could first see its end (:func:`plm_highway.evaluation.run.scored_steps`), at most ``max_steps``."""
+    from plm_highway.evaluation.run import CONDITIONS, scored_steps
+
     track_spec = load_track(track) if not isinstance(track, TrackSpec) else track
-    if max_steps is not None or not track_spec.closed:
-        return max_steps
-    config = make_env(track, "const:0").unwrapped.config
-    return math.ceil(track_spec.length_m / config["speed_mps"] * config["policy_frequency"]) + 1
+    return scored_steps(track_spec, CONDITIONS["ideal"], max_steps)
 
 
-def compare_runs(logs: dict[str, RunLog], track, latency_spec: str, policy: str, seed: int) -> dict:
-    """The result dict of runs already driven (``reference``, ``baseline``, optionally ``mitigated``)."""
+def compare_runs(logs: dict[str, RunLog], track, latency_spec: str, policy: str, seed: int,
+                 track_spec: TrackSpec | None = None) -> dict:
+    """The result dict of runs already driven (``reference``, ``baseline``, optionally ``mitigated``);
+    ``track_spec``: ``track`` already resolved."""
     result = {"track": str(track if not isinstance(track, TrackSpec) else track.name), "latency": latency_spec,
               "policy": policy, "seed": seed, "runs": {name: log.summary() for name, log in logs.items()}}
     if "mitigated" in logs:
-        from plm_highway.evaluation.comparison import steering_comparison
-        result["steering"] = steering_comparison(logs)
-    track_spec = track if isinstance(track, TrackSpec) else load_track(track)
+        from plm_highway.evaluation.protocol import steering_over_common_span
+        result["steering"] = steering_over_common_span(logs)
+    track_spec = track_spec or (track if isinstance(track, TrackSpec) else load_track(track))
     result["trajectory"] = trajectory_metrics(logs, track_spec)
     result["trajectory_method"] = trajectory_method(track_spec)
     return result
 
 
-def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps=None, checkpoints=None) -> tuple[dict, dict]:
-    """Run the comparison; returns (result dict, {run name: RunLog})."""
-    _, latency_spec = check_inputs(track, latency, max_steps)
-    max_steps = run_steps(track, max_steps)
+def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps=None, checkpoints=None,
+             seeds=None) -> tuple[dict, dict]:
+    """Run the comparison; returns (result dict, {run name: RunLog}).
+
+    ``seeds`` (a count N: seeds ``seed .. seed+N-1``, or a list): every run once per seed, each seed with its own
+    start perturbation (:func:`plm_highway.evaluation.run.start_perturbation`); the result is the first seed's, plus
+    ``seeds``, ``per_seed`` (each seed's ``runs`` and ``steering``) and ``over_seeds`` (mean and 95% CI of every
+    steering error and reduction). Without ``seeds``: the single run of ``seed``, centred start (as before).
+    """
+    track_spec, latency_spec = check_inputs(track, latency, max_steps)
+    max_steps = run_steps(track_spec, max_steps)
+    if seeds is not None:
+        return _evaluate_seeds(track, track_spec, latency_spec, policy, _seed_list(seeds, seed), max_steps, checkpoints)
     base_policy = "expert" if policy == "expert" else "bm"
     policies = {"reference": make_policy(base_policy, checkpoints), "baseline": make_policy(base_policy, checkpoints)}
     if policy == "plm":
         policies["mitigated"] = make_policy("plm", checkpoints)
     logs = {}
     for name, run_policy in policies.items():
-        logs[name] = drive(name, run_policy, track, "const:0" if name == "reference" else latency_spec, seed,
+        logs[name] = drive(name, run_policy, track_spec, "const:0" if name == "reference" else latency_spec, seed,
                            max_steps=max_steps)
-    return compare_runs(logs, track, latency_spec, policy, seed), logs
+    return compare_runs(logs, track, latency_spec, policy, seed, track_spec), logs
+
+
+def _seed_list(seeds, first_seed: int) -> list[int]:
+    from plm_highway.evaluation.protocol import parse_seeds
+
+    if isinstance(seeds, int) or (isinstance(seeds, str) and "," not in seeds):
+        return [first_seed + k for k in parse_seeds(seeds)]
+    return parse_seeds(seeds)
+
+
+def _evaluate_seeds(track, track_spec: TrackSpec, latency_spec: str, policy: str, seeds: list[int],
+                    max_steps: int | None, checkpoints) -> tuple[dict, dict]:
+    from plm_highway.evaluation import protocol
+    from plm_highway.evaluation.run import CONDITIONS, Cell, run_cells
+
+    base_policy = "expert" if policy == "expert" else "bm"
+    policies = {base_policy: make_policy(base_policy, checkpoints)}
+    roles = {"reference": base_policy, "baseline": base_policy}
+    if policy == "plm":
+        policies["plm"] = make_policy("plm", checkpoints)
+        roles["mitigated"] = "plm"
+    cells = [Cell(role, who, "const:0" if role == "reference" else latency_spec, seed)
+             for seed in seeds for role, who in roles.items()]
+    logs = run_cells(cells, track_spec, CONDITIONS["ideal"], policies, max_steps, drive_fn=_drive)
+    per_seed_logs = [dict(zip(roles, logs[k:k + len(roles)])) for k in range(0, len(logs), len(roles))]
+    first = compare_runs(per_seed_logs[0], track, latency_spec, policy, seeds[0], track_spec)
+    first["seeds"] = seeds
+    first["per_seed"] = [{"seed": seed, "runs": {name: log.summary() for name, log in seed_logs.items()},
+                          **({"steering": protocol.steering_over_common_span(seed_logs)} if policy == "plm" else {})}
+                         for seed, seed_logs in zip(seeds, per_seed_logs)]
+    if policy == "plm":
+        first["over_seeds"] = {"steering": protocol.estimates_as_dict(
+            protocol.aggregate_steering([entry["steering"] for entry in first["per_seed"]]))}
+    return first, per_seed_logs[0]
+
+
+def _drive(*args, **kwargs):
+    return drive(*args, **kwargs)  # looked up at call time, so tests can replace this module's ``drive``
 
 
 def combined_rows(logs: dict[str, RunLog]) -> tuple[list[str], list[list]]:

@@ -17,19 +17,25 @@ from pathlib import Path
 from plm_highway.expert import ExpertPolicy
 
 POLICY_NAMES = ("expert", "bm", "plm")
+LATENCY_SOURCES = {"measured": "observation_age_s", "requested": "latency_s"}  # what PLM-Net is told -> info key
 SHIPPED_PRESET = "default"
 
 
 class VisionPolicy:
     """Adapts a model policy ``(frame, speed_mps, latency_s) -> steering`` to ``(frame, info)``.
 
-    The latency it is told is the *measured* age of the observation, as PLM-Net is deployed, plus
-    ``latency_bias_s`` (a wrong latency estimate; clipped at 0).
+    The latency it is told is the *measured* age of the observation, as PLM-Net is deployed
+    (``latency_source="measured"``), or the *requested* latency ``info["latency_s"]``, as the original
+    code told it while its FIFO served other ages (``"requested"``), plus ``latency_bias_s`` (a wrong
+    latency estimate; clipped at 0).
     """
 
-    def __init__(self, model_policy, latency_bias_s: float = 0.0):
+    def __init__(self, model_policy, latency_bias_s: float = 0.0, latency_source: str = "measured"):
+        if latency_source not in LATENCY_SOURCES:
+            raise ValueError(f"latency_source {latency_source!r}: expected one of {list(LATENCY_SOURCES)}")
         self.model_policy = model_policy
         self.latency_bias_s = latency_bias_s
+        self.info_key = LATENCY_SOURCES[latency_source]
 
     def reset(self) -> None:
         self.model_policy.reset()
@@ -40,7 +46,7 @@ class VisionPolicy:
         return int(getattr(self.model_policy, "clamped_latency_count", 0))
 
     def __call__(self, frame, info) -> float:
-        latency_s = max(0.0, info["observation_age_s"] + self.latency_bias_s)
+        latency_s = max(0.0, info[self.info_key] + self.latency_bias_s)
         return float(self.model_policy(frame, info["speed_mps"], latency_s))
 
 
@@ -94,7 +100,7 @@ def checkpoint_pair(checkpoint_dir=None) -> tuple[Path, Path]:
     )
 
 
-def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0):
+def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, latency_source: str = "measured"):
     """The policy named ``name``; model policies load the shipped checkpoints unless given a dir."""
     if name == "expert":
         return ExpertPolicy()
@@ -105,4 +111,5 @@ def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0):
     bm_path, tapm_path = checkpoint_pair(checkpoint_dir)
     if name == "bm":
         return VisionPolicy(inference.BaseModelPolicy(checkpoints.load_base_model(bm_path)))
-    return VisionPolicy(inference.PLMNetPolicy(checkpoints.load_plm_net(bm_path, tapm_path)), latency_bias_s)
+    return VisionPolicy(inference.PLMNetPolicy(checkpoints.load_plm_net(bm_path, tapm_path)), latency_bias_s,
+                        latency_source)
