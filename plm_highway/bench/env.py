@@ -14,6 +14,7 @@ import time
 import numpy as np
 
 from plm_highway.bench import BENCH_RESULT
+from plm_highway.errors import BadInput
 from plm_highway.io import write_json
 
 
@@ -65,7 +66,7 @@ def _time_steps(env, policy, steps: int) -> float:
 
 def run(args) -> int:
     if args.steps < 10 or args.repeats < 1:
-        raise ValueError("--steps must be >= 10 and --repeats >= 1")
+        raise BadInput("--steps must be >= 10 and --repeats >= 1")
     reference, ours = [], []
     for repeat in range(args.repeats):
         reference.append(racetrack_steps_per_s(args.steps))

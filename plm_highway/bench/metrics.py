@@ -24,6 +24,7 @@ from types import ModuleType
 import numpy as np
 
 from plm_highway.bench import BENCH_RESULT
+from plm_highway.errors import BadInput
 from plm_highway.io import check_target, write_json
 from plm_highway.metrics import similarity
 
@@ -66,9 +67,9 @@ def run(args: argparse.Namespace) -> int:
 
 def check_settings(n_points: int, repeat: int) -> None:
     if n_points < 3:
-        raise ValueError(f"--points: needs at least 3, got {n_points}")
+        raise BadInput(f"--points: needs at least 3, got {n_points}")
     if repeat < 1:
-        raise ValueError(f"--repeat: needs at least 1, got {repeat}")
+        raise BadInput(f"--repeat: needs at least 1, got {repeat}")
 
 
 def make_curves(n_points: int, seed: int = DEFAULT_SEED) -> tuple[np.ndarray, np.ndarray]:
