@@ -4,8 +4,9 @@ For each writing command (collect, train bm, evaluate --json, evaluate --out, re
 diagnose --report):
 
 - a first run publishes an output; the same command with ``--overwrite`` is then killed with
-  SIGKILL at several points: as soon as its staging directory appears (mid-write), and after
-  seeded random fractions of the first run's wall time. After every kill the target is the first
+  SIGKILL at several points: as soon as its staging directory appears (mid-write), after a seeded
+  random number of progress updates (commands that show progress), and after seeded random
+  fractions of the first run's wall time. After every kill the target is the first
   run's output byte for byte, or (a kill after publishing) the new output whole;
 - a run that completes afterwards removes the staging directories the killed runs left;
 - a foreign directory and a foreign file at the target survive every command byte-identical;
@@ -22,6 +23,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -36,16 +38,34 @@ pytestmark = pytest.mark.slow
 VOLATILE = {"elapsed_s"}
 
 KILL_SEED = 8  # the random kill points are drawn from this seed
-RANDOM_KILLS = 2
+RANDOM_KILLS = 2  # kills at random fractions of a run's wall time, besides the staging and progress points
 
 
 def env() -> dict:
     return {**os.environ, "PYTHONPATH": str(REPO_ROOT), "SDL_VIDEODRIVER": "offscreen", "MPLBACKEND": "Agg"}
 
 
-def start(cwd: Path, argv: list[str]) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "plm_highway", *argv], cwd=cwd, env=env(),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+class Running:
+    """A command in a subprocess whose stderr is drained by a thread that counts progress updates
+    (tqdm redraws end in a carriage return, log lines in a newline)."""
+
+    def __init__(self, cwd: Path, argv: list[str]):
+        self.process = subprocess.Popen([sys.executable, "-m", "plm_highway", *argv], cwd=cwd, env=env(),
+                                        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        self.updates = 0
+        self.stderr = b""
+        self._reader = threading.Thread(target=self._drain, daemon=True)
+        self._reader.start()
+
+    def _drain(self) -> None:
+        while chunk := self.process.stderr.read1(4096):
+            self.stderr += chunk
+            self.updates += chunk.count(b"\r") + chunk.count(b"\n")
+
+    def wait(self, timeout: float = 600) -> tuple[int, str]:
+        code = self.process.wait(timeout=timeout)
+        self._reader.join(timeout=10)
+        return code, self.stderr.decode("utf-8", "replace")
 
 
 def run(cwd: Path, argv: list[str], timeout: float = 600) -> subprocess.CompletedProcess:
@@ -90,7 +110,7 @@ COMMANDS = {
                        "--json", "target.json"], "target.json"),
     "evaluate-out": (["evaluate", "--policy", "expert", "--max-steps", "150", "--latency", "const:0.1",
                       "--out", "target"], "target"),
-    "reproduce": (["reproduce", "--settings", "const:0.1", "--generalise", "--max-steps", "40", "--no-progress",
+    "reproduce": (["reproduce", "--settings", "const:0.1", "--generalise", "--max-steps", "40",
                    "--out", "target"], "target"),
     "diagnose": (["sim2real", "diagnose", "rec/r.csv", "--quiet", "--report", "target"], "target"),
 }
@@ -116,19 +136,21 @@ def workdir(tmp_path: Path, inputs: Path) -> Path:
     return work
 
 
-def kill_when(process: subprocess.Popen, ready, deadline_s: float) -> bool:
-    """SIGKILL ``process`` as soon as ``ready()``; False if it ended (or the deadline passed) first."""
+def kill_when(running: Running, ready, deadline_s: float) -> bool:
+    """SIGKILL the command as soon as ``ready()``; False if it ended (or the deadline passed) first."""
+    process = running.process
     end = time.monotonic() + deadline_s
     while time.monotonic() < end:
         if process.poll() is not None:
+            running.wait()
             return False
         if ready():
             process.send_signal(signal.SIGKILL)
-            process.wait()
+            running.wait()
             return True
         time.sleep(0.005)
     process.kill()
-    process.wait()
+    running.wait()
     return False
 
 
@@ -138,27 +160,36 @@ def test_sigkill_leaves_the_previous_output_or_the_new_one_whole(command, inputs
     argv, relative = COMMANDS[command]
     work = workdir(tmp_path, inputs)
     target = work / relative
+    argv = [*argv, "--overwrite"]  # every run alike, so the recorded command lines agree too
     started = time.monotonic()
-    first = run(work, argv)
+    first = Running(work, argv)
+    code, stderr = first.wait()
     first_wall_s = time.monotonic() - started
-    assert first.returncode == 0, first.stderr
+    assert code == 0, stderr
     previous = tree(target)
     assert previous, f"{command} wrote nothing at {relative}"
 
+    # Kill points: as the staging directory appears (mid-write); after a seeded random number of the
+    # first run's progress updates (commands that show progress); at seeded random fractions of its wall time.
     rng = np.random.default_rng([KILL_SEED, len(command)])
-    fractions = rng.uniform(0.2, 1.0, RANDOM_KILLS)
+    points: list[tuple[str, float | int | None]] = [("staging", None)]
+    if first.updates >= 2:
+        points.append(("updates", int(rng.integers(1, first.updates))))
+    points += [("fraction", float(f)) for f in rng.uniform(0.2, 1.0, RANDOM_KILLS)]
     kills = 0
-    points: list[float | None] = [None, *fractions]  # None: as soon as the staging directory appears
-    for fraction in points:
-        name = "staging appeared" if fraction is None else f"after {fraction:.2f} of a run"
-        process = start(work, [*argv, "--overwrite"])
+    for kind, at in points:
+        name = f"{kind} {at}"
+        process = Running(work, argv)
         begin = time.monotonic()
-        if fraction is None:
+        if kind == "staging":
             def ready():
                 return bool(staging_dirs(target))
+        elif kind == "updates":
+            def ready(process=process, at=at):
+                return process.updates >= at
         else:
-            def ready(begin=begin, fraction=fraction):
-                return time.monotonic() - begin >= fraction * first_wall_s
+            def ready(begin=begin, at=at):
+                return time.monotonic() - begin >= at * first_wall_s
         killed = kill_when(process, ready, deadline_s=10 * first_wall_s + 60)
         kills += killed
         now = tree(target)
@@ -166,7 +197,7 @@ def test_sigkill_leaves_the_previous_output_or_the_new_one_whole(command, inputs
             f"{command}: after a SIGKILL ({name}) the target is neither the previous output nor a whole new one")
     assert kills >= 1, f"{command}: no kill landed before the command finished"
 
-    completed = run(work, [*argv, "--overwrite"])
+    completed = run(work, argv)
     assert completed.returncode == 0, completed.stderr
     assert without_volatile(tree(target)) == without_volatile(previous)
     assert staging_dirs(target) == [], "the next run did not clean the killed runs' staging directories"
@@ -205,8 +236,8 @@ def test_foreign_content_at_the_target_survives(command, as_dir, inputs, tmp_pat
 def test_two_writers_of_one_target_one_wins_whole(command, inputs, tmp_path):
     argv, relative = COMMANDS[command]
     work = workdir(tmp_path, inputs)
-    processes = [start(work, argv) for _ in range(2)]
-    results = [(p.wait(timeout=600), p.stderr.read()) for p in processes]
+    processes = [Running(work, argv) for _ in range(2)]
+    results = [p.wait() for p in processes]
     codes = sorted(code for code, _ in results)
     assert codes == [0, 2], results
     loser = next(stderr for code, stderr in results if code == 2)
