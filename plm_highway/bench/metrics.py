@@ -21,6 +21,7 @@ from types import ModuleType
 
 import numpy as np
 
+from plm_highway.errors import BadInput
 from plm_highway.metrics import similarity
 
 DEFAULT_POINTS = 3000  # the size issue 14 states its target on (TARGET_POINTS)
@@ -41,9 +42,9 @@ _REFERENCE_S_AT_3000 = {"frechet_dist": 16.0, "dtw": 22.0, "area_between_two_cur
 
 def check_settings(n_points: int, repeat: int) -> None:
     if n_points < 3:
-        raise ValueError(f"--points: needs at least 3, got {n_points}")
+        raise BadInput(f"--points: needs at least 3, got {n_points}")
     if repeat < 1:
-        raise ValueError(f"--repeat: needs at least 1, got {repeat}")
+        raise BadInput(f"--repeat: needs at least 1, got {repeat}")
 
 
 def make_curves(n_points: int, seed: int = DEFAULT_SEED) -> tuple[np.ndarray, np.ndarray]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import importlib
 
-from plm_highway.cli._common import Command, add_overwrite, bounded_float, bounded_int
+from plm_highway.cli._common import Command, add_overwrite, bounded_float, bounded_int, defaults_of
 
 GROUP_HELP = "benchmarks: both sides of a comparison in one run, and their ratio"
 
@@ -41,6 +41,42 @@ def run_estimation(args) -> int:
     print("\n".join(bench_lines(result)))
     if args.json is not None:
         write_json(args.json, bench_dict(result), BENCH_RESULT, overwrite=args.overwrite)
+        print(f"wrote {args.json}")
+    return 0
+
+
+def configure_memory(parser) -> None:
+    from plm_highway.bench.memory import MAX_STEPS, MIN_STEPS, memory_run
+
+    d = defaults_of(memory_run)
+    parser.add_argument("--steps", type=bounded_int(MIN_STEPS, MAX_STEPS), default=d["steps"],
+                        help="policy steps measured after the warm-up")
+    parser.add_argument("--warmup-steps", type=bounded_int(0, MAX_STEPS), default=d["warmup_steps"],
+                        help="policy steps before the starting RSS is read (imports and caches settle)")
+    parser.add_argument("--sample-every", type=bounded_int(1, MAX_STEPS), default=d["sample_every"],
+                        help="read the RSS every this many steps (for the slope)")
+    parser.add_argument("--latency", default=d["latency"], help="latency profile of the wrapper")
+    parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
+    parser.add_argument("--json", metavar="OUT.json", help="also write the figures to this JSON file")
+    add_overwrite(parser)
+
+
+def run_memory(args) -> int:
+    from tqdm import tqdm
+
+    from plm_highway.bench import BENCH_RESULT
+    from plm_highway.bench.memory import memory_lines, memory_run
+    from plm_highway.io import check_target, write_json
+
+    if args.json is not None:
+        check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
+    with tqdm(total=args.steps, unit="step", desc="bench memory", mininterval=2.0) as bar:
+        result = memory_run(args.steps, args.latency, args.track, args.warmup_steps, args.sample_every,
+                            progress=bar.update)
+    print("\n".join(memory_lines(result)))
+    if args.json is not None:
+        write_json(args.json, {**result.as_dict(), "command": args.command_line}, BENCH_RESULT,
+                   overwrite=args.overwrite)
         print(f"wrote {args.json}")
     return 0
 
@@ -143,6 +179,8 @@ COMMANDS = [
     Command("metrics", "trajectory metrics against similaritymeasures", configure_metrics, run_metrics),
     Command("estimation", "EKF costs per step with and without delay compensation, camera lane fit accuracy",
             configure_estimation, run_estimation),
+    Command("memory", "RSS over a long run (200k policy steps) of the env with the latency wrapper",
+            configure_memory, run_memory),
     Command("lessons", "wall-clock time of each lesson top to bottom (budget 5 minutes on 2 cores)",
             configure_lessons, run_lessons),
 ]

@@ -14,6 +14,7 @@ import json
 import os
 
 from plm_highway.cli._common import Command, add_overwrite
+from plm_highway.errors import BadInput
 
 PRESET_CHOICES = ("default", "paper")
 GROUP_HELP = "train the Base Model or the Timed Action Prediction Model"
@@ -58,7 +59,7 @@ def _config(args):
     from plm_highway.training.train import TrainConfig
 
     if args.balance_max_per_bin is not None and args.balance_max_per_bin < 0:
-        raise ValueError(f"--balance-max-per-bin: must be 0 (off) or >= 1, got {args.balance_max_per_bin}")
+        raise BadInput(f"--balance-max-per-bin: must be 0 (off) or >= 1, got {args.balance_max_per_bin}")
     return TrainConfig(epochs=args.epochs, seed=args.seed, max_samples=args.max_samples,
                        balance_max_per_bin=args.balance_max_per_bin or None,
                        augmentation=None if args.no_augment else Augmentation(), show_progress=not args.quiet)

@@ -19,6 +19,7 @@ from tqdm import tqdm
 import plm_highway  # noqa: F401  (registers the env)
 from plm_highway.data.dataset import STEP_COLUMNS
 from plm_highway.envs.lane_keeping import PAPER_CAMERA
+from plm_highway.errors import BadInput
 from plm_highway.expert import ExpertPolicy
 from plm_highway.models.config_checks import check_choice, check_int, check_number
 
@@ -84,7 +85,7 @@ def collect(track: str = "train", progress: bool = True, config: CollectConfig |
     _check_against_track(config, track, track_spec, unwrapped.start_lane_offset_m)
     max_rows = config.episodes * steps_per_episode
     if max_rows * int(np.prod(frame_shape)) > MAX_FRAMES_BYTES:
-        raise ValueError(
+        raise BadInput(
             f"--episodes {config.episodes} x --episode-seconds {config.episode_seconds:g}: {max_rows} frames of "
             f"{frame_shape[0]}x{frame_shape[1]} px exceed the {MAX_FRAMES_BYTES / 1024**3:g} GiB a dataset may hold"
         )
@@ -130,12 +131,12 @@ def _check_against_track(config: CollectConfig, track: str, track_spec, start_la
     """Bounds that depend on the track: episodes fit on an open road, displaced starts stay on it."""
     episode_length_m = config.speed_mps * config.episode_seconds
     if not track_spec.closed and track_spec.length_m - episode_length_m <= 0:
-        raise ValueError(f"track {track!r} ({track_spec.length_m:.0f} m) is shorter than one episode "
+        raise BadInput(f"track {track!r} ({track_spec.length_m:.0f} m) is shorter than one episode "
                          f"({episode_length_m:.0f} m at --speed-mps {config.speed_mps:g})")
     # The car's centre must start on the road, on either side of the start lane's centre.
     room_m = track_spec.road_half_width_m - abs(start_lane_offset_m)
     if config.max_offset_m > room_m:
-        raise ValueError(f"--max-offset-m {config.max_offset_m:g} would start the car off the road of track "
+        raise BadInput(f"--max-offset-m {config.max_offset_m:g} would start the car off the road of track "
                          f"{track!r}: at most {room_m:g} m from the start lane's centre to the road edge")
 
 

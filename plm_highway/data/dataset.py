@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from plm_highway.errors import BadInput
 from plm_highway.io import directory_kind, write_output
 
 FORMAT = "plm_highway.dataset/1"
@@ -103,7 +104,7 @@ def read_dataset(data_dir: str | Path, mmap: bool = True) -> Dataset:
         with np.load(steps_path, allow_pickle=False) as npz:
             steps = {name: npz[name] for name in npz.files}
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise ValueError(f"{steps_path}: not a readable .npz of step columns ({exc})") from exc
+        raise BadInput(f"{steps_path}: not a readable .npz of step columns ({exc})") from exc
     steps = _validated_columns(steps, len(frames), source=str(steps_path))
     _check_counts(manifest_path, manifest, frames, steps)
     return Dataset(manifest=manifest, frames=frames, steps=steps)
@@ -112,23 +113,23 @@ def read_dataset(data_dir: str | Path, mmap: bool = True) -> Dataset:
 def _read_manifest(path: Path) -> dict:
     size_bytes = path.stat().st_size
     if size_bytes > MAX_MANIFEST_BYTES:
-        raise ValueError(f"{path}: {size_bytes} bytes, a dataset manifest is at most {MAX_MANIFEST_BYTES}")
+        raise BadInput(f"{path}: {size_bytes} bytes, a dataset manifest is at most {MAX_MANIFEST_BYTES}")
     try:
         manifest = json.loads(path.read_bytes().decode("utf-8-sig"))
     except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not UTF-8 text ({exc})") from exc
+        raise BadInput(f"{path}: not UTF-8 text ({exc})") from exc
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+        raise BadInput(f"{path}: not valid JSON ({exc})") from exc
     if not isinstance(manifest, dict):
-        raise ValueError(f"{path}: expected a JSON object, found {type(manifest).__name__}")
+        raise BadInput(f"{path}: expected a JSON object, found {type(manifest).__name__}")
     if manifest.get("format") != FORMAT:
-        raise ValueError(f"{path}: field 'format' is {manifest.get('format')!r}, expected {FORMAT!r}")
+        raise BadInput(f"{path}: field 'format' is {manifest.get('format')!r}, expected {FORMAT!r}")
     counts = manifest.get("counts")
     if not isinstance(counts, dict) or not all(
         isinstance(counts.get(name), int) and not isinstance(counts.get(name), bool)
         for name in ("samples", "episodes")
     ):
-        raise ValueError(f"{path}: field 'counts' must be an object with integer 'samples' and 'episodes', "
+        raise BadInput(f"{path}: field 'counts' must be an object with integer 'samples' and 'episodes', "
                          f"got {counts!r}")
     return manifest
 
@@ -136,20 +137,20 @@ def _read_manifest(path: Path) -> dict:
 def _check_counts(path: Path, manifest: dict, frames: np.ndarray, steps: dict[str, np.ndarray]) -> None:
     counts = manifest["counts"]
     if counts["samples"] != len(frames):
-        raise ValueError(f"{path}: counts.samples is {counts['samples']}, but frames.npy holds {len(frames)} frames")
+        raise BadInput(f"{path}: counts.samples is {counts['samples']}, but frames.npy holds {len(frames)} frames")
     n_episodes = len(np.unique(steps["episode_id"]))
     if counts["episodes"] != n_episodes:
-        raise ValueError(f"{path}: counts.episodes is {counts['episodes']}, but steps.npz holds {n_episodes}")
+        raise BadInput(f"{path}: counts.episodes is {counts['episodes']}, but steps.npz holds {n_episodes}")
 
 
 def _check_frames(dtype: np.dtype, shape: tuple, source: str) -> None:
     if dtype != np.uint8 or len(shape) != 3:
-        raise ValueError(f"{source}: expected uint8 (N, H, W), got {dtype} {shape}")
+        raise BadInput(f"{source}: expected uint8 (N, H, W), got {dtype} {shape}")
     n, height, width = shape
     if not 1 <= n <= MAX_SAMPLES:
-        raise ValueError(f"{source}: a dataset has 1 to {MAX_SAMPLES} samples, got {n}")
+        raise BadInput(f"{source}: a dataset has 1 to {MAX_SAMPLES} samples, got {n}")
     if not (1 <= height <= MAX_FRAME_SIDE_PX and 1 <= width <= MAX_FRAME_SIDE_PX):
-        raise ValueError(f"{source}: frames must be 1 to {MAX_FRAME_SIDE_PX} px a side, got {height}x{width}")
+        raise BadInput(f"{source}: frames must be 1 to {MAX_FRAME_SIDE_PX} px a side, got {height}x{width}")
 
 
 def _load_frames(path: Path, mmap: bool) -> np.ndarray:
@@ -162,19 +163,19 @@ def _load_frames(path: Path, mmap: bool) -> np.ndarray:
             read_header = {(1, 0): np.lib.format.read_array_header_1_0,
                            (2, 0): np.lib.format.read_array_header_2_0}.get(version)
             if read_header is None:
-                raise ValueError(f"unsupported .npy format version {version}")
+                raise BadInput(f"unsupported .npy format version {version}")
             shape, fortran_order, dtype = read_header(handle)
             header_bytes = handle.tell()
     except (ValueError, EOFError, OSError) as exc:
-        raise ValueError(f"{path}: not a .npy array file ({exc})") from exc
+        raise BadInput(f"{path}: not a .npy array file ({exc})") from exc
     _check_frames(dtype, shape, str(path))
     if fortran_order:
-        raise ValueError(f"{path}: expected a C-ordered array, found Fortran order")
+        raise BadInput(f"{path}: expected a C-ordered array, found Fortran order")
     expected_bytes = header_bytes + int(np.prod(shape)) * dtype.itemsize
     size_bytes = path.stat().st_size
     if size_bytes != expected_bytes:
         kind = "truncated" if size_bytes < expected_bytes else "longer than its header says"
-        raise ValueError(
+        raise BadInput(
             f"{path}: {kind}: {size_bytes} bytes, its header ({shape[0]} frames of {shape[1]}x{shape[2]} px) "
             f"needs {expected_bytes}"
         )
@@ -185,14 +186,14 @@ def _validated_columns(steps: dict[str, np.ndarray], n_rows: int, source: str) -
     missing = sorted(set(STEP_COLUMNS) - set(steps))
     unknown = sorted(set(steps) - set(STEP_COLUMNS))
     if missing or unknown:
-        raise ValueError(f"{source}: missing columns {missing}, unknown columns {unknown}")
+        raise BadInput(f"{source}: missing columns {missing}, unknown columns {unknown}")
     columns = {}
     for name, dtype in STEP_COLUMNS.items():
         values = np.asarray(steps[name]).astype(dtype, copy=False)
         if values.shape != (n_rows,):
-            raise ValueError(f"{source}: column {name!r} has shape {values.shape}, expected ({n_rows},)")
+            raise BadInput(f"{source}: column {name!r} has shape {values.shape}, expected ({n_rows},)")
         if values.dtype.kind == "f" and not np.all(np.isfinite(values)):
             row = int(np.flatnonzero(~np.isfinite(values))[0])
-            raise ValueError(f"{source}: column {name!r} is not finite at row {row}")
+            raise BadInput(f"{source}: column {name!r} is not finite at row {row}")
         columns[name] = values
     return columns

@@ -46,6 +46,8 @@ from pathlib import Path
 
 import numpy as np
 
+from plm_highway.errors import BadInput
+
 MAX_SPEC_CHARS = 4096
 MAX_LATENCY_S = 10.0
 MIN_PERIOD_S = 1e-3
@@ -95,21 +97,21 @@ class LatencyProfile:
 def check_latency_s(value: float, what: str = "latency") -> float:
     value = float(value)
     if not (math.isfinite(value) and 0.0 <= value <= MAX_LATENCY_S):
-        raise ValueError(f"{what} {value!r} s is outside [0, {MAX_LATENCY_S:g}] s")
+        raise BadInput(f"{what} {value!r} s is outside [0, {MAX_LATENCY_S:g}] s")
     return value
 
 
 def check_period_s(value: float, what: str = "period") -> float:
     value = float(value)
     if not (math.isfinite(value) and MIN_PERIOD_S <= value <= MAX_PERIOD_S):
-        raise ValueError(f"{what} {value!r} s is outside [{MIN_PERIOD_S:g}, {MAX_PERIOD_S:g}] s")
+        raise BadInput(f"{what} {value!r} s is outside [{MIN_PERIOD_S:g}, {MAX_PERIOD_S:g}] s")
     return value
 
 
 def _check_time_s(t_s: float) -> float:
     t_s = float(t_s)
     if not math.isfinite(t_s):
-        raise ValueError(f"time {t_s!r} s is not finite")
+        raise BadInput(f"time {t_s!r} s is not finite")
     return t_s
 
 
@@ -187,7 +189,7 @@ class StepsProfile(LatencyProfile):
     def __post_init__(self) -> None:
         self.low_s, self.high_s = check_latency_s(self.low_s, "range start"), check_latency_s(self.high_s, "range end")
         if self.high_s < self.low_s:
-            raise ValueError(f"range end {self.high_s!r} s is below its start {self.low_s!r} s")
+            raise BadInput(f"range end {self.high_s!r} s is below its start {self.low_s!r} s")
         self.period_s = check_period_s(self.period_s)
         self.spec = self.spec or f"steps:{self.low_s!r}-{self.high_s!r}:{self.period_s!r}"
 
@@ -222,16 +224,16 @@ class FramesProfile(LatencyProfile):
 
     def __post_init__(self) -> None:
         if not (isinstance(self.rate_hz, (int, float)) and MIN_RATE_HZ <= self.rate_hz <= MAX_RATE_HZ):
-            raise ValueError(f"loop rate {self.rate_hz!r} Hz is outside [{MIN_RATE_HZ:g}, {MAX_RATE_HZ:g}] Hz")
+            raise BadInput(f"loop rate {self.rate_hz!r} Hz is outside [{MIN_RATE_HZ:g}, {MAX_RATE_HZ:g}] Hz")
         for name in ("low_frames", "high_frames", "every_frames"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
-                raise ValueError(f"{name} {value!r} must be a non-negative integer")
+                raise BadInput(f"{name} {value!r} must be a non-negative integer")
         if self.high_frames < self.low_frames:
-            raise ValueError(f"frame range end {self.high_frames} is below its start {self.low_frames}")
+            raise BadInput(f"frame range end {self.high_frames} is below its start {self.low_frames}")
         check_latency_s(self.high_frames / self.rate_hz, f"{self.high_frames} frames at {self.rate_hz:g} Hz =")
         if self.every_frames < 1:
-            raise ValueError(f"redraw every {self.every_frames} frames: must be at least 1")
+            raise BadInput(f"redraw every {self.every_frames} frames: must be at least 1")
         check_period_s(self.every_frames / self.rate_hz, f"redraw period {self.every_frames} frames at {self.rate_hz:g} Hz =")
         self.spec = self.spec or f"frames:{self.low_frames}-{self.high_frames}:{self.every_frames}@{self.rate_hz:g}"
 
@@ -266,7 +268,7 @@ class SineProfile(LatencyProfile):
         self.mean_s = check_latency_s(self.mean_s, "mean")
         self.amplitude_s = check_latency_s(self.amplitude_s, "amplitude")
         if self.amplitude_s > self.mean_s:
-            raise ValueError(f"amplitude {self.amplitude_s!r} s exceeds mean {self.mean_s!r} s; latency would be negative")
+            raise BadInput(f"amplitude {self.amplitude_s!r} s exceeds mean {self.mean_s!r} s; latency would be negative")
         check_latency_s(self.mean_s + self.amplitude_s, "crest (mean + amplitude)")
         self.period_s = check_period_s(self.period_s)
         self.spec = self.spec or f"sine:{self.mean_s!r}:{self.amplitude_s!r}:{self.period_s!r}"
@@ -325,17 +327,17 @@ def parse_profile(spec: str | LatencyProfile | float) -> LatencyProfile:
         try:
             return ConstantProfile(float(spec))
         except ValueError as error:
-            raise ValueError(f"latency {spec!r}: {error}") from None
+            raise BadInput(f"latency {spec!r}: {error}") from None
     if not isinstance(spec, str):
-        raise ValueError(f"latency spec {spec!r}: expected a string such as 'const:0.2'")
+        raise BadInput(f"latency spec {spec!r}: expected a string such as 'const:0.2'")
     if len(spec) > MAX_SPEC_CHARS:
-        raise ValueError(f"latency spec {spec[:40]!r}...: {len(spec)} characters, more than the {MAX_SPEC_CHARS} allowed")
+        raise BadInput(f"latency spec {spec[:40]!r}...: {len(spec)} characters, more than the {MAX_SPEC_CHARS} allowed")
     control = _CONTROL.search(spec)
     if control:
-        raise ValueError(f"latency spec {spec!r}: control character {control.group()!r} at position {control.start()}")
+        raise BadInput(f"latency spec {spec!r}: control character {control.group()!r} at position {control.start()}")
     text = spec.strip()
     if not text:
-        raise ValueError(f"latency spec {spec!r} is empty; write 'none' or 'const:0' for no latency")
+        raise BadInput(f"latency spec {spec!r} is empty; write 'none' or 'const:0' for no latency")
     if text == "none":
         text = "const:0"
     elif _DECIMAL.fullmatch(text):
@@ -344,28 +346,28 @@ def parse_profile(spec: str | LatencyProfile | float) -> LatencyProfile:
     parsers = {"const": _parse_const, "steps": _parse_steps, "frames": _parse_frames, "sine": _parse_sine,
                "ramp": _parse_ramp, "trace": _parse_trace}
     if kind not in parsers or not rest:
-        raise ValueError(f"latency spec {spec!r}: expected one of {', '.join(SPEC_FORMS)}")
+        raise BadInput(f"latency spec {spec!r}: expected one of {', '.join(SPEC_FORMS)}")
     try:
         profile = parsers[kind](rest, spec)
     except ValueError as error:
         message = str(error)
-        raise ValueError(message if message.startswith("latency spec") else f"latency spec {spec!r}: {message}") from None
+        raise BadInput(message if message.startswith("latency spec") else f"latency spec {spec!r}: {message}") from None
     profile.spec = text
     return profile
 
 
 def _number(text: str, spec: str, what: str) -> float:
     if not _DECIMAL.fullmatch(text):
-        raise ValueError(f"latency spec {spec!r}: {what} {text!r} is not a plain non-negative decimal number")
+        raise BadInput(f"latency spec {spec!r}: {what} {text!r} is not a plain non-negative decimal number")
     value = float(text)
     if not math.isfinite(value):  # e.g. 1e999
-        raise ValueError(f"latency spec {spec!r}: {what} {text!r} is not finite")
+        raise BadInput(f"latency spec {spec!r}: {what} {text!r} is not finite")
     return value
 
 
 def _integer(text: str, spec: str, what: str) -> int:
     if not _INTEGER.fullmatch(text):
-        raise ValueError(f"latency spec {spec!r}: {what} {text!r} is not a whole number of at most 9 digits")
+        raise BadInput(f"latency spec {spec!r}: {what} {text!r} is not a whole number of at most 9 digits")
     return int(text)
 
 
@@ -373,7 +375,7 @@ def _split_range(text: str, spec: str, what: str) -> tuple[str, str]:
     # Split at the first '-' that is not a sign (leading, or an exponent's as in 1e-05).
     split = next((i for i, char in enumerate(text) if char == "-" and i > 0 and text[i - 1] not in "eE"), None)
     if split is None:
-        raise ValueError(f"latency spec {spec!r}: {what} {text!r} must look like LO-HI")
+        raise BadInput(f"latency spec {spec!r}: {what} {text!r} must look like LO-HI")
     return text[:split], text[split + 1:]
 
 
@@ -385,7 +387,7 @@ def _range(text: str, spec: str, what: str) -> tuple[float, float]:
 def _fields(rest: str, spec: str, count: int) -> list[str]:
     parts = rest.split(":")
     if len(parts) != count:
-        raise ValueError(f"latency spec {spec!r}: expected {count} ':'-separated fields after the kind, got {len(parts)}")
+        raise BadInput(f"latency spec {spec!r}: expected {count} ':'-separated fields after the kind, got {len(parts)}")
     return parts
 
 
@@ -405,7 +407,7 @@ def _parse_frames(rest: str, spec: str) -> LatencyProfile:
     low, high = _split_range(span, spec, "frame range")
     every, at, rate = timing.partition("@")
     if not at:
-        raise ValueError(f"latency spec {spec!r}: {timing!r} must look like EVERY@RATE (frames @ loop Hz), e.g. 60@30")
+        raise BadInput(f"latency spec {spec!r}: {timing!r} must look like EVERY@RATE (frames @ loop Hz), e.g. 60@30")
     return FramesProfile(_integer(low, spec, "frame range start"), _integer(high, spec, "frame range end"),
                          _integer(every, spec, "redraw interval"), _number(rate, spec, "loop rate"))
 
@@ -434,18 +436,18 @@ def read_trace(path: Path) -> tuple[np.ndarray, np.ndarray]:
     path = Path(path)
     raw = _read_bounded(path)
     if raw.startswith(b"\xef\xbb\xbf"):
-        raise ValueError(f"trace file {str(path)!r}: row 1 starts with a UTF-8 byte-order mark (BOM); "
+        raise BadInput(f"trace file {str(path)!r}: row 1 starts with a UTF-8 byte-order mark (BOM); "
                          "save it as UTF-8 without BOM")
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as error:
         row = raw.count(b"\n", 0, error.start) + 1
-        raise ValueError(f"trace file {str(path)!r}: row {row}: byte {raw[error.start]:#04x} at offset {error.start} "
+        raise BadInput(f"trace file {str(path)!r}: row {row}: byte {raw[error.start]:#04x} at offset {error.start} "
                          "is not UTF-8 text (a binary file?)") from None
     control = _CONTROL.search(text)
     if control:
         row = text.count("\n", 0, control.start()) + 1
-        raise ValueError(f"trace file {str(path)!r}: row {row}: control character {control.group()!r} "
+        raise BadInput(f"trace file {str(path)!r}: row {row}: control character {control.group()!r} "
                          "(a binary file?)")
     return _parse_trace_rows(path, text)
 
@@ -454,16 +456,16 @@ def _read_bounded(path: Path) -> bytes:
     try:
         if not path.is_file():
             what = "does not exist" if not path.exists() else "is not a regular file"
-            raise ValueError(f"trace file {str(path)!r} {what}")
+            raise BadInput(f"trace file {str(path)!r} {what}")
         size = path.stat().st_size
         if size > MAX_TRACE_BYTES:
-            raise ValueError(f"trace file {str(path)!r}: {size} bytes, more than the {MAX_TRACE_BYTES} allowed")
+            raise BadInput(f"trace file {str(path)!r}: {size} bytes, more than the {MAX_TRACE_BYTES} allowed")
         with open(path, "rb") as handle:
             raw = handle.read(MAX_TRACE_BYTES + 1)  # the file may grow after stat
     except OSError as error:
-        raise ValueError(f"trace file {str(path)!r}: cannot be read ({error.strerror or error})") from None
+        raise BadInput(f"trace file {str(path)!r}: cannot be read ({error.strerror or error})") from None
     if len(raw) > MAX_TRACE_BYTES:
-        raise ValueError(f"trace file {str(path)!r}: more than the {MAX_TRACE_BYTES} bytes allowed")
+        raise BadInput(f"trace file {str(path)!r}: more than the {MAX_TRACE_BYTES} bytes allowed")
     return raw
 
 
@@ -473,15 +475,15 @@ def _parse_trace_rows(path: Path, text: str) -> tuple[np.ndarray, np.ndarray]:
     try:
         header = [column.strip() for column in next(reader)]
     except StopIteration:
-        raise ValueError(f"trace file {name}: empty (expected a header row 't,latency_s')") from None
+        raise BadInput(f"trace file {name}: empty (expected a header row 't,latency_s')") from None
     except csv.Error as error:
-        raise ValueError(f"trace file {name}: row 1: {error}") from None
+        raise BadInput(f"trace file {name}: row 1: {error}") from None
     missing = [column for column in ("t", "latency_s") if column not in header]
     if missing:
-        raise ValueError(f"trace file {name}: row 1: missing columns {missing} (header: {header})")
+        raise BadInput(f"trace file {name}: row 1: missing columns {missing} (header: {header})")
     duplicated = sorted({column for column in ("t", "latency_s") if header.count(column) > 1})
     if duplicated:
-        raise ValueError(f"trace file {name}: row 1: columns {duplicated} appear more than once")
+        raise BadInput(f"trace file {name}: row 1: columns {duplicated} appear more than once")
     t_column, value_column = header.index("t"), header.index("latency_s")
     times, values = [], []
     try:
@@ -490,24 +492,24 @@ def _parse_trace_rows(path: Path, text: str) -> tuple[np.ndarray, np.ndarray]:
                 continue  # blank lines carry no data
             row = reader.line_num
             if len(times) >= MAX_TRACE_ROWS:
-                raise ValueError(f"trace file {name}: row {row}: more than the {MAX_TRACE_ROWS} data rows allowed")
+                raise BadInput(f"trace file {name}: row {row}: more than the {MAX_TRACE_ROWS} data rows allowed")
             t = _trace_number(name, row, "t", cells, t_column)
             latency = _trace_number(name, row, "latency_s", cells, value_column)
             if t > MAX_TRACE_DURATION_S:
-                raise ValueError(f"trace file {name}: row {row}, column 't': {t!r} s is beyond the "
+                raise BadInput(f"trace file {name}: row {row}, column 't': {t!r} s is beyond the "
                                  f"{MAX_TRACE_DURATION_S:g} s allowed")
             if times and t <= times[-1]:
-                raise ValueError(f"trace file {name}: row {row}, column 't': {t!r} does not increase "
+                raise BadInput(f"trace file {name}: row {row}, column 't': {t!r} does not increase "
                                  f"(previous {times[-1]!r})")
             if latency > MAX_LATENCY_S:
-                raise ValueError(f"trace file {name}: row {row}, column 'latency_s': {latency!r} s is beyond the "
+                raise BadInput(f"trace file {name}: row {row}, column 'latency_s': {latency!r} s is beyond the "
                                  f"{MAX_LATENCY_S:g} s allowed")
             times.append(t)
             values.append(latency)
     except csv.Error as error:
-        raise ValueError(f"trace file {name}: row {reader.line_num}: {error}") from None
+        raise BadInput(f"trace file {name}: row {reader.line_num}: {error}") from None
     if not times:
-        raise ValueError(f"trace file {name}: no rows after the header")
+        raise BadInput(f"trace file {name}: no rows after the header")
     return np.array(times), np.array(values)
 
 
@@ -515,15 +517,15 @@ def _trace_number(name: str, row: int, column: str, cells: list[str], index: int
     text = cells[index].strip() if index < len(cells) else ""
     where = f"trace file {name}: row {row}, column {column!r}"
     if not text:
-        raise ValueError(f"{where}: missing value")
+        raise BadInput(f"{where}: missing value")
     try:
         value = float(text)
     except ValueError:
-        raise ValueError(f"{where}: {text[:40]!r} is not a number") from None
+        raise BadInput(f"{where}: {text[:40]!r} is not a number") from None
     if not math.isfinite(value):
-        raise ValueError(f"{where}: {text!r} is not finite")
+        raise BadInput(f"{where}: {text!r} is not finite")
     if value < 0:
-        raise ValueError(f"{where}: {text!r} is negative")
+        raise BadInput(f"{where}: {text!r} is negative")
     if not _DECIMAL.fullmatch(text.lstrip("+")):
-        raise ValueError(f"{where}: {text[:40]!r} is not a plain decimal number")
+        raise BadInput(f"{where}: {text[:40]!r} is not a plain decimal number")
     return value

@@ -26,6 +26,7 @@ from collections import deque
 import gymnasium
 import numpy as np
 
+from plm_highway.errors import BadInput
 from plm_highway.latency.profiles import MAX_LATENCY_S, LatencyProfile, parse_profile
 
 TIME_EPS_S = 1e-9  # snapshot times are multiples of the simulation step; absorb float error
@@ -132,15 +133,15 @@ class LatencyWrapper(gymnasium.Wrapper, gymnasium.utils.RecordConstructorArgs):
         self.profile = copy.deepcopy(parsed)
         max_latency_s = float(max_latency_s)
         if not (math.isfinite(max_latency_s) and 0.0 <= max_latency_s <= MAX_LATENCY_S):
-            raise ValueError(f"max_latency_s {max_latency_s!r} is outside [0, {MAX_LATENCY_S:g}] s")
+            raise BadInput(f"max_latency_s {max_latency_s!r} is outside [0, {MAX_LATENCY_S:g}] s")
         self.max_latency_s = max_latency_s
         if self.profile.max_latency_s > self.max_latency_s + TIME_EPS_S:
-            raise ValueError(
+            raise BadInput(
                 f"latency spec {self.profile.spec!r}: reaches {self.profile.max_latency_s} s, beyond the "
                 f"buffer's maximum of {self.max_latency_s} s (raise max_latency_s)"
             )
         if injection not in INJECTIONS:
-            raise ValueError(f"injection {injection!r}: expected one of {', '.join(INJECTIONS)}")
+            raise BadInput(f"injection {injection!r}: expected one of {', '.join(INJECTIONS)}")
         self.injection = injection
         self._history = TimeLookup(self.max_latency_s) if injection == "time" else LegacyFifo()
 
@@ -165,7 +166,7 @@ class LatencyWrapper(gymnasium.Wrapper, gymnasium.utils.RecordConstructorArgs):
         now_s = new_snapshots[-1].time_s
         latency_s = float(self.profile.latency_s(now_s))
         if not (math.isfinite(latency_s) and 0.0 <= latency_s <= self.max_latency_s + TIME_EPS_S):
-            raise ValueError(f"latency spec {self.profile.spec!r}: latency {latency_s!r} s at t={now_s} s is out of range")
+            raise BadInput(f"latency spec {self.profile.spec!r}: latency {latency_s!r} s at t={now_s} s is out of range")
         snapshot = self._history.serve(new_snapshots, now_s, latency_s)
         info = dict(info)
         info["latency_s"] = latency_s

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from plm_highway.errors import BadInput
+
 _MAX_ROWS_LISTED = 10
 
 
@@ -25,14 +27,14 @@ def check_finite(values: np.ndarray, name: str) -> None:
             row_mask = mask if mask.ndim == 1 else mask.any(axis=tuple(range(1, mask.ndim)))
             noun = "value" if count == 1 else "values"
             problems.append(f"{count} {label} {noun} at {_rows_text(np.flatnonzero(row_mask))}")
-    raise ValueError(f"{name}: " + "; ".join(problems))
+    raise BadInput(f"{name}: " + "; ".join(problems))
 
 
 def as_float_array(data, name: str) -> np.ndarray:
     try:
         return np.asarray(data, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: cannot be read as an array of floats ({exc})") from exc
+        raise BadInput(f"{name}: cannot be read as an array of floats ({exc})") from exc
 
 
 def as_curve(data, name: str, n_dims: int | None = None) -> np.ndarray:
@@ -40,15 +42,15 @@ def as_curve(data, name: str, n_dims: int | None = None) -> np.ndarray:
     curve = as_float_array(data, name)
     if curve.ndim != 2:
         hint = "; for a 1-D series pass values.reshape(-1, 1)" if curve.ndim == 1 else ""
-        raise ValueError(
+        raise BadInput(
             f"{name}: expected a 2-D array of shape (n_points, n_dims), got shape {curve.shape}{hint}"
         )
     if n_dims is not None and curve.shape[1] != n_dims:
-        raise ValueError(f"{name}: expected {n_dims} columns (x, y), got shape {curve.shape}")
+        raise BadInput(f"{name}: expected {n_dims} columns (x, y), got shape {curve.shape}")
     if curve.shape[1] < 1:
-        raise ValueError(f"{name}: has no coordinate columns (shape {curve.shape})")
+        raise BadInput(f"{name}: has no coordinate columns (shape {curve.shape})")
     if curve.shape[0] < 2:
-        raise ValueError(f"{name}: needs at least 2 points, got {curve.shape[0]}")
+        raise BadInput(f"{name}: needs at least 2 points, got {curve.shape[0]}")
     check_finite(curve, name)
     return curve
 
@@ -57,14 +59,14 @@ def as_series(data, name: str, min_len: int = 1) -> np.ndarray:
     """A finite 1-D float64 array with at least ``min_len`` samples."""
     series = as_float_array(data, name)
     if series.ndim != 1:
-        raise ValueError(f"{name}: expected a 1-D array, got shape {series.shape}")
+        raise BadInput(f"{name}: expected a 1-D array, got shape {series.shape}")
     if len(series) < min_len:
         noun = "sample" if min_len == 1 else "samples"
-        raise ValueError(f"{name}: needs at least {min_len} {noun}, got {len(series)}")
+        raise BadInput(f"{name}: needs at least {min_len} {noun}, got {len(series)}")
     check_finite(series, name)
     return series
 
 
 def check_same_length(a: np.ndarray, a_name: str, b: np.ndarray, b_name: str) -> None:
     if len(a) != len(b):
-        raise ValueError(f"{a_name} and {b_name}: lengths differ ({len(a)} vs {len(b)})")
+        raise BadInput(f"{a_name} and {b_name}: lengths differ ({len(a)} vs {len(b)})")

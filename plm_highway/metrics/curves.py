@@ -25,6 +25,7 @@ import math
 import numpy as np
 from scipy.spatial import distance
 
+from plm_highway.errors import BadInput
 from plm_highway.metrics import _kernels, similarity
 from plm_highway.metrics._validation import as_curve
 
@@ -44,7 +45,7 @@ def _curve_pair(exp_data, num_data, n_dims: int | None = None) -> tuple[np.ndarr
     exp = as_curve(exp_data, "exp_data", n_dims)
     num = as_curve(num_data, "num_data", n_dims)
     if exp.shape[1] != num.shape[1]:
-        raise ValueError(
+        raise BadInput(
             f"exp_data and num_data: different numbers of columns ({exp.shape[1]} vs {num.shape[1]})"
         )
     return exp, num
@@ -53,7 +54,7 @@ def _curve_pair(exp_data, num_data, n_dims: int | None = None) -> tuple[np.ndarr
 def _check_minkowski_p(p) -> float:
     p = float(p)
     if not p > 0:
-        raise ValueError(f"p: the Minkowski p-norm needs p > 0, got {p}")
+        raise BadInput(f"p: the Minkowski p-norm needs p > 0, got {p}")
     return p
 
 
@@ -99,7 +100,7 @@ def curve_length_measure(exp_data, num_data) -> float:
     """
     exp, num = _curve_pair(exp_data, num_data, n_dims=2)
     if np.all(exp == exp[0]):
-        raise ValueError("exp_data: curve has zero length (all points coincide)")
+        raise BadInput("exp_data: curve has zero length (all points coincide)")
     return float(similarity.curve_length_measure(exp, num))
 
 
@@ -109,7 +110,7 @@ def pcm(exp_data, num_data, norm_seg_length=False) -> float:
     span = np.ptp(exp, axis=0)
     for axis, label in enumerate("xy"):
         if span[axis] == 0:
-            raise ValueError(f"exp_data: {label} range is zero; pcm normalises both curves by it")
+            raise BadInput(f"exp_data: {label} range is zero; pcm normalises both curves by it")
     # num_data collapsed to one point gives 0/0 in the length scaling; np.interp then returns that
     # point, as in the original, so the result is still its distance to exp_data
     with np.errstate(invalid="ignore"):
@@ -128,16 +129,16 @@ def resample_by_arc_length(xy, spacing_m: float) -> np.ndarray:
     curve = as_curve(xy, "xy")
     spacing_m = float(spacing_m)
     if not (math.isfinite(spacing_m) and spacing_m > 0):
-        raise ValueError(f"spacing_m: must be a positive finite number, got {spacing_m}")
+        raise BadInput(f"spacing_m: must be a positive finite number, got {spacing_m}")
     arc_m = np.concatenate(([0.0], np.cumsum(np.sqrt(np.sum(np.diff(curve, axis=0) ** 2, axis=1)))))
     total_m = arc_m[-1]
     if total_m == 0:
-        raise ValueError("xy: curve has zero length (all points coincide)")
+        raise BadInput("xy: curve has zero length (all points coincide)")
     kept = _drop_repeated_points(arc_m)
     curve, arc_m = curve[kept], arc_m[kept]
     n_gaps = math.floor(total_m / spacing_m)
     if n_gaps + 2 > _MAX_RESAMPLED_POINTS:
-        raise ValueError(f"spacing_m: {spacing_m} m on a {total_m:.6g} m curve gives too many points")
+        raise BadInput(f"spacing_m: {spacing_m} m on a {total_m:.6g} m curve gives too many points")
     stations_m = spacing_m * np.arange(n_gaps + 1)
     # a last station within rounding of the end would duplicate the end point
     if n_gaps >= 1 and total_m - stations_m[-1] <= 1e-9 * spacing_m:

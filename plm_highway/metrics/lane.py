@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from plm_highway.errors import BadInput
 from plm_highway.metrics._validation import as_series, check_same_length
 
 __all__ = ["LaneDeviation", "dtsi", "lane_deviation", "modified_offset_m"]
@@ -48,7 +49,7 @@ def _offset_rates_m_per_s(offset_m: np.ndarray, t_s: np.ndarray, max_gap_s: floa
     gap_s = np.diff(t_s)
     kept = gap_s <= max_gap_s
     if not kept.any():
-        raise ValueError(f"t_s: every time gap exceeds {max_gap_s} s, so MDDC is undefined")
+        raise BadInput(f"t_s: every time gap exceeds {max_gap_s} s, so MDDC is undefined")
     return np.abs(np.diff(offset_m)[kept]) / gap_s[kept]
 
 
@@ -59,7 +60,7 @@ def lane_deviation(offset_m, t_s, max_gap_s: float = MAX_GAP_S) -> LaneDeviation
     check_same_length(e, "offset_m", t, "t_s")
     if not np.all(np.diff(t) > 0):
         first = int(np.flatnonzero(np.diff(t) <= 0)[0])
-        raise ValueError(f"t_s: must increase strictly, but t_s[{first + 1}] <= t_s[{first}]")
+        raise BadInput(f"t_s: must increase strictly, but t_s[{first + 1}] <= t_s[{first}]")
     mmdc = float(np.mean(modified_offset_m(e)))
     mddc = float(np.mean(_offset_rates_m_per_s(e, t, max_gap_s)))
     return LaneDeviation(

@@ -36,6 +36,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import distance
 
+from plm_highway.errors import BadInput
 from plm_highway.metrics import _kernels
 
 __version__ = "1.5.0"  # the similaritymeasures release whose API and results this module reproduces
@@ -267,7 +268,7 @@ def _densify(num, arc_lengths, n_points_out: int):
     """The original's densification loop (see _kernels.densify), failing where it fails."""
     num[0 : len(num) - 1, 0]  # the loop's first read: a curve without columns is an IndexError
     if len(arc_lengths) == 0:
-        raise ValueError("attempt to get argmax of an empty sequence (num_data has a single point)")
+        raise BadInput("attempt to get argmax of an empty sequence (num_data has a single point)")
     num[0, 1]  # then it reads y: a single-column curve is an IndexError
     num = np.asarray(num)
     kernel = _kernels.densify if num.dtype in _kernels.NUMBA_DTYPES else _kernels.densify.py_func

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from plm_highway.errors import BadInput
 from plm_highway.metrics._validation import as_series
 
 __all__ = [
@@ -32,7 +33,7 @@ ERROR_NAMES = ("mae", "mse", "rmse")  # the error keys of steering_errors, in re
 def common_span(*series) -> tuple[np.ndarray, ...]:
     """The series (finite, 1-D) cut to the steps every one of them reached: the first min(len) steps."""
     if not series:
-        raise ValueError("common_span: needs at least one series")
+        raise BadInput("common_span: needs at least one series")
     arrays = [as_series(values, f"series {k}", min_len=0) for k, values in enumerate(series)]
     n_steps = min(len(values) for values in arrays)
     return tuple(values[:n_steps] for values in arrays)
@@ -42,7 +43,7 @@ def _difference(reference, other) -> np.ndarray:
     ref = as_series(reference, "reference")
     oth = as_series(other, "other")
     if len(ref) != len(oth):
-        raise ValueError(
+        raise BadInput(
             f"reference and other: lengths differ ({len(ref)} vs {len(oth)}); to compare the steps "
             "both reached, pass common_span(reference, other)"
         )

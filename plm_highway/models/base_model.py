@@ -40,6 +40,7 @@ from dataclasses import dataclass, replace
 import torch
 from torch import nn
 
+from plm_highway.errors import BadInput
 from plm_highway.models.config_checks import check_bool, check_choice, check_int, check_number
 
 # (filters, kernel, stride) of the five convolutions, PilotNet's.
@@ -60,7 +61,7 @@ def conv_output_size_px(height_px: int, width_px: int) -> tuple[int, int]:
     for _, kernel, stride in CONV_LAYERS:
         height, width = (height - kernel) // stride + 1, (width - kernel) // stride + 1
     if height < 1 or width < 1:
-        raise ValueError(f"image {height_px}x{width_px} px is too small for the convolution stack")
+        raise BadInput(f"image {height_px}x{width_px} px is too small for the convolution stack")
     return height, width
 
 
@@ -106,7 +107,7 @@ PRESETS: dict[str, BaseModelConfig] = {
 
 def preset_config(preset: str, **overrides) -> BaseModelConfig:
     if preset not in PRESETS:
-        raise ValueError(f"preset: {preset!r} is not one of {sorted(PRESETS)}")
+        raise BadInput(f"preset: {preset!r} is not one of {sorted(PRESETS)}")
     return replace(PRESETS[preset], **overrides)
 
 
@@ -186,7 +187,7 @@ class BaseModel(nn.Module):
     def _check_frames(self, frames: torch.Tensor) -> None:
         if frames.dim() != 3 or tuple(frames.shape[1:]) != self.config.image_size_px:
             height, width = self.config.image_size_px
-            raise ValueError(f"frames: expected (B, {height}, {width}), got {tuple(frames.shape)}")
+            raise BadInput(f"frames: expected (B, {height}, {width}), got {tuple(frames.shape)}")
 
 
 def _conv_stack(config: BaseModelConfig) -> nn.Sequential:

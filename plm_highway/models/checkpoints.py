@@ -39,6 +39,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from plm_highway.errors import BadInput
 from plm_highway.io import directory_kind
 from plm_highway.models.base_model import BaseModel, BaseModelConfig
 from plm_highway.models.plm_net import PLMNet
@@ -96,7 +97,7 @@ def save_checkpoint(path: str | Path, model: BaseModel | TAPM, description: dict
     state = model.state_dict()
     problems = _non_finite(state)
     if problems:
-        raise ValueError(f"{weights_path}: refusing to save non-finite weights ({'; '.join(problems)})")
+        raise BadInput(f"{weights_path}: refusing to save non-finite weights ({'; '.join(problems)})")
     kind = KIND_BASE_MODEL if isinstance(model, BaseModel) else KIND_TAPM
     identity = {
         "format": FORMAT,
@@ -121,19 +122,19 @@ def read_description(path: str | Path, kind: str) -> dict:
             raise FileNotFoundError(f"{required}: checkpoint file not found")
     size_bytes = json_path.stat().st_size
     if size_bytes > MAX_DESCRIPTION_BYTES:
-        raise ValueError(f"{json_path}: {size_bytes} bytes, a checkpoint description is at most {MAX_DESCRIPTION_BYTES}")
+        raise BadInput(f"{json_path}: {size_bytes} bytes, a checkpoint description is at most {MAX_DESCRIPTION_BYTES}")
     try:
         document = json.loads(json_path.read_bytes().decode("utf-8-sig"))
     except UnicodeDecodeError as exc:
-        raise ValueError(f"{json_path}: not UTF-8 text ({exc})") from exc
+        raise BadInput(f"{json_path}: not UTF-8 text ({exc})") from exc
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{json_path}: not valid JSON ({exc})") from exc
+        raise BadInput(f"{json_path}: not valid JSON ({exc})") from exc
     if not isinstance(document, dict):
-        raise ValueError(f"{json_path}: expected a JSON object, found {type(document).__name__}")
+        raise BadInput(f"{json_path}: expected a JSON object, found {type(document).__name__}")
     if document.get("format") != FORMAT:
-        raise ValueError(f"{json_path}: field 'format' is {document.get('format')!r}, expected {FORMAT!r}")
+        raise BadInput(f"{json_path}: field 'format' is {document.get('format')!r}, expected {FORMAT!r}")
     if document.get("kind") != kind:
-        raise ValueError(f"{json_path}: is a {document.get('kind')!r} checkpoint, expected {kind!r}")
+        raise BadInput(f"{json_path}: is a {document.get('kind')!r} checkpoint, expected {kind!r}")
     return document
 
 
@@ -145,7 +146,7 @@ def load_base_model(path: str | Path) -> BaseModel:
     if image_size_px is not None and (
         not isinstance(image_size_px, list) or tuple(image_size_px) != config.image_size_px
     ):
-        raise ValueError(
+        raise BadInput(
             f"{checkpoint_paths(path)[1]}: image_size_px {image_size_px} disagrees with the architecture's "
             f"{list(config.image_size_px)}"
         )
@@ -160,19 +161,19 @@ def load_tapm(path: str | Path, bm: BaseModel) -> TAPM:
     config = _config_from(TAPMConfig, document, path)
     json_path = checkpoint_paths(path)[1]
     if config.image_feature_dim != bm.image_feature_dim:
-        raise ValueError(
+        raise BadInput(
             f"{json_path}: TAPM reads image features of size {config.image_feature_dim}, but the BM "
             f"({bm.config.image_height_px}x{bm.config.image_width_px} px) produces {bm.image_feature_dim}"
         )
     expected_bm = document.get("bm_fingerprint")
     if not isinstance(expected_bm, str):
-        raise ValueError(
+        raise BadInput(
             f"{json_path}: field 'bm_fingerprint' is missing or not a string: cannot check which BM the TAPM "
             f"was trained on"
         )
     bm_fingerprint = state_fingerprint(bm)
     if expected_bm != bm_fingerprint:
-        raise ValueError(
+        raise BadInput(
             f"{json_path}: TAPM was trained on the features of another BM (fingerprint "
             f"{expected_bm[:12]}..., this BM has {bm_fingerprint[:12]}...)"
         )
@@ -198,28 +199,28 @@ def load_weights(model: nn.Module, path: str | Path, document: dict | None = Non
     expected = model.state_dict()
     size_bytes = weights_path.stat().st_size
     if size_bytes > MAX_WEIGHTS_BYTES:
-        raise ValueError(f"{weights_path}: {size_bytes} bytes, a checkpoint's weights are at most {MAX_WEIGHTS_BYTES}")
+        raise BadInput(f"{weights_path}: {size_bytes} bytes, a checkpoint's weights are at most {MAX_WEIGHTS_BYTES}")
     try:
         state = torch.load(weights_path, map_location="cpu", weights_only=True, mmap=True)
     except Exception as exc:  # truncated zips, foreign pickles: no common base class worth naming
-        raise ValueError(f"{weights_path}: not a loadable state_dict ({exc})") from exc
+        raise BadInput(f"{weights_path}: not a loadable state_dict ({exc})") from exc
     if not isinstance(state, dict):  # a malformed file is bad input, like a shape mismatch
-        raise ValueError(f"{weights_path}: expected a state_dict, found {type(state).__name__}")
+        raise BadInput(f"{weights_path}: expected a state_dict, found {type(state).__name__}")
     not_tensors = sorted(str(key) for key, value in state.items() if not isinstance(value, torch.Tensor))
     if not_tensors:
-        raise ValueError(f"{weights_path}: entries that are not tensors: {_named(not_tensors)}")
+        raise BadInput(f"{weights_path}: entries that are not tensors: {_named(not_tensors)}")
     problems = _state_mismatches(expected, state)
     if problems:
-        raise ValueError(f"{weights_path}: weights do not match the architecture: " + "; ".join(problems))
+        raise BadInput(f"{weights_path}: weights do not match the architecture: " + "; ".join(problems))
     problems = _non_finite(state)
     if problems:
-        raise ValueError(f"{weights_path}: weights are not finite: " + "; ".join(problems))
+        raise BadInput(f"{weights_path}: weights are not finite: " + "; ".join(problems))
     recorded = document.get("fingerprint")
     if not isinstance(recorded, str):
-        raise ValueError(f"{json_path}: field 'fingerprint' is missing: the weights cannot be verified")
+        raise BadInput(f"{json_path}: field 'fingerprint' is missing: the weights cannot be verified")
     found = state_dict_fingerprint(state)
     if found != recorded:
-        raise ValueError(
+        raise BadInput(
             f"{weights_path}: the weights' fingerprint {found[:12]}... differs from the one recorded in "
             f"{json_path.name} ({recorded[:12]}...): the .pt was replaced or altered after it was saved"
         )
@@ -263,14 +264,14 @@ def _config_from(config_class, document: dict, path: str | Path):
     architecture = document.get("architecture")
     json_path = checkpoint_paths(path)[1]
     if not isinstance(architecture, dict):
-        raise ValueError(f"{json_path}: field 'architecture' is missing or not an object")
+        raise BadInput(f"{json_path}: field 'architecture' is missing or not an object")
     known = {field.name for field in dataclasses.fields(config_class)}
     unknown = sorted(set(architecture) - known)
     if unknown:
-        raise ValueError(f"{json_path}: unknown architecture fields {unknown} for {config_class.__name__}")
+        raise BadInput(f"{json_path}: unknown architecture fields {unknown} for {config_class.__name__}")
     try:
         return config_class(**architecture)
     except TypeError as exc:  # a required field is missing
-        raise ValueError(f"{json_path}: architecture: {exc}") from exc
+        raise BadInput(f"{json_path}: architecture: {exc}") from exc
     except ValueError as exc:  # a field of the wrong type or out of bounds, named by the config
-        raise ValueError(f"{json_path}: architecture field {exc}") from exc
+        raise BadInput(f"{json_path}: architecture field {exc}") from exc

@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import math
 
+from plm_highway.errors import BadInput
+
 
 def check_int(field: str, value, low: int, high: int) -> int:
     """An integer (not a bool, not a float such as 66.0) in [low, high]."""
     if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"{field}: expected an integer in [{low}, {high}], got {type(value).__name__} {value!r}")
+        raise BadInput(f"{field}: expected an integer in [{low}, {high}], got {type(value).__name__} {value!r}")
     if not low <= value <= high:
-        raise ValueError(f"{field}: must lie in [{low}, {high}], got {value}")
+        raise BadInput(f"{field}: must lie in [{low}, {high}], got {value}")
     return value
 
 
@@ -24,7 +26,7 @@ def check_number(field: str, value, low: float, high: float, *, low_open: bool =
     """A finite real number (int or float, not a bool) in the interval from ``low`` to ``high``."""
     interval = f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"{field}: expected a number in {interval}, got {type(value).__name__} {value!r}")
+        raise BadInput(f"{field}: expected a number in {interval}, got {type(value).__name__} {value!r}")
     value = float(value)
     inside = (
         math.isfinite(value)
@@ -32,17 +34,17 @@ def check_number(field: str, value, low: float, high: float, *, low_open: bool =
         and (value < high if high_open else value <= high)
     )
     if not inside:
-        raise ValueError(f"{field}: must be a finite number in {interval}, got {value}")
+        raise BadInput(f"{field}: must be a finite number in {interval}, got {value}")
     return value
 
 
 def check_bool(field: str, value) -> bool:
     if not isinstance(value, bool):
-        raise ValueError(f"{field}: expected true or false, got {type(value).__name__} {value!r}")
+        raise BadInput(f"{field}: expected true or false, got {type(value).__name__} {value!r}")
     return value
 
 
 def check_choice(field: str, value, choices: tuple[str, ...]) -> str:
     if not isinstance(value, str) or value not in choices:
-        raise ValueError(f"{field}: {value!r} is not one of {list(choices)}")
+        raise BadInput(f"{field}: {value!r} is not one of {list(choices)}")
     return value

@@ -26,6 +26,7 @@ import math
 import numpy as np
 import torch
 
+from plm_highway.errors import BadInput
 from plm_highway.models.base_model import BaseModel
 from plm_highway.models.plm_net import FusedPLMNet, PLMNet
 
@@ -53,7 +54,7 @@ class _Policy:
     def __call__(self, frame: np.ndarray, speed_mps: float, latency_s: float = 0.0) -> float:
         frame = np.asarray(frame)
         if frame.dtype != np.uint8 or frame.shape != self.image_size_px:
-            raise ValueError(f"frame: expected uint8 {self.image_size_px}, got {frame.dtype} {frame.shape}")
+            raise BadInput(f"frame: expected uint8 {self.image_size_px}, got {frame.dtype} {frame.shape}")
         return float(self.steer_batch(frame[None], [speed_mps], [latency_s])[0])
 
     def steer_batch(self, frames: np.ndarray, speeds_mps, latencies_s=None) -> np.ndarray:
@@ -82,20 +83,20 @@ class _Policy:
     def _checked_batch(self, frames, speeds_mps, latencies_s) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
         frames = np.asarray(frames)
         if frames.dtype != np.uint8 or frames.ndim != 3 or frames.shape[1:] != self.image_size_px:
-            raise ValueError(
+            raise BadInput(
                 f"frames: expected uint8 (B, {self.image_size_px[0]}, {self.image_size_px[1]}), "
                 f"got {frames.dtype} {frames.shape}"
             )
         n = len(frames)
         if not 1 <= n <= MAX_BATCH:
-            raise ValueError(f"frames: batch size must lie in [1, {MAX_BATCH}], got {n}")
+            raise BadInput(f"frames: batch size must lie in [1, {MAX_BATCH}], got {n}")
         speeds = _column("speeds_mps", speeds_mps, n)
         if not np.all(np.isfinite(speeds)):
-            raise ValueError(f"speeds_mps: must be finite, got {speeds[~np.isfinite(speeds)][0]}")
+            raise BadInput(f"speeds_mps: must be finite, got {speeds[~np.isfinite(speeds)][0]}")
         latencies = np.zeros(n, np.float32) if latencies_s is None else _column("latencies_s", latencies_s, n)
         if not np.all(np.isfinite(latencies) & (latencies >= 0)):
             bad = latencies[~(np.isfinite(latencies) & (latencies >= 0))][0]
-            raise ValueError(f"latency_s: must be a finite number >= 0 s, got {bad}")
+            raise BadInput(f"latency_s: must be a finite number >= 0 s, got {bad}")
         # Sharing memory with a contiguous frame batch: no copy at batch size 1.
         return torch.from_numpy(np.ascontiguousarray(frames)), torch.from_numpy(speeds), latencies
 
@@ -104,9 +105,9 @@ def _column(name: str, values, n: int) -> np.ndarray:
     try:
         column = np.asarray(values, dtype=np.float32)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: expected {n} numbers, got {values!r}") from exc
+        raise BadInput(f"{name}: expected {n} numbers, got {values!r}") from exc
     if column.shape != (n,):
-        raise ValueError(f"{name}: expected shape ({n},), one per frame, got {column.shape}")
+        raise BadInput(f"{name}: expected shape ({n},), one per frame, got {column.shape}")
     return column
 
 

@@ -26,6 +26,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from plm_highway.errors import BadInput
 from plm_highway.models.base_model import BaseModel
 from plm_highway.models.tapm import TAPM
 
@@ -42,7 +43,7 @@ def check_latency(latency_s: torch.Tensor, last_grid_s: float) -> int:
     low, high = latency_s.aminmax()
     if not float(low) >= 0:
         bad = torch.isnan(latency_s) | (latency_s < 0)
-        raise ValueError(f"latency_s: must be a number >= 0 s, got {float(latency_s[bad][0])}")
+        raise BadInput(f"latency_s: must be a number >= 0 s, got {float(latency_s[bad][0])}")
     return 0 if float(high) <= last_grid_s else int((latency_s > last_grid_s).sum())
 
 
@@ -94,22 +95,22 @@ def interpolate_batch(latency_s, delta_ref_s, a_ref):
 def _validate_reference(delta_ref_s: torch.Tensor, a_ref: torch.Tensor, n_latencies: int) -> None:
     n_ref = len(delta_ref_s)
     if delta_ref_s.dim() != 1 or n_ref < 2:
-        raise ValueError(f"delta_ref_s: expected at least 2 latencies, got shape {tuple(delta_ref_s.shape)}")
+        raise BadInput(f"delta_ref_s: expected at least 2 latencies, got shape {tuple(delta_ref_s.shape)}")
     if not bool((delta_ref_s[1:] > delta_ref_s[:-1]).all()):
-        raise ValueError(f"delta_ref_s: must be strictly increasing, got {delta_ref_s.tolist()}")
+        raise BadInput(f"delta_ref_s: must be strictly increasing, got {delta_ref_s.tolist()}")
     if (
         a_ref.dim() not in (1, 2)
         or a_ref.shape[-1] != n_ref
         or (a_ref.dim() == 2 and len(a_ref) != n_latencies)
     ):
-        raise ValueError(f"a_ref: expected ({n_latencies}, {n_ref}) or ({n_ref},), got {tuple(a_ref.shape)}")
+        raise BadInput(f"a_ref: expected ({n_latencies}, {n_ref}) or ({n_ref},), got {tuple(a_ref.shape)}")
 
 
 def check_latency_array(latency_s: np.ndarray, last_grid_s: float) -> np.ndarray:
     """:func:`check_latency` on the host: raise on NaN or negative latency; return the above-grid mask."""
     if not bool(np.all(latency_s >= 0)):  # NaN fails the comparison too
         bad = latency_s[~(latency_s >= 0)]
-        raise ValueError(f"latency_s: must be a number >= 0 s, got {float(bad[0])}")
+        raise BadInput(f"latency_s: must be a number >= 0 s, got {float(bad[0])}")
     return latency_s > np.float32(last_grid_s)
 
 
@@ -119,7 +120,7 @@ class PLMNet(nn.Module):
     def __init__(self, bm: BaseModel, tapm: TAPM):
         super().__init__()
         if tapm.config.image_feature_dim != bm.image_feature_dim:
-            raise ValueError(
+            raise BadInput(
                 f"TAPM expects image features of size {tapm.config.image_feature_dim}, "
                 f"the BM produces {bm.image_feature_dim} (different image size?)"
             )
@@ -139,7 +140,7 @@ class PLMNet(nn.Module):
         """Frames uint8 (B, H, W), speed (B,), latency (B,) in s -> :class:`PLMNetOutput`."""
         latency_s = latency_s.to(torch.float32).reshape(-1)
         if len(latency_s) != len(frames):
-            raise ValueError(
+            raise BadInput(
                 f"latency_s: expected one latency per frame ({len(frames)}), got {len(latency_s)}"
             )
         n_clamped = check_latency(latency_s, self.last_grid_s)
@@ -190,7 +191,7 @@ class FusedPLMNet:
         """Frames uint8 (B, H, W), speed (B,) m/s, latency (B,) s (tensor or array) -> steering (B,)."""
         latency_np = np.asarray(latency_s, dtype=np.float32).reshape(-1)
         if len(latency_np) != len(frames):
-            raise ValueError(f"latency_s: expected one latency per frame ({len(frames)}), got {len(latency_np)}")
+            raise BadInput(f"latency_s: expected one latency per frame ({len(frames)}), got {len(latency_np)}")
         clamped = check_latency_array(latency_np, self.last_grid_s)
         z_o, z_v = self.bm.encode(frames, speed_mps)
         first_layer = torch.nn.functional.linear(self.bm.mlp_input(z_o, z_v), self.weight, self.bias)

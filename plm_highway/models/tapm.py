@@ -31,6 +31,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from plm_highway.errors import BadInput
 from plm_highway.models.base_model import MAX_IMAGE_SIDE_PX, SPEED_FEATURES, BaseModelConfig
 from plm_highway.models.config_checks import check_int, check_number
 
@@ -57,7 +58,7 @@ class TAPMConfig:
         check_int("speed_feature_dim", self.speed_feature_dim, 1, MAX_SPEED_FEATURE_DIM)
         check_number("dropout", self.dropout, 0.0, 1.0, high_open=True)
         if isinstance(self.delta_grid_s, str) or not isinstance(self.delta_grid_s, list | tuple):
-            raise ValueError(
+            raise BadInput(
                 f"delta_grid_s: expected a list of latencies in seconds, got "
                 f"{type(self.delta_grid_s).__name__} {self.delta_grid_s!r}"
             )
@@ -72,17 +73,17 @@ class TAPMConfig:
 def validate_delta_grid(delta_grid_s, field: str = "delta_grid_s") -> tuple[float, ...]:
     """The grid as a tuple of floats: 1 to MAX_HEADS latencies, finite, > 0 (0 is the BM's), increasing."""
     if not 1 <= len(delta_grid_s) <= MAX_HEADS:
-        raise ValueError(f"{field}: expected 1 to {MAX_HEADS} latencies, got {len(delta_grid_s)}")
+        raise BadInput(f"{field}: expected 1 to {MAX_HEADS} latencies, got {len(delta_grid_s)}")
     for latency_s in delta_grid_s:
         if isinstance(latency_s, bool) or not isinstance(latency_s, int | float) or not (
             math.isfinite(latency_s) and 0 < latency_s <= MAX_GRID_LATENCY_S
         ):
-            raise ValueError(
+            raise BadInput(
                 f"{field}: latencies must be finite numbers in (0, {MAX_GRID_LATENCY_S:g}] s, "
                 f"got {latency_s!r} in {list(delta_grid_s)}"
             )
     if any(later <= earlier for earlier, later in itertools.pairwise(delta_grid_s)):
-        raise ValueError(f"{field}: latencies must be strictly increasing, got {list(delta_grid_s)}")
+        raise BadInput(f"{field}: latencies must be strictly increasing, got {list(delta_grid_s)}")
     return tuple(float(latency_s) for latency_s in delta_grid_s)
 
 
@@ -132,7 +133,7 @@ class TAPM(nn.Module):
         """Heads ``first .. stop - 1`` (all by default) on the trunk (B, 700) -> (B, stop - first)."""
         stop = self.config.n_heads if stop is None else stop
         if not 0 <= first < stop <= self.config.n_heads:
-            raise ValueError(f"heads: range [{first}, {stop}) is not within the {self.config.n_heads} heads")
+            raise BadInput(f"heads: range [{first}, {stop}) is not within the {self.config.n_heads} heads")
         n_heads, width = stop - first, HEAD_WIDTHS[0]
         # Contiguous heads are contiguous slices of every weight: views, no copies.
         rows = slice(first * width, stop * width)

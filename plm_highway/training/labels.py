@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from plm_highway.errors import BadInput
 from plm_highway.io import save_figure_into
 
 # Timestamps are sums of float steps: t + 0.15 may land a few ulps past the episode's last sample.
@@ -49,7 +50,7 @@ def _episode_future_labels(
 ) -> np.ndarray:
     if np.any(np.diff(t_s) <= 0):
         row = int(np.flatnonzero(np.diff(t_s) <= 0)[0]) + 1
-        raise ValueError(f"episode {episode}: t_s is not strictly increasing at its row {row}")
+        raise BadInput(f"episode {episode}: t_s is not strictly increasing at its row {row}")
     target_t_s = t_s[:, None] + horizons_s[None, :]
     beyond_end = target_t_s > t_s[-1] + TIME_TOLERANCE_S
     labels = np.interp(np.minimum(target_t_s, t_s[-1]), t_s, steering.astype(np.float64))
@@ -70,7 +71,7 @@ def balance_by_histogram(
     near-zero steering of straight roads and keeps every curve sample.
     """
     if max_per_bin < 1:
-        raise ValueError(f"max_per_bin: must be >= 1, got {max_per_bin}")
+        raise BadInput(f"max_per_bin: must be >= 1, got {max_per_bin}")
     bins = np.clip(np.digitize(steering, steering_bin_edges(n_bins)[1:-1]), 0, n_bins - 1)
     kept = []
     for b in range(n_bins):

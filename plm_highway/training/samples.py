@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from plm_highway.data.dataset import Dataset
+from plm_highway.errors import BadInput
 from plm_highway.training.labels import balance_by_histogram, future_steering_labels
 
 MIN_EPISODES_FOR_EPISODE_SPLIT = 5
@@ -90,7 +91,7 @@ def split_train_val(
     groups = _split_groups(rows)
     unique_groups, group_sizes = np.unique(groups, return_counts=True)
     if len(unique_groups) < 2:
-        raise ValueError(f"cannot split {len(rows)} rows into train and validation: they form one block")
+        raise BadInput(f"cannot split {len(rows)} rows into train and validation: they form one block")
     order = rng.permutation(len(unique_groups))
     # Draw whole groups until the validation share is reached, always leaving one for training.
     n_val_groups = int(np.searchsorted(np.cumsum(group_sizes[order]), val_fraction * len(rows))) + 1

@@ -32,6 +32,7 @@ from torch.nn import functional as F
 from tqdm import tqdm
 
 from plm_highway.data.dataset import Dataset, read_dataset
+from plm_highway.errors import BadInput
 from plm_highway.io import check_target, write_output
 from plm_highway.models.base_model import BaseModel, preset_config
 from plm_highway.models.checkpoints import (
@@ -247,7 +248,7 @@ def prepare_rows(
 ) -> PreparedRows:
     """Balance, subset and split ``rows``; ValueError (naming ``source``) if nothing usable is left."""
     if len(rows) == 0:
-        raise ValueError(f"{source}: no usable rows to train on")
+        raise BadInput(f"{source}: no usable rows to train on")
     steering_before = rows.steering
     rows = balanced(rows, config.balance_max_per_bin, rng)
     n_balanced = len(rows)
@@ -255,7 +256,7 @@ def prepare_rows(
     try:
         train_rows, val_rows = split_train_val(rows, config.val_fraction, rng)
     except ValueError as exc:
-        raise ValueError(f"{source}: {exc}") from exc
+        raise BadInput(f"{source}: {exc}") from exc
     counts = {
         "rows_labelled": len(steering_before),
         "rows_after_balancing": n_balanced,
@@ -339,7 +340,7 @@ def train_tapm(
 def _check_frame_size(dataset: Dataset, image_size_px: tuple[int, int], owner: str) -> None:
     frame_size_px = tuple(dataset.frames.shape[1:])
     if frame_size_px != tuple(image_size_px):
-        raise ValueError(
+        raise BadInput(
             f"dataset frames are {frame_size_px[0]}x{frame_size_px[1]} px but {owner} expects "
             f"{image_size_px[0]}x{image_size_px[1]} px (collect with the matching camera preset)"
         )
@@ -371,9 +372,9 @@ def parse_delta_grid(text: str) -> tuple[float, ...]:
     try:
         grid = [float(part) for part in parts if part]
     except ValueError as exc:
-        raise ValueError(f"--delta-grid: expected comma-separated seconds, got {text!r}") from exc
+        raise BadInput(f"--delta-grid: expected comma-separated seconds, got {text!r}") from exc
     if not grid:
-        raise ValueError(f"--delta-grid: expected at least one latency in seconds, got {text!r}")
+        raise BadInput(f"--delta-grid: expected at least one latency in seconds, got {text!r}")
     return validate_delta_grid(grid, field="--delta-grid")
 
 
@@ -383,4 +384,4 @@ def check_bm_preset(bm_path: str | Path, preset: str | None) -> None:
         return
     bm_preset = read_description(bm_path, KIND_BASE_MODEL).get("preset")
     if bm_preset != preset:
-        raise ValueError(f"--preset {preset} given, but the BM at {bm_path} was trained with preset {bm_preset!r}")
+        raise BadInput(f"--preset {preset} given, but the BM at {bm_path} was trained with preset {bm_preset!r}")
