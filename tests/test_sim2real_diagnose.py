@@ -33,7 +33,9 @@ VALUES = {
     "steering_gain": [0.90, 1.10, 0.85],
     "steering_offset": [0.004, -0.006, 0.008],
 }
-CASES = [(name,) for name in EFFECT_NAMES] + list(itertools.combinations(EFFECT_NAMES, 2))
+# The original five effects, alone and in pairs (the extended library: tests/test_sim2real_library.py).
+ORIGINAL_EFFECTS = tuple(VALUES)
+CASES = [(name,) for name in ORIGINAL_EFFECTS] + list(itertools.combinations(ORIGINAL_EFFECTS, 2))
 
 
 def recovered(name: str, key: str, estimate: float, truth: float) -> bool:
