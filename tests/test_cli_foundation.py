@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from plm_highway.cli import COMMANDS
+from plm_highway.cli import ADAPTERS, build_parser
 from plm_highway.data.dataset import read_dataset
 from plm_highway.evaluation.closed_loop import LOG_COLUMNS
 
@@ -30,13 +30,45 @@ def read_csv(path) -> list[dict]:
         return list(csv.DictReader(handle))
 
 
-def test_help_lists_every_command():
+def _command_words() -> list[tuple[str, ...]]:
+    import importlib
+
+    words = []
+    for name in ADAPTERS:
+        module = importlib.import_module(f"plm_highway.cli.{name}")
+        prefix = (name,) if getattr(module, "GROUP_HELP", None) else ()
+        words += [(*prefix, command.name) for command in module.COMMANDS]
+    return words
+
+
+def test_help_lists_every_command_and_group():
     result = plm("--help")
     assert result.returncode == 0, result.stderr
-    for words in ("demo zigzag", "collect", "evaluate", "bench env", *COMMANDS):
-        assert words in result.stdout
+    for words in _command_words():
+        assert words[0] in result.stdout
     no_args = plm()
     assert no_args.returncode == 0 and "commands:" in no_args.stdout
+
+
+@pytest.mark.parametrize("group", ["demo", "train", "bench", "sim2real", "lessons"])
+def test_group_help_lists_its_commands(group):
+    result = plm(group, "--help")
+    assert result.returncode == 0, result.stderr
+    commands = [words[1] for words in _command_words() if words[0] == group]
+    assert commands and all(command in result.stdout for command in commands)
+    bare = plm(group)  # a group without its command: its help, and a usage error
+    assert bare.returncode == 2 and all(command in bare.stdout for command in commands)
+
+
+def test_every_command_and_option_has_help_text():
+    for words in _command_words():
+        parser = build_parser(list(words))
+        sub = parser
+        for word in words:
+            sub = next(a for a in sub._subparsers._group_actions).choices[word]
+        for action in sub._actions:
+            if action.dest != "help":
+                assert action.help, f"plm-highway {' '.join(words)}: option {action.option_strings or action.dest} has no help"
 
 
 def test_console_script_is_installed():
@@ -50,8 +82,8 @@ def test_console_script_is_installed():
 def test_unknown_command_exits_2():
     result = plm("frobnicate", "--now")
     assert result.returncode == 2
-    assert "unknown command" in result.stderr and "frobnicate" in result.stderr
-    assert "commands:" in result.stderr
+    assert "invalid choice" in result.stderr and "frobnicate" in result.stderr
+    assert "Traceback" not in result.stderr
 
 
 def test_command_help():
@@ -61,8 +93,10 @@ def test_command_help():
 
 
 def test_evaluate_expert_writes_json_and_csvs(tmp_path):
-    out = tmp_path / "results" / "out.json"
-    result = plm("evaluate", "--policy", "expert", "--latency", "const:0.2", "--max-steps", "200", "--json", str(out))
+    run_dir = tmp_path / "results" / "run"
+    out = run_dir / "result.json"
+    result = plm("evaluate", "--policy", "expert", "--latency", "const:0.2", "--max-steps", "200",
+                 "--out", str(run_dir))
     assert result.returncode == 0, result.stderr
     data = json.loads(out.read_text())
     assert json.loads(result.stdout) == data  # the same result is printed
@@ -76,11 +110,11 @@ def test_evaluate_expert_writes_json_and_csvs(tmp_path):
         assert 0 <= run["lateral_offset_rms_m"] <= run["lateral_offset_max_m"] < 1.0
     # 10 s include the first curve (from 120 m): the late run zig-zags more.
     assert data["runs"]["baseline"]["lateral_offset_rms_m"] > 1.5 * data["runs"]["reference"]["lateral_offset_rms_m"]
-    names = {p.name for p in out.parent.iterdir()}
-    assert {"out.json", "out_baseline.csv", "out_reference.csv"} <= names  # CSVs beside the JSON
-    assert all(name.startswith("out") for name in names)  # no temporary files left behind
+    names = {p.name for p in run_dir.iterdir()}
+    assert names == {".plm-highway-output.json", "result.json", "baseline.csv", "reference.csv", "steps.csv"}
+    assert [p.name for p in run_dir.parent.iterdir()] == ["run"]  # no temporary files left behind
     for name, latency in (("reference", 0.0), ("baseline", 0.2)):
-        rows = read_csv(out.parent / f"out_{name}.csv")
+        rows = read_csv(run_dir / f"{name}.csv")
         assert len(rows) == 200
         assert tuple(rows[0]) == LOG_COLUMNS
         assert all(float(row["latency_s"]) == latency for row in rows)
@@ -109,7 +143,7 @@ def test_collect_writes_a_readable_dataset(tmp_path):
     assert len(data) == 40 and data.frames.shape == (40, 66, 200)
     assert data.manifest["counts"] == {"samples": 40, "episodes": 2}
     assert data.manifest["track"] == "test"
-    assert data.manifest["command"].startswith("plm-highway collect")
+    assert data.manifest["command"].startswith("plm-highway collect --track test")
     assert sorted(set(data.steps["episode_id"].tolist())) == [0, 1]
 
 

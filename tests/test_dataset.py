@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import json
 import math
+import re
+import zipfile
 
 import gymnasium
 import numpy as np
 import pytest
 
 import plm_highway  # noqa: F401  (registers the env)
+from plm_highway import cli
 from plm_highway.data import dataset as dataset_module
 from plm_highway.data.collect import RECOVERY_WINDOW_S, collect
 from plm_highway.data.dataset import FORMAT, STEP_COLUMNS, read_dataset, write_dataset
@@ -53,7 +56,7 @@ def test_write_read_round_trip(tmp_path):
     frames, steps = make_frames(), make_steps()
     out = write_dataset(tmp_path / "ds", frames, steps, {"track": "test", "seed": 3})
     assert out == tmp_path / "ds"
-    assert listing(out) == ["frames.npy", "manifest.json", "steps.npz"]
+    assert listing(out) == [".plm-highway-output.json", "frames.npy", "manifest.json", "steps.npz"]
     data = read_dataset(out)
     assert len(data) == N_ROWS
     assert isinstance(data.frames, np.memmap)  # not loaded into memory
@@ -145,15 +148,19 @@ def test_read_validates_columns(tmp_path):
 # -- atomicity -------------------------------------------------------------------------------------
 
 
-def test_rewriting_replaces_the_dataset(tmp_path):
+def test_rewriting_replaces_the_dataset_only_with_overwrite(tmp_path):
     out = tmp_path / "ds"
     write_dataset(out, make_frames(), make_steps(), {"version": 1})
     (out / "stale.txt").write_text("left over from the first write")
-    write_dataset(out, make_frames(6), make_steps(6, episodes=2), {"version": 2})
+    with pytest.raises(ValueError, match="--overwrite"):
+        write_dataset(out, make_frames(6), make_steps(6, episodes=2), {"version": 2})
+    assert read_dataset(out).manifest["version"] == 1
+    write_dataset(out, make_frames(6), make_steps(6, episodes=2), {"version": 2}, overwrite=True)
     data = read_dataset(out)
     assert len(data) == 6 and data.manifest["version"] == 2
     assert data.manifest["counts"] == {"samples": 6, "episodes": 2}
-    assert listing(tmp_path) == ["ds", "ds/frames.npy", "ds/manifest.json", "ds/steps.npz"]
+    assert listing(tmp_path) == ["ds", "ds/.plm-highway-output.json", "ds/frames.npy", "ds/manifest.json",
+                                 "ds/steps.npz"]
 
 
 def test_failed_rewrite_keeps_the_old_dataset(tmp_path):
@@ -161,7 +168,7 @@ def test_failed_rewrite_keeps_the_old_dataset(tmp_path):
     write_dataset(out, make_frames(), make_steps(), {"version": 1})
     before = listing(tmp_path)
     with pytest.raises(ValueError):
-        write_dataset(out, make_frames(), _without(make_steps(), "steering"), {"version": 2})
+        write_dataset(out, make_frames(), _without(make_steps(), "steering"), {"version": 2}, overwrite=True)
     assert listing(tmp_path) == before
     assert read_dataset(out).manifest["version"] == 1
 
@@ -176,7 +183,7 @@ def test_crash_during_the_write_leaves_nothing_behind(tmp_path, monkeypatch):
 
     monkeypatch.setattr(dataset_module.np, "savez", crash)
     with pytest.raises(OSError, match="disk full"):
-        write_dataset(out, make_frames(6), make_steps(6, episodes=2), {"version": 2})
+        write_dataset(out, make_frames(6), make_steps(6, episodes=2), {"version": 2}, overwrite=True)
     with pytest.raises(OSError):
         write_dataset(tmp_path / "new", make_frames(), make_steps(), {})
     monkeypatch.undo()
@@ -281,3 +288,237 @@ def test_collect_episodes_are_never_cut_short_by_the_end_of_the_track(tmp_path):
 def test_collect_rejects_bad_arguments(kwargs, fragment):
     with pytest.raises(ValueError, match=fragment):
         collect("test", **{"episodes": 1, "episode_seconds": 1.0, "progress": False, **kwargs})
+
+
+# One line per bad collect argument: (arguments, message). Each exits 2 before an episode runs and writes nothing.
+BAD_COLLECT_ARGUMENTS = [
+    pytest.param(["--episodes", "0"], r"--episodes: must lie in \[1, 100000\], got 0", id="episodes-0"),
+    pytest.param(["--episodes", "-3"], r"--episodes: must lie in \[1, 100000\], got -3", id="episodes-negative"),
+    pytest.param(["--episodes", "1000000"], r"--episodes: must lie in \[1, 100000\]", id="episodes-huge"),
+    pytest.param(["--episode-seconds", "0"], r"--episode-seconds: must be a finite number in \(0, 3600\], got 0",
+                 id="seconds-0"),
+    pytest.param(["--episode-seconds", "-1"], r"--episode-seconds: .*got -1", id="seconds-negative"),
+    pytest.param(["--episode-seconds", "nan"], r"--episode-seconds: .*got nan", id="seconds-nan"),
+    pytest.param(["--episode-seconds", "1e9"], r"--episode-seconds: .*got 1e\+?0?9|--episode-seconds: .*1000000000",
+                 id="seconds-huge"),
+    pytest.param(["--speed-mps", "0"], r"--speed-mps: must be a finite number in \(0, 70\], got 0", id="speed-0"),
+    pytest.param(["--speed-mps", "-10"], r"--speed-mps: .*got -10", id="speed-negative"),
+    pytest.param(["--speed-mps", "nan"], r"--speed-mps: .*got nan", id="speed-nan"),
+    pytest.param(["--speed-mps", "1000"], r"--speed-mps: .*got 1000", id="speed-huge"),
+    pytest.param(["--max-offset-m", "50"], r"--max-offset-m 50 would start the car off the road of track 'test': "
+                 r"at most 6 m", id="offset-off-road"),
+    pytest.param(["--max-offset-m", "-1"], r"--max-offset-m: must be a finite number in \[0, inf\), got -1",
+                 id="offset-negative"),
+    pytest.param(["--max-offset-m", "nan"], r"--max-offset-m: .*got nan", id="offset-nan"),
+    pytest.param(["--max-heading-error-deg", "90"], r"--max-heading-error-deg: .*\[0, 45\], got 90", id="heading"),
+    pytest.param(["--displaced-fraction", "1.5"], r"--displaced-fraction: .*\[0, 1\], got 1.5", id="fraction"),
+    pytest.param(["--displaced-fraction", "nan"], r"--displaced-fraction: .*got nan", id="fraction-nan"),
+    pytest.param(["--seed", "-1"], r"--seed: must lie in \[0, 9223372036854775807\], got -1", id="seed-negative"),
+    pytest.param(["--episodes", "100000", "--episode-seconds", "60"], r"frames of 66x200 px exceed the 8 GiB",
+                 id="too-many-frames"),
+]
+
+
+@pytest.mark.parametrize(("arguments", "message"), BAD_COLLECT_ARGUMENTS)
+def test_collect_refuses_bad_arguments_on_the_command_line(tmp_path, capsys, arguments, message):
+    out = tmp_path / "ds"
+    code = cli.main(["collect", "--track", "test", "--out", str(out), "--episodes", "1", "--episode-seconds", "1",
+                     *arguments])
+    err = capsys.readouterr().err
+    assert code == cli.EXIT_BAD_INPUT, err
+    assert re.search(message, err), err
+    assert "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []  # no dataset, no temporary directory
+
+
+# -- bad dataset directories -------------------------------------------------------------------------
+
+
+def rewrite_manifest(change):
+    def mutate(path):
+        manifest = json.loads((path / "manifest.json").read_text())
+        change(manifest)
+        (path / "manifest.json").write_text(json.dumps(manifest))
+
+    return mutate
+
+
+def write_file(name: str, data: bytes):
+    def mutate(path):
+        (path / name).write_bytes(data)
+
+    return mutate
+
+
+def truncate(name: str, keep_fraction: float = 0.5):
+    def mutate(path):
+        data = (path / name).read_bytes()
+        (path / name).write_bytes(data[: int(len(data) * keep_fraction)])
+
+    return mutate
+
+
+def remove(name: str):
+    def mutate(path):
+        (path / name).unlink()
+
+    return mutate
+
+
+def replace_frames(make):
+    def mutate(path):
+        frames = np.load(path / "frames.npy")
+        np.save(path / "frames.npy", make(frames), allow_pickle=True)
+
+    return mutate
+
+
+def replace_steps(change):
+    def mutate(path):
+        with np.load(path / "steps.npz") as npz:
+            steps = {name: npz[name] for name in npz.files}
+        change(steps)
+        np.savez(path / "steps.npz", **steps)
+
+    return mutate
+
+
+def append_bytes(name: str, data: bytes):
+    def mutate(path):
+        with open(path / name, "ab") as handle:
+            handle.write(data)
+
+    return mutate
+
+
+def huge_header(path):
+    """A valid .npy header claiming 10**9 frames, with almost no data behind it."""
+    frames = np.load(path / "frames.npy")
+    with open(path / "frames.npy", "wb") as handle:
+        np.lib.format.write_array_header_1_0(
+            handle, {"descr": "|u1", "fortran_order": False, "shape": (10**9, *frames.shape[1:])})
+        handle.write(b"\0" * 100)
+
+
+def empty_dataset(path):
+    frames = np.load(path / "frames.npy")
+    np.save(path / "frames.npy", frames[:0])
+    with np.load(path / "steps.npz") as npz:
+        np.savez(path / "steps.npz", **{name: npz[name][:0] for name in npz.files})
+    rewrite_manifest(lambda m: m.update(counts={"samples": 0, "episodes": 0}))(path)
+
+
+def steps_with_an_object_column(path):
+    with np.load(path / "steps.npz") as npz:
+        steps = {name: npz[name] for name in npz.files}
+    steps["x_m"] = np.array([{"x": 1}] * len(steps["x_m"]), dtype=object)
+    np.savez(path / "steps.npz", **steps)
+
+
+def _drop(manifest, key):
+    del manifest[key]
+
+
+# One line per bad dataset directory: (what is done to a valid dataset, exception, message).
+BAD_DATASETS = [
+    pytest.param(truncate("frames.npy"), ValueError, r"frames.npy: truncated: \d+ bytes, its header \(\d+ frames "
+                 r"of \d+x\d+ px\) needs \d+", id="frames-truncated"),
+    pytest.param(truncate("frames.npy", 0.001), ValueError, r"frames.npy: (not a .npy array file|truncated)",
+                 id="frames-header-cut"),
+    pytest.param(append_bytes("frames.npy", b"extra"), ValueError, r"frames.npy: longer than its header says",
+                 id="frames-too-long"),
+    pytest.param(write_file("frames.npy", b"hello, not numpy"), ValueError, r"frames.npy: not a .npy array file",
+                 id="frames-garbage"),
+    pytest.param(replace_frames(lambda f: f.astype(np.float32)), ValueError,
+                 r"frames.npy: expected uint8 \(N, H, W\), got float32", id="frames-float"),
+    pytest.param(replace_frames(lambda f: f.reshape(len(f), -1)), ValueError, r"frames.npy: expected uint8 \(N, H, W\)",
+                 id="frames-2d"),
+    pytest.param(replace_frames(lambda f: np.array([None] * len(f), dtype=object)), ValueError,
+                 r"frames.npy: expected uint8 \(N, H, W\), got object", id="frames-pickled-objects"),
+    pytest.param(huge_header, ValueError, r"frames.npy: a dataset has 1 to 10000000 samples, got 1000000000",
+                 id="frames-huge-header"),
+    pytest.param(remove("frames.npy"), FileNotFoundError, r"frames.npy: dataset file not found", id="frames-missing"),
+    pytest.param(remove("manifest.json"), FileNotFoundError, r"manifest.json: no dataset manifest",
+                 id="manifest-missing"),
+    pytest.param(write_file("manifest.json", b"{not json"), ValueError, r"manifest.json: not valid JSON",
+                 id="manifest-not-json"),
+    pytest.param(write_file("manifest.json", b"[]"), ValueError, r"manifest.json: expected a JSON object, found list",
+                 id="manifest-list"),
+    pytest.param(write_file("manifest.json", b"\xff\xfe\x00{"), ValueError, r"manifest.json: not UTF-8 text",
+                 id="manifest-binary"),
+    pytest.param(write_file("manifest.json", b" " * (5 * 1024 * 1024)), ValueError,
+                 r"manifest.json: \d+ bytes, a dataset manifest is at most 4194304", id="manifest-huge"),
+    pytest.param(rewrite_manifest(lambda m: _drop(m, "format")), ValueError, r"manifest.json: field 'format' is None",
+                 id="manifest-no-format"),
+    pytest.param(rewrite_manifest(lambda m: _drop(m, "counts")), ValueError,
+                 r"manifest.json: field 'counts' must be an object with integer 'samples' and 'episodes', got None",
+                 id="manifest-no-counts"),
+    pytest.param(rewrite_manifest(lambda m: m.update(counts={"samples": "12", "episodes": 3})), ValueError,
+                 r"field 'counts' must be an object", id="manifest-str-count"),
+    pytest.param(rewrite_manifest(lambda m: m["counts"].update(samples=m["counts"]["samples"] + 1)), ValueError,
+                 r"manifest.json: counts.samples is \d+, but frames.npy holds \d+ frames", id="counts-samples"),
+    pytest.param(rewrite_manifest(lambda m: m["counts"].update(episodes=99)), ValueError,
+                 r"manifest.json: counts.episodes is 99, but steps.npz holds \d+", id="counts-episodes"),
+    pytest.param(remove("steps.npz"), FileNotFoundError, r"steps.npz: dataset file not found", id="steps-missing"),
+    pytest.param(truncate("steps.npz"), ValueError, r"steps.npz: not a readable .npz of step columns",
+                 id="steps-truncated"),
+    pytest.param(steps_with_an_object_column, ValueError, r"steps.npz: not a readable .npz .*allow_pickle",
+                 id="steps-pickled-objects"),
+    pytest.param(replace_steps(lambda s: s.update(x_m=s["x_m"][:-1])), ValueError,
+                 r"steps.npz: column 'x_m' has shape \(\d+,\), expected \(\d+,\)", id="steps-rows-mismatch"),
+    pytest.param(replace_steps(lambda s: s.pop("t_s")), ValueError, r"steps.npz: missing columns \['t_s'\]",
+                 id="steps-missing-column"),
+    pytest.param(replace_steps(lambda s: s["y_m"].__setitem__(2, np.inf)), ValueError,
+                 r"steps.npz: column 'y_m' is not finite at row 2", id="steps-inf"),
+    pytest.param(empty_dataset, ValueError, r"frames.npy: a dataset has 1 to 10000000 samples, got 0", id="empty"),
+]
+
+
+@pytest.mark.parametrize(("mutate", "exception", "message"), BAD_DATASETS)
+def test_bad_dataset_directories_are_refused_naming_the_file(tmp_path, mutate, exception, message):
+    out = write_dataset(tmp_path / "ds", make_frames(), make_steps(), {})
+    mutate(out)
+    with pytest.raises(exception, match=message):
+        read_dataset(out)
+
+
+@pytest.fixture(scope="module")
+def camera_size_dataset(tmp_path_factory):
+    from plm_highway.training.synthetic import make_synthetic_dataset
+
+    return make_synthetic_dataset(tmp_path_factory.mktemp("camera") / "ds", n_episodes=6, steps_per_episode=20)
+
+
+@pytest.mark.parametrize(("mutate", "exception", "message"), BAD_DATASETS)
+def test_bad_dataset_directories_exit_2_in_training_and_leave_nothing(tmp_path, capsys, camera_size_dataset,
+                                                                      mutate, exception, message):
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(camera_size_dataset, data)
+    mutate(data)
+    out = tmp_path / "bm"
+    code = cli.main(["train", "bm", "--data", str(data), "--out", str(out), "--quiet", "--threads", "1"])
+    err = capsys.readouterr().err
+    assert code == cli.EXIT_BAD_INPUT, err
+    assert re.search(message, err), err
+    assert "Traceback" not in err and not out.exists()
+
+
+def test_a_manifest_with_a_byte_order_mark_is_read(tmp_path):
+    out = write_dataset(tmp_path / "ds", make_frames(), make_steps(), {"track": "test"})
+    (out / "manifest.json").write_bytes(b"\xef\xbb\xbf" + (out / "manifest.json").read_bytes())
+    assert read_dataset(out).manifest["track"] == "test"
+
+
+def test_an_empty_dataset_is_not_written(tmp_path):
+    with pytest.raises(ValueError, match=r"frames: a dataset has 1 to 10000000 samples, got 0"):
+        write_dataset(tmp_path / "ds", make_frames(0), make_steps(0, episodes=1), {})
+    assert listing(tmp_path) == []
+
+
+def test_npz_files_are_zip_archives_without_timestamps(tmp_path):
+    # The determinism of collect's output rests on this: np.savez writes no wall-clock time.
+    out = write_dataset(tmp_path / "ds", make_frames(), make_steps(), {})
+    with zipfile.ZipFile(out / "steps.npz") as archive:
+        assert {info.date_time for info in archive.infolist()} == {(1980, 1, 1, 0, 0, 0)}

@@ -12,7 +12,7 @@ import pytest
 from tiny_models import tiny_checkpoints
 
 from plm_highway import cli
-from plm_highway.evaluation import cli as evaluate_cli
+from plm_highway.evaluation import evaluate as evaluate_cli
 from plm_highway.evaluation.closed_loop import LOG_COLUMNS, RunLog
 from plm_highway.evaluation.trajectory import METRICS, PARTS, RESAMPLE_SPACING_M
 
@@ -31,9 +31,10 @@ def read_csv(path) -> list[dict]:
 
 @pytest.mark.slow
 def test_plm_evaluation_writes_json_with_trajectory_and_csv_logs(checkpoints, tmp_path, capsys):
-    out = tmp_path / "eval" / "result.json"
+    run_dir = tmp_path / "eval"
+    out = run_dir / "result.json"
     code = cli.main(["evaluate", "--policy", "plm", "--latency", "const:0.2", "--max-steps", "180",
-                     "--checkpoints", str(checkpoints), "--json", str(out)])
+                     "--checkpoints", str(checkpoints), "--out", str(run_dir)])
     assert code == 0
     result = json.loads(out.read_text())
     assert json.loads(capsys.readouterr().out) == result
@@ -60,16 +61,16 @@ def test_plm_evaluation_writes_json_with_trajectory_and_csv_logs(checkpoints, tm
     assert result["trajectory_method"]["resample_spacing_m"] == RESAMPLE_SPACING_M
     # one CSV per run with every logged column, and the runs side by side
     for run in runs:
-        rows = read_csv(out.with_name(f"result_{run}.csv"))
+        rows = read_csv(run_dir / f"{run}.csv")
         assert tuple(rows[0]) == LOG_COLUMNS and set(RUN_COLUMNS) <= set(rows[0])
         assert len(rows) == result["runs"][run]["steps"]
         assert float(rows[0]["t_s"]) == 0.0 and rows[0]["segment"] == "straight"
-    combined = read_csv(out.with_name("result_steps.csv"))
+    combined = read_csv(run_dir / "steps.csv")
     for run in runs:
         for column in RUN_COLUMNS[1:]:
             assert f"{run}_{column}" in combined[0]
     assert {row["baseline_latency_s"] for row in combined} == {"0.2"}
-    mitigated_log = read_csv(out.with_name("result_mitigated.csv"))
+    mitigated_log = read_csv(run_dir / "mitigated.csv")
     assert [row["steering"] for row in mitigated_log] == [row["mitigated_steering"] for row in combined][:len(mitigated_log)]
 
 
@@ -96,7 +97,7 @@ def _bad_track(tmp_path):
     (["--checkpoints", "{tmp}/no_such_dir"], "no such directory"),
     (["--track", "{bad_track}"], "segment 1: field 'radius_m'"),
     (["--track", "{tmp}/missing.json"], "neither a shipped track"),
-    (["--max-steps", "0"], "--max-steps 0"),
+    (["--max-steps", "0"], "--max-steps: 0 is outside the accepted range"),
 ])
 def test_bad_input_exits_2_and_writes_nothing(tmp_path, capsys, arguments, message):
     bad_track = _bad_track(tmp_path)

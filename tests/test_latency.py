@@ -72,7 +72,7 @@ def assert_age_follows_latency(info: dict, expected_latency_s: float) -> None:
 def test_parse_each_kind(tmp_path):
     const = parse_profile("const:0.2")
     assert const.latency_s(0.0) == 0.2 and const.latency_s(7.3) == 0.2 and const.max_latency_s == 0.2
-    for spec in ("none", "0", "", 0, 0.0):
+    for spec in ("none", "0", 0, 0.0, " none "):
         assert parse_profile(spec).latency_s(3.0) == 0.0
     assert parse_profile(0.15).latency_s(1.0) == 0.15
     assert str(parse_profile(" const:0.2 ")) == "const:0.2"
@@ -229,6 +229,23 @@ def test_age_property_steps(bounds, period_s, episode):
         assert_age_follows_latency(info, value)
 
 
+@settings(max_examples=25, deadline=None)
+@given(low=st.integers(0, 12), width=st.integers(0, 12), every=st.integers(1, 40), rate_hz=st.sampled_from([20, 30, 60]),
+       episode=episode)
+def test_age_property_frames(low, width, every, rate_hz, episode):
+    high = low + width
+    env = LatencyWrapper(base_env(episode["policy_hz"]), f"frames:{low}-{high}:{every}@{rate_hz}")
+    records, _ = run_episode(env, episode["steps"], episode["seed"], episode["action_seed"])
+    by_block: dict[int, float] = {}
+    for _, info in records:
+        frames = info["latency_s"] * rate_hz
+        assert frames == pytest.approx(round(frames), abs=1e-9) and low <= round(frames) <= high
+        # One draw per block of `every` frames of the loop (indices computed by hand from the time).
+        block = math.floor(info["time"] * rate_hz / every + 1e-9)
+        assert by_block.setdefault(block, info["latency_s"]) == info["latency_s"]
+        assert_age_follows_latency(info, info["latency_s"])
+
+
 # -- growing latency: the age never drops below it (the original ROS bug) --------------------------
 
 
@@ -281,7 +298,7 @@ def test_latency_at_the_buffer_maximum(spec, max_latency_s, served_s):
         else:
             assert info["observation_age_s"] == pytest.approx(info["time"])
     # Old snapshots are dropped: the buffer holds about max_latency_s of history, not the episode.
-    assert len(env._snapshots) <= max_latency_s / SIM_DT_S + 4
+    assert len(env._history) <= max_latency_s / SIM_DT_S + 4
 
 
 # -- the frames and the dynamics -------------------------------------------------------------------

@@ -1,4 +1,7 @@
-"""plm_highway.metrics against similaritymeasures 1.5.0, plus resampling, steering, DTSI and the bench."""
+"""The strict curve metrics against similaritymeasures 1.5.0, plus resampling, DTSI and the bench.
+
+The drop-in module (plm_highway.metrics.similarity) has its own tests: test_metrics_similarity.py.
+"""
 
 from __future__ import annotations
 
@@ -256,32 +259,8 @@ def test_resampling_rejects_bad_spacing(spacing_m):
 
 
 # ---------------------------------------------------------------------------------------------
-# steering and DTSI
+# DTSI
 # ---------------------------------------------------------------------------------------------
-
-
-def test_steering_errors_against_hand_computed_values():
-    reference = [0.0, 0.1, -0.2, 0.3]
-    predicted = [0.1, 0.1, 0.0, 0.0]  # errors 0.1, 0, 0.2, -0.3
-    assert pm.mae(reference, predicted) == pytest.approx(0.6 / 4)
-    assert pm.mse(reference, predicted) == pytest.approx(0.14 / 4)
-    assert pm.rmse(reference, predicted) == pytest.approx(math.sqrt(0.14 / 4))
-    assert pm.mae(reference, reference) == 0.0
-
-
-@pytest.mark.parametrize(
-    ("reference", "predicted", "message"),
-    [
-        ([0.0, 1.0], [0.0, 1.0, 2.0], "reference and predicted: lengths differ \\(2 vs 3\\)"),
-        ([0.0, math.nan], [0.0, 1.0], "reference: 1 NaN value at row \\[1\\]"),
-        ([[0.0], [1.0]], [0.0, 1.0], "reference: expected a 1-D array"),
-        ([], [], "reference: needs at least 1 sample"),
-        ([0.0, 1.0], [0.0, math.inf], "predicted: 1 inf value at row \\[1\\]"),
-    ],
-)
-def test_steering_errors_reject_bad_input(reference, predicted, message):
-    with pytest.raises(ValueError, match=message):
-        pm.mae(reference, predicted)
 
 
 def test_dtsi_against_hand_computed_values():
@@ -382,6 +361,13 @@ def test_pcm_rejects_zero_range_exp():
 # ---------------------------------------------------------------------------------------------
 
 
+def test_top_level_exports_no_name_that_shadows_similaritymeasures_differently():
+    # mae and mse are similaritymeasures' curve errors; the steering errors are steering_mae, ...
+    for name in ("mae", "mse", "rmse"):
+        assert not hasattr(pm, name)
+    assert pm.similarity.mae is not None and pm.steering_mae is not None
+
+
 def test_make_curves_is_seeded_and_positive():
     exp, num = bench.make_curves(100, seed=5)
     assert exp.shape == (100, 2) and num.shape == (90, 2)
@@ -392,22 +378,48 @@ def test_make_curves_is_seeded_and_positive():
 def test_bench_against_reference_writes_json(tmp_path, capsys):
     out = tmp_path / "bench.json"
     assert cli.main(["bench", "metrics", "--points", "40", "--repeat", "1", "--json", str(out)]) == 0
-    printed = capsys.readouterr().out
-    assert "frechet+dtw" in printed and "all five" in printed and "warm-up" in printed
+    captured = capsys.readouterr()
+    assert "warm-up" in captured.err  # progress goes to stderr, the table to stdout
     payload = json.loads(out.read_text())
     assert payload["points"] == [40, 36]
-    for row in payload["metrics"].values():
+    assert payload["similaritymeasures"] == sm.__version__
+    public = {name for name in dir(sm) if callable(getattr(sm, name)) and not name.startswith("_")}
+    functions = public - {"distance", "division", "similaritymeasures", "version"}  # modules and a __future__ flag
+    assert set(payload["functions"]) == functions | {"frechet+dtw", "five curve metrics"}
+    for name, row in payload["functions"].items():
+        assert name in captured.out
         assert row["max_rel_diff"] <= REL_TOL
         assert row["similaritymeasures_s"] > 0 and row["speedup"] > 0
+    assert "not measured (" in captured.out  # the target is stated for 3,000 points, not 40
     assert [p.name for p in tmp_path.iterdir()] == ["bench.json"]  # no temporary file left
+
+
+def test_bench_max_rel_diff_sees_every_number():
+    assert bench.max_rel_diff((1.0, np.array([2.0, np.nan])), (1.0, np.array([2.0, np.nan]))) == 0.0
+    assert bench.max_rel_diff((1.0, np.array([2.0, 4.0])), (1.0, np.array([2.0, 5.0]))) == pytest.approx(0.2)
+    assert bench.max_rel_diff([True, False], [True, True]) == 1.0
+    assert bench.max_rel_diff(np.zeros((2, 2)), np.zeros((2, 3))) == math.inf
+
+
+def test_bench_target_line_judges_only_at_the_target_size():
+    row = {"frechet+dtw": {"speedup": 150.0}}
+    assert bench.target_line(row, 3000).endswith("150x, met")
+    assert bench.target_line({"frechet+dtw": {"speedup": 99.0}}, 3000).endswith("99x, NOT met")
+    assert "not measured" in bench.target_line(row, 2000)
+    assert "not measured" in bench.target_line({"frechet+dtw": {"speedup": None}}, 3000)
 
 
 def test_bench_skip_reference(capsys):
     assert cli.main(["bench", "metrics", "--points", "30", "--skip-reference", "--repeat", "1"]) == 0
-    assert "similaritymeasures 1" not in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert "similaritymeasures 1" not in captured.out + captured.err
+    assert "not measured (no reference run)" in captured.out
 
 
-def test_bench_rejects_missing_json_directory(tmp_path, capsys):
-    missing = tmp_path / "nowhere" / "out.json"
-    assert cli.main(["bench", "metrics", "--points", "30", "--json", str(missing)]) == cli.EXIT_BAD_INPUT
-    assert "does not exist" in capsys.readouterr().err
+def test_bench_refuses_a_foreign_json_before_benchmarking(tmp_path, capsys):
+    foreign = tmp_path / "notes.json"
+    foreign.write_text('{"mine": true}')
+    assert cli.main(["bench", "metrics", "--points", "30", "--json", str(foreign)]) == cli.EXIT_BAD_INPUT
+    err = capsys.readouterr()
+    assert "refusing to replace" in err.err and "curves:" not in err.out
+    assert foreign.read_text() == '{"mine": true}'

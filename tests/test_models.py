@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -27,10 +28,11 @@ from plm_highway.models.checkpoints import (
     load_plm_net,
     load_tapm,
     save_checkpoint,
+    state_dict_fingerprint,
     state_fingerprint,
 )
-from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
-from plm_highway.models.plm_net import PLMNet, interpolate_actions
+from plm_highway.models.inference import BaseModelPolicy, NonFiniteSteeringError, PLMNetPolicy
+from plm_highway.models.plm_net import FusedPLMNet, PLMNet, interpolate_actions
 from plm_highway.models.shipped import load_shipped_plm_net, shipped_checkpoint_dir
 from plm_highway.models.tapm import TAPM, TAPMConfig
 
@@ -129,13 +131,41 @@ def test_bm_rejects_frames_of_another_camera():
         BaseModel()(random_frames(1, (160, 160)), torch.tensor([16.7]))
 
 
-@pytest.mark.parametrize(
-    "overrides, message",
-    [({"conv_activation": "elu"}, "conv_activation"), ({"image_height_px": 20}, "too small")],
-)
-def test_invalid_bm_config_is_rejected(overrides, message):
+# Architecture configs arrive from checkpoint JSON: each bad value is named, before any allocation.
+BAD_BM_CONFIGS = [
+    pytest.param({"conv_activation": "elu"}, r"conv_activation: 'elu' is not one of", id="activation"),
+    pytest.param({"conv_activation": 3}, r"conv_activation: 3 is not one of", id="activation-type"),
+    pytest.param({"image_height_px": 20}, r"image_height_px: must lie in \[61, 400\], got 20", id="too-small"),
+    pytest.param({"image_height_px": 60}, r"image_height_px: must lie in \[61, 400\]", id="just-too-small"),
+    pytest.param({"image_height_px": 3000, "image_width_px": 3000}, r"image_height_px: must lie in \[61, 400\], "
+                 r"got 3000", id="3000px"),
+    pytest.param({"image_width_px": 401}, r"image_width_px: must lie in \[61, 400\], got 401", id="just-too-wide"),
+    pytest.param({"image_height_px": "66"}, r"image_height_px: expected an integer .*got str '66'", id="str-size"),
+    pytest.param({"image_height_px": 66.0}, r"image_height_px: expected an integer .*got float", id="float-size"),
+    pytest.param({"image_height_px": True}, r"image_height_px: expected an integer .*got bool", id="bool-size"),
+    pytest.param({"input_channels": 0}, r"input_channels: must lie in \[1, 4\]", id="no-channels"),
+    pytest.param({"input_channels": 64}, r"input_channels: must lie in \[1, 4\]", id="many-channels"),
+    pytest.param({"embed_acceleration": "yes"}, r"embed_acceleration: expected true or false, got str",
+                 id="str-bool"),
+    pytest.param({"throttle_head": 1}, r"throttle_head: expected true or false, got int", id="int-bool"),
+    pytest.param({"speed_scale_mps": 0}, r"speed_scale_mps: must be a finite number in \(0, 1000\]",
+                 id="speed-scale-0"),
+    pytest.param({"speed_scale_mps": float("nan")}, r"speed_scale_mps: must be a finite", id="speed-scale-nan"),
+    pytest.param({"speed_scale_mps": [20]}, r"speed_scale_mps: expected a number .*got list", id="speed-scale-list"),
+    pytest.param({"dropout": 1.0}, r"dropout: must be a finite number in \[0, 1\)", id="dropout-1"),
+    pytest.param({"dropout": -0.1}, r"dropout: must be a finite number in \[0, 1\)", id="dropout-negative"),
+]
+
+
+@pytest.mark.parametrize("overrides, message", BAD_BM_CONFIGS)
+def test_invalid_bm_config_is_rejected_naming_the_field(overrides, message):
     with pytest.raises(ValueError, match=message):
         BaseModelConfig(**overrides)
+
+
+@pytest.mark.parametrize("side_px", [61, 400])
+def test_image_size_bounds_are_inclusive(side_px):
+    assert BaseModelConfig(image_height_px=side_px, image_width_px=side_px).image_feature_dim >= 64
 
 
 def test_unknown_preset_is_rejected():
@@ -185,10 +215,43 @@ def test_tapm_dropout_is_active_only_in_train_mode():
     assert torch.equal(tapm.eval()(*inputs), tapm(*inputs))
 
 
-@pytest.mark.parametrize("grid", [(), (0.2, 0.15), (0.0, 0.1), (0.1, float("nan"))])
-def test_invalid_delta_grids_are_rejected(grid):
-    with pytest.raises(ValueError, match="delta_grid_s"):
-        TAPMConfig(image_feature_dim=8, delta_grid_s=grid)
+BAD_TAPM_CONFIGS = [
+    pytest.param({"delta_grid_s": ()}, r"delta_grid_s: expected 1 to 32 latencies, got 0", id="empty-grid"),
+    pytest.param({"delta_grid_s": (0.2, 0.15)}, r"delta_grid_s: latencies must be strictly increasing",
+                 id="decreasing"),
+    pytest.param({"delta_grid_s": (0.0, 0.1)}, r"delta_grid_s: latencies must be finite numbers in \(0, 10\] s, "
+                 r"got 0.0", id="zero"),
+    pytest.param({"delta_grid_s": (0.1, float("nan"))}, r"delta_grid_s: .*got nan", id="nan"),
+    pytest.param({"delta_grid_s": (0.1, 11.0)}, r"delta_grid_s: .*\(0, 10\] s, got 11.0", id="too-late"),
+    pytest.param({"delta_grid_s": tuple(0.01 * (i + 1) for i in range(33))}, r"expected 1 to 32 latencies, got 33",
+                 id="33-heads"),
+    pytest.param({"delta_grid_s": "0.15"}, r"delta_grid_s: expected a list of latencies .*got str", id="str-grid"),
+    pytest.param({"delta_grid_s": (0.1, "0.2")}, r"delta_grid_s: .*got '0.2'", id="str-in-grid"),
+    pytest.param({"delta_grid_s": (True,)}, r"delta_grid_s: .*got True", id="bool-in-grid"),
+    pytest.param({"image_feature_dim": 0}, r"image_feature_dim: must lie in \[1, 118336\]", id="no-features"),
+    pytest.param({"image_feature_dim": 10**9}, r"image_feature_dim: must lie in \[1, 118336\], got 1000000000",
+                 id="huge-features"),
+    pytest.param({"image_feature_dim": "1152"}, r"image_feature_dim: expected an integer", id="str-features"),
+    pytest.param({"speed_feature_dim": 10**6}, r"speed_feature_dim: must lie in \[1, 4096\]", id="huge-speed"),
+    pytest.param({"dropout": "0.3"}, r"dropout: expected a number", id="str-dropout"),
+]
+
+
+@pytest.mark.parametrize("overrides, message", BAD_TAPM_CONFIGS)
+def test_invalid_tapm_config_is_rejected_naming_the_field(overrides, message):
+    with pytest.raises(ValueError, match=message):
+        TAPMConfig(**{"image_feature_dim": 8, **overrides})
+
+
+def test_a_subset_of_heads_equals_those_columns_of_all_heads():
+    torch.manual_seed(0)
+    tapm = TAPM(TAPMConfig(image_feature_dim=32)).eval()
+    trunk = tapm.trunk(torch.rand(5) * 2 - 1, torch.randn(5, 500), torch.randn(5, 144))
+    every_head = tapm.heads(trunk)
+    for first, stop in ((0, 1), (1, 3), (3, 5), (0, 5), (4, 5)):
+        torch.testing.assert_close(tapm.heads(trunk, first, stop), every_head[:, first:stop], rtol=0, atol=1e-6)
+    with pytest.raises(ValueError, match=r"range \[3, 6\)"):
+        tapm.heads(trunk, 3, 6)
 
 
 def test_configurable_delta_grid_sets_the_number_of_heads():
@@ -287,6 +350,20 @@ def test_monotone_in_latency_when_the_heads_are_monotone(a_ref, latency_list, de
 @given(a_refs, st.floats(0.35, 10, allow_nan=False))
 def test_latency_above_the_grid_uses_the_last_head(a_ref, latency_s):
     assert interpolate_actions(latency_s, PAPER_DELTA_REF_S, a_ref) == a_ref[-1]
+
+
+@settings(max_examples=50)
+@given(st.lists(st.tuples(a_refs, st.floats(0, 1, allow_nan=False)), min_size=1, max_size=8))
+def test_algorithm_1_gives_the_same_values_on_numpy_and_torch(rows):
+    from plm_highway.models.plm_net import interpolate_batch
+
+    a_ref = np.array([row[0] for row in rows], dtype=np.float32)
+    latency_s = np.array([row[1] for row in rows], dtype=np.float32)
+    delta_ref_s = np.array(PAPER_DELTA_REF_S, dtype=np.float32)
+    on_numpy = interpolate_batch(latency_s, delta_ref_s, a_ref)
+    on_torch = interpolate_batch(*(torch.from_numpy(x) for x in (latency_s, delta_ref_s, a_ref)))
+    assert on_numpy.dtype == np.float32
+    assert np.array_equal(on_numpy, on_torch.numpy())  # exactly equal (0.0 and -0.0 may swap)
 
 
 # --- PLM-Net ----------------------------------------------------------------------------------------
@@ -510,7 +587,8 @@ def test_policies_map_one_frame_to_a_steering_float():
     bm_policy, plm_policy = BaseModelPolicy(plm_net.bm), PLMNetPolicy(plm_net)
     bm_steering = bm_policy(frame, 16.7, 0.2)
     assert isinstance(bm_steering, float) and -1 <= bm_steering <= 1
-    assert plm_policy(frame, 16.7, 0.0) == bm_steering  # latency 0 is the BM's action
+    # Latency 0 is the BM's action (the fused first layer may round differently in the last bit).
+    assert plm_policy(frame, 16.7, 0.0) == pytest.approx(bm_steering, abs=1e-6)
     assert isinstance(plm_policy(frame, 16.7, 0.22), float)
 
 
@@ -538,28 +616,485 @@ def test_policy_accepts_a_non_contiguous_frame():
     assert isinstance(policy(wide[:, ::2], 16.7), float)
 
 
+# --- fused inference: equal to the reference forward --------------------------------------------------
+
+GRID_LATENCIES_S = [0.0, 0.15, 0.2, 0.25, 0.3, 0.35]  # the grid points, with 0 (the BM)
+BETWEEN_LATENCIES_S = [0.01, 0.075, 0.149, 0.151, 0.17, 0.2499, 0.27, 0.34]
+ABOVE_LATENCIES_S = [0.3500001, 0.36, 0.5, 2.0, 100.0]
+
+
+@pytest.fixture(scope="module")
+def plm_pair():
+    plm_net = small_plm_net()
+    return plm_net, FusedPLMNet(plm_net)
+
+
+def assert_fused_equals_reference(plm_net, fused, frames, speed, latency_s):
+    with torch.inference_mode():
+        reference = plm_net(frames, speed, latency_s)
+        output = fused(frames, speed, latency_s)
+    torch.testing.assert_close(output.steering, reference.steering, rtol=0, atol=1e-6)
+    assert int(output.clamped.sum()) == reference.n_clamped
+    return output, reference
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(
+        st.one_of(
+            st.sampled_from(GRID_LATENCIES_S + ABOVE_LATENCIES_S),
+            st.floats(0, 0.35, allow_nan=False),
+            st.floats(0.35, 20, allow_nan=False),
+        ),
+        min_size=1,
+        max_size=6,
+    ),
+    st.integers(0, 2**16),
+)
+def test_fused_plm_net_equals_the_reference_forward(plm_pair, latencies, seed):
+    plm_net, fused = plm_pair
+    n = len(latencies)
+    speed = torch.rand(n, generator=torch.Generator().manual_seed(seed)) * 30
+    assert_fused_equals_reference(plm_net, fused, random_frames(n, seed=seed), speed, torch.tensor(latencies))
+
+
+@pytest.mark.parametrize("latency_s", GRID_LATENCIES_S + BETWEEN_LATENCIES_S + ABOVE_LATENCIES_S)
+def test_fused_plm_net_equals_the_reference_at_batch_size_one(plm_pair, latency_s):
+    plm_net, fused = plm_pair
+    output, reference = assert_fused_equals_reference(
+        plm_net, fused, random_frames(1, seed=7), torch.tensor([16.7]), torch.tensor([latency_s])
+    )
+    if latency_s in GRID_LATENCIES_S[1:]:  # on a grid point: that head's action, as the reference returns
+        head = GRID_LATENCIES_S.index(latency_s)
+        torch.testing.assert_close(output.steering[0], reference.a_ref[0, head], rtol=0, atol=1e-6)
+
+
+def test_fused_paper_preset_equals_the_reference():
+    torch.manual_seed(3)
+    bm = BaseModel(preset_config("paper"))
+    plm_net = PLMNet(bm, TAPM(TAPMConfig(image_feature_dim=bm.image_feature_dim))).eval()
+    latency_s = torch.tensor(GRID_LATENCIES_S + BETWEEN_LATENCIES_S[:3] + ABOVE_LATENCIES_S[:2])
+    n = len(latency_s)
+    assert_fused_equals_reference(
+        plm_net, FusedPLMNet(plm_net), random_frames(n, (160, 160)), torch.full((n,), 16.7), latency_s
+    )
+
+
+@pytest.mark.parametrize(
+    "latencies_s, head_range",
+    [
+        ([0.0], None),  # latency 0: a_BM, no head
+        ([0.1], (0, 1)),  # between 0 and 0.15: the BM and head 0.15
+        ([0.15], (0, 1)),
+        ([0.22], (1, 3)),  # heads 0.20 and 0.25
+        ([0.5], (3, 5)),  # above the grid: the last segment
+        ([0.0, 0.1], (0, 1)),
+        ([0.16, 0.31], (0, 5)),  # a batch: the heads every sample needs, contiguous
+    ],
+)
+def test_fused_plm_net_runs_only_the_heads_that_bracket_the_latency(plm_pair, monkeypatch, latencies_s, head_range):
+    _, fused = plm_pair
+    ranges = []
+    original = fused._heads
+
+    def recording_heads(trunk, first, stop):
+        ranges.append((first, stop))
+        return original(trunk, first, stop)
+
+    monkeypatch.setattr(fused, "_heads", recording_heads)
+    n = len(latencies_s)
+    with torch.inference_mode():
+        fused(random_frames(n), torch.full((n,), 16.7), torch.tensor(latencies_s))
+    assert ranges == ([] if head_range is None else [head_range])
+
+
+@pytest.mark.parametrize("first, stop", [(0, 1), (0, 2), (1, 3), (2, 4), (3, 5), (0, 5), (1, 4)])
+def test_packed_heads_equal_the_tapm_heads(plm_pair, first, stop):
+    plm_net, fused = plm_pair
+    trunk = torch.relu(torch.randn(4, 700, generator=torch.Generator().manual_seed(first * 10 + stop)))
+    with torch.inference_mode():
+        torch.testing.assert_close(
+            fused._heads(trunk, first, stop), plm_net.tapm.heads(trunk, first, stop), rtol=0, atol=1e-6
+        )
+
+
+@pytest.mark.parametrize("bad_latency_s", [float("nan"), -0.05])
+def test_fused_plm_net_rejects_nan_and_negative_latency(plm_pair, bad_latency_s):
+    with pytest.raises(ValueError, match="latency_s"):
+        plm_pair[1](random_frames(2), torch.full((2,), 16.7), torch.tensor([0.1, bad_latency_s]))
+
+
+# --- batched policies -----------------------------------------------------------------------------------
+
+
+def batch_inputs(n: int, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    latencies = np.concatenate([GRID_LATENCIES_S, BETWEEN_LATENCIES_S, ABOVE_LATENCIES_S])
+    return (
+        random_frames(n, seed=seed).numpy(),
+        rng.uniform(5, 30, n),
+        rng.choice(latencies, n),
+    )
+
+
+@pytest.mark.parametrize("policy_class", [BaseModelPolicy, PLMNetPolicy])
+@pytest.mark.parametrize("batch_size", [1, 8, 32])
+def test_a_batch_equals_batch_one_calls_per_sample(plm_pair, policy_class, batch_size):
+    plm_net = plm_pair[0]
+    policy = policy_class(plm_net.bm if policy_class is BaseModelPolicy else plm_net)
+    frames, speeds, latencies = batch_inputs(batch_size, seed=batch_size)
+    batched = policy.steer_batch(frames, speeds, latencies)
+    assert batched.shape == (batch_size,) and batched.dtype == np.float64
+    one_by_one = np.array([policy(frames[i], speeds[i], latencies[i]) for i in range(batch_size)])
+    # One forward pass: the kernels sum in another order than at batch size 1 (see inference.py).
+    np.testing.assert_allclose(batched, one_by_one, rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("policy_class", [BaseModelPolicy, PLMNetPolicy])
+def test_a_batch_invariant_policy_is_bit_identical_to_batch_one_calls(plm_pair, policy_class):
+    plm_net = plm_pair[0]
+    model = plm_net.bm if policy_class is BaseModelPolicy else plm_net
+    policy = policy_class(model, batch_invariant=True)
+    frames, speeds, latencies = batch_inputs(8, seed=3)
+    one_by_one = [policy_class(model)(frames[i], speeds[i], latencies[i]) for i in range(8)]
+    assert policy.steer_batch(frames, speeds, latencies).tolist() == one_by_one
+
+
+def test_batch_counts_clamped_latencies_and_exposes_the_grid_end(plm_pair):
+    policy = PLMNetPolicy(plm_pair[0])
+    frames, speeds, _ = batch_inputs(4)
+    policy.steer_batch(frames, speeds, [0.1, 0.35, 0.36, 3.0])
+    assert policy.clamped_latency_count == 2
+    assert policy.max_latency_s == pytest.approx(0.35)
+    assert BaseModelPolicy(plm_pair[0].bm).max_latency_s == float("inf")
+
+
+def test_reference_policy_equals_the_fused_policy(plm_pair):
+    plm_net = plm_pair[0]
+    frames, speeds, latencies = batch_inputs(16, seed=5)
+    fused, reference = PLMNetPolicy(plm_net), PLMNetPolicy(plm_net, fused=False)
+    np.testing.assert_allclose(
+        fused.steer_batch(frames, speeds, latencies), reference.steer_batch(frames, speeds, latencies), atol=1e-6
+    )
+    assert fused.clamped_latency_count == reference.clamped_latency_count
+
+
+BAD_BATCHES = [
+    pytest.param(lambda f, s, lat: (f.astype(np.float32), s, lat), r"frames: expected uint8 \(B, 66, 200\)", id="float"),
+    pytest.param(lambda f, s, lat: (f[:, :, :100], s, lat), r"frames: expected uint8", id="wrong-size"),
+    pytest.param(lambda f, s, lat: (f[0], s, lat), r"frames: expected uint8 \(B, 66, 200\), got uint8 \(66, 200\)",
+                 id="no-batch-axis"),
+    pytest.param(lambda f, s, lat: (f[:0], s[:0], lat[:0]), r"batch size must lie in \[1, 4096\], got 0", id="empty"),
+    pytest.param(lambda f, s, lat: (f, s[:2], lat), r"speeds_mps: expected shape \(3,\), one per frame, got \(2,\)",
+                 id="few-speeds"),
+    pytest.param(lambda f, s, lat: (f, s, lat[:, None]), r"latencies_s: expected shape \(3,\)", id="2d-latencies"),
+    pytest.param(lambda f, s, lat: (f, [1.0, float("nan"), 2.0], lat), r"speeds_mps: must be finite, got nan",
+                 id="nan-speed"),
+    pytest.param(lambda f, s, lat: (f, s, [0.1, -0.1, 0.2]), r"latency_s: must be a finite number >= 0 s, got -0.1",
+                 id="negative-latency"),
+    pytest.param(lambda f, s, lat: (f, s, [0.1, float("inf"), 0.2]), r"latency_s: .*got inf", id="inf-latency"),
+    pytest.param(lambda f, s, lat: (f, ["fast", 1, 2], lat), r"speeds_mps: expected 3 numbers", id="str-speed"),
+]
+
+
+@pytest.mark.parametrize("policy_class", [BaseModelPolicy, PLMNetPolicy])
+@pytest.mark.parametrize("mutate, message", BAD_BATCHES)
+def test_bad_batches_are_refused_naming_the_input(plm_pair, policy_class, mutate, message):
+    plm_net = plm_pair[0]
+    policy = policy_class(plm_net.bm if policy_class is BaseModelPolicy else plm_net)
+    frames, speeds, latencies = batch_inputs(3)
+    with pytest.raises(ValueError, match=message):
+        policy.steer_batch(*mutate(frames, speeds, latencies))
+
+
+@pytest.mark.parametrize("policy_class", [BaseModelPolicy, PLMNetPolicy])
+def test_nan_steering_stops_with_a_clear_error(policy_class):
+    plm_net = small_plm_net()
+    with torch.no_grad():
+        plm_net.bm.steering_head.bias.fill_(float("nan"))  # weights that slipped past the checkpoint checks
+    policy = policy_class(plm_net.bm if policy_class is BaseModelPolicy else plm_net)
+    frames, speeds, latencies = batch_inputs(3)
+    with pytest.raises(NonFiniteSteeringError, match=r"policy: steering is nan for sample 0 \(speed"):
+        policy.steer_batch(frames, speeds, latencies)
+    with pytest.raises(NonFiniteSteeringError):
+        policy(frames[0], 16.7, 0.2)
+
+
+# --- checkpoint integrity and bad checkpoints ---------------------------------------------------------
+
+
+def write_state(path, state: dict, document_path=None, fingerprint: bool = True) -> None:
+    """Replace a checkpoint's .pt; with ``fingerprint`` also record the new weights' fingerprint in its JSON."""
+    weights_path, json_path = checkpoint_paths(path)
+    torch.save(state, weights_path)
+    if fingerprint:
+        edit_description(path, fingerprint=state_dict_fingerprint(state))
+
+
+def swapped_weights(path, tmp_path):
+    other = small_plm_net(seed=5)
+    torch.save(other.bm.state_dict(), checkpoint_paths(path)[0])
+
+
+def nan_weight(path, tmp_path):
+    state = torch.load(checkpoint_paths(path)[0], weights_only=True)
+    state["mlp.0.weight"][3, 7] = float("nan")
+    state["steering_head.bias"][0] = float("inf")
+    write_state(path, state)
+
+
+def paper_state(path, tmp_path):
+    write_state(path, BaseModel(preset_config("paper")).state_dict())
+
+
+def tapm_state_in_bm(path, tmp_path):
+    write_state(path, TAPM(TAPMConfig(image_feature_dim=1152)).state_dict())
+
+
+def float64_state(path, tmp_path):
+    state = torch.load(checkpoint_paths(path)[0], weights_only=True)
+    write_state(path, {key: value.double() for key, value in state.items()})
+
+
+def truncated_pt(path, tmp_path):
+    weights_path = checkpoint_paths(path)[0]
+    weights_path.write_bytes(weights_path.read_bytes()[: weights_path.stat().st_size // 2])
+
+
+def not_a_dict(path, tmp_path):
+    torch.save([torch.zeros(2)], checkpoint_paths(path)[0])
+
+
+def json_text(text: str):
+    def mutate(path, tmp_path):
+        checkpoint_paths(path)[1].write_text(text)
+
+    return mutate
+
+
+def json_bytes(data: bytes):
+    def mutate(path, tmp_path):
+        checkpoint_paths(path)[1].write_bytes(data)
+
+    return mutate
+
+
+def json_edit(**changes):
+    def mutate(path, tmp_path):
+        edit_description(path, **changes)
+
+    return mutate
+
+
+def json_drop(key: str):
+    def mutate(path, tmp_path):
+        json_path = checkpoint_paths(path)[1]
+        document = json.loads(json_path.read_text())
+        del document[key]
+        json_path.write_text(json.dumps(document))
+
+    return mutate
+
+
+def huge_json(path, tmp_path):
+    json_path = checkpoint_paths(path)[1]
+    document = json.loads(json_path.read_text())
+    document["padding"] = "x" * (5 * 1024 * 1024)
+    json_path.write_text(json.dumps(document))
+
+
+def missing_pt(path, tmp_path):
+    checkpoint_paths(path)[0].unlink()
+
+
+# One line per bad checkpoint: (what is done to a valid BM checkpoint, exception, message).
+BAD_BM_CHECKPOINTS = [
+    pytest.param(swapped_weights, ValueError, r"model.pt: the weights' fingerprint .* differs from the one recorded "
+                 r"in model.json .*replaced or altered", id="swapped-same-shape"),
+    pytest.param(nan_weight, ValueError, r"weights are not finite: key 'mlp.0.weight' has 1 NaN or infinite values; "
+                 r"key 'steering_head.bias' has 1", id="nan-and-inf"),
+    pytest.param(paper_state, ValueError, r"key 'convs.0.weight': expected shape \(24, 1, 5, 5\), found "
+                 r"\(24, 3, 5, 5\).*key 'mlp.0.weight': expected shape \(512, 1296\), found \(512, 10960\)",
+                 id="other-architecture"),
+    pytest.param(tapm_state_in_bm, ValueError, r"missing keys \['convs.0.bias', .*, \.\.\.\] \(22 in all\); "
+                 r"unexpected keys \['action_fc.bias'", id="tapm-state"),
+    pytest.param(float64_state, ValueError, r"key 'convs.0.bias': expected dtype torch.float32, found torch.float64",
+                 id="float64"),
+    pytest.param(truncated_pt, ValueError, r"model.pt: not a loadable state_dict", id="truncated-pt"),
+    pytest.param(not_a_dict, ValueError, r"model.pt: expected a state_dict, found list", id="list-pt"),
+    pytest.param(missing_pt, FileNotFoundError, r"model.pt: checkpoint file not found", id="missing-pt"),
+    pytest.param(json_text("{not json"), ValueError, r"model.json: not valid JSON", id="json-garbage"),
+    pytest.param(json_text("[1, 2]"), ValueError, r"model.json: expected a JSON object, found list", id="json-list"),
+    pytest.param(json_bytes(b"\xff\xfe{\x00"), ValueError, r"model.json: not UTF-8 text", id="json-binary"),
+    pytest.param(huge_json, ValueError, r"model.json: \d+ bytes, a checkpoint description is at most 4194304",
+                 id="json-huge"),
+    pytest.param(json_edit(format="other/2"), ValueError, r"field 'format' is 'other/2'", id="format"),
+    pytest.param(json_edit(kind="tapm"), ValueError, r"is a 'tapm' checkpoint, expected 'base_model'", id="kind"),
+    pytest.param(json_drop("architecture"), ValueError, r"field 'architecture' is missing", id="no-architecture"),
+    pytest.param(json_edit(architecture={"image_height_px": 3000, "image_width_px": 3000}), ValueError,
+                 r"model.json: architecture field image_height_px: must lie in \[61, 400\], got 3000", id="3000px"),
+    pytest.param(json_edit(architecture={"image_height_px": "66"}), ValueError,
+                 r"architecture field image_height_px: expected an integer", id="str-size"),
+    pytest.param(json_edit(architecture={"embed_acceleration": "false"}), ValueError,
+                 r"architecture field embed_acceleration: expected true or false, got str", id="str-bool"),
+    pytest.param(json_edit(architecture={"speed_scale_mps": 0}), ValueError,
+                 r"architecture field speed_scale_mps: must be a finite number in \(0, 1000\]", id="speed-scale-0"),
+    pytest.param(json_edit(architecture={"wings": 2}), ValueError, r"unknown architecture fields \['wings'\]",
+                 id="unknown-field"),
+    pytest.param(json_edit(image_size_px="66x200"), ValueError, r"image_size_px 66x200 disagrees", id="size-str"),
+    pytest.param(json_drop("fingerprint"), ValueError, r"field 'fingerprint' is missing: the weights cannot be "
+                 r"verified", id="no-fingerprint"),
+]
+
+
+@pytest.mark.parametrize("mutate, exception, message", BAD_BM_CHECKPOINTS)
+def test_bad_bm_checkpoints_are_refused_naming_the_culprit(tmp_path, mutate, exception, message):
+    _, bm_dir, _ = saved_pair(tmp_path)
+    mutate(bm_dir, tmp_path)
+    with pytest.raises(exception, match=message):
+        load_base_model(bm_dir)
+
+
+@pytest.mark.parametrize("mutate, exception, message", BAD_BM_CHECKPOINTS)
+def test_bad_bm_checkpoints_exit_2_on_the_command_line(tmp_path, capsys, mutate, exception, message):
+    _, bm_dir, _ = saved_pair(tmp_path)
+    mutate(bm_dir, tmp_path)
+    out = tmp_path / "tapm_out"
+    code = cli.main(["train", "tapm", "--bm", str(bm_dir), "--data", str(tmp_path / "data"), "--out", str(out),
+                     "--quiet", "--threads", "1"])
+    err = capsys.readouterr().err
+    assert code == cli.EXIT_BAD_INPUT
+    assert re.search(message, err), err
+    assert "Traceback" not in err and not out.exists()
+
+
+def tapm_swapped(path, tmp_path):
+    torch.save(small_plm_net(seed=9).tapm.state_dict(), checkpoint_paths(path)[0])
+
+
+def tapm_nan(path, tmp_path):
+    state = torch.load(checkpoint_paths(path)[0], weights_only=True)
+    state["heads_out.bias"][2, 0, 0] = float("nan")
+    write_state(path, state)
+
+
+BAD_TAPM_CHECKPOINTS = [
+    pytest.param(tapm_swapped, r"fingerprint .* differs from the one recorded", id="swapped-same-shape"),
+    pytest.param(tapm_nan, r"key 'heads_out.bias' has 1 NaN or infinite values", id="nan"),
+    pytest.param(json_drop("bm_fingerprint"), r"field 'bm_fingerprint' is missing", id="no-bm-fingerprint"),
+    pytest.param(json_edit(bm_fingerprint="0" * 64), r"trained on the features of another BM", id="other-bm"),
+    pytest.param(json_edit(architecture={"delta_grid_s": [0.1, "x"]}), r"architecture field delta_grid_s: .*got 'x'",
+                 id="str-in-grid"),
+    pytest.param(json_edit(architecture={"delta_grid_s": [0.1, 0.2, 0.3]}),
+                 r"key 'heads_in.weight': expected shape \(600, 700\), found \(1000, 700\)", id="other-grid"),
+    pytest.param(json_edit(architecture={"image_feature_dim": 10**9}), r"image_feature_dim: must lie in", id="huge"),
+    pytest.param(json_drop("kind"), r"is a None checkpoint, expected 'tapm'", id="no-kind"),
+]
+
+
+@pytest.mark.parametrize("mutate, message", BAD_TAPM_CHECKPOINTS)
+def test_bad_tapm_checkpoints_are_refused_naming_the_culprit(tmp_path, mutate, message):
+    plm_net, _, tapm_dir = saved_pair(tmp_path)
+    mutate(tapm_dir, tmp_path)
+    with pytest.raises(ValueError, match=message):
+        load_tapm(tapm_dir, plm_net.bm)
+
+
+def test_a_manifest_with_a_byte_order_mark_loads(tmp_path):
+    _, bm_dir, _ = saved_pair(tmp_path)
+    json_path = bm_dir / "model.json"
+    json_path.write_bytes(b"\xef\xbb\xbf" + json_path.read_bytes())
+    assert isinstance(load_base_model(bm_dir), BaseModel)
+
+
+class CreatesMarker:
+    """Unpickling this object calls open(marker, "w"): it creates the marker file if code runs."""
+
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (open, (str(self.marker), "w"))
+
+
+def test_a_pickle_that_would_run_code_is_refused_and_never_runs(tmp_path):
+    _, bm_dir, _ = saved_pair(tmp_path)
+    marker = tmp_path / "marker"
+    state = torch.load(bm_dir / "model.pt", weights_only=True)
+    state["steering_head.bias"] = CreatesMarker(marker)
+    torch.save(state, bm_dir / "model.pt")
+    with pytest.raises(ValueError, match="not a loadable state_dict"):
+        load_base_model(bm_dir)
+    assert not marker.exists()
+    # The payload is live: an unsafe load would have run it.
+    torch.load(bm_dir / "model.pt", weights_only=False)
+    assert marker.exists()
+
+
+def test_non_finite_weights_are_not_saved(tmp_path):
+    bm = BaseModel()
+    with torch.no_grad():
+        bm.mlp[0].bias[5] = float("nan")
+    with pytest.raises(ValueError, match=r"refusing to save non-finite weights \(key 'mlp.0.bias' has 1"):
+        save_checkpoint(tmp_path / "bm", bm, {})
+    assert not (tmp_path / "bm").exists() or list((tmp_path / "bm").iterdir()) == []
+
+
+def test_shipped_checkpoints_match_their_recorded_fingerprints():
+    directory = shipped_checkpoint_dir()
+    for name in ("bm_default", "tapm_default"):
+        document = json.loads((directory / f"{name}.json").read_text())
+        state = torch.load(directory / f"{name}.pt", weights_only=True)
+        assert state_dict_fingerprint(state) == document["fingerprint"]
+    assert isinstance(load_shipped_plm_net(), PLMNet)
+
+
 # --- bench ----------------------------------------------------------------------------------------------
 
 
 def test_bench_models_cli_prints_and_writes_the_figures(tmp_path, capsys):
     out = tmp_path / "bench.json"
     threads = str(torch.get_num_threads())  # leave this worker's thread count as it was
-    assert (
-        cli.main(
-            ["bench", "models", "--frames", "5", "--warmup", "1", "--threads", threads, "--json", str(out)]
-        )
-        == 0
-    )
+    args = ["bench", "models", "--preset", "default", "--frames", "6", "--warmup", "1", "--repeats", "2",
+            "--train-batches", "1", "--threads", threads, "--json", str(out)]
+    assert cli.main(args) == 0
     result = json.loads(out.read_text())
-    for key in (
-        "bm_ms_mean",
-        "bm_ms_p95",
-        "plm_ms_mean",
-        "plm_ms_p95",
-        "overhead_ratio",
-        "overhead_ratio_cpu",
-    ):
-        assert result[key] > 0
-    assert result["bm_params"] == 851_371 and result["tapm_frozen_params"] == 851_371
-    assert result["tapm_trainable_params"] == 1_418_205
-    assert "overhead ratio PLM-Net / BM" in capsys.readouterr().out
+    figures = result["presets"]["default"]
+    for key in ("bm_ms_median", "plm_ms_median", "plm_reference_ms_median", "overhead_ratio", "overhead_ratio_cpu",
+                "reference_overhead_ratio"):
+        assert figures[key] > 0, key
+    assert len(figures["repeats"]) == 2
+    assert figures["overhead_ratio"] == pytest.approx(np.median([r["overhead_ratio"] for r in figures["repeats"]]))
+    assert figures["max_abs_difference_fused_vs_reference"] < 1e-6
+    assert set(figures["throughput_samples_per_s"]["plm"]) == {"1", "8", "32"}
+    assert all(v > 0 for v in figures["throughput_samples_per_s"]["bm"].values())
+    assert figures["training_samples_per_s"]["bm"] > 0 and figures["training_samples_per_s"]["tapm"] > 0
+    assert figures["bm_params"] == 851_371 and figures["tapm_frozen_params"] == 851_371
+    assert figures["tapm_trainable_params"] == 1_418_205
+    printed = capsys.readouterr().out
+    assert "overhead PLM-Net / BM" in printed and "batched throughput" in printed and "training, samples/s" in printed
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--frames", "0"], r"--frames: must lie in \[1, 100000\], got 0"),
+        (["--repeats", "0"], r"--repeats: must lie in \[1, 100\]"),
+        (["--warmup", "-1"], r"--warmup: must lie in"),
+        (["--threads", "0"], r"--threads: must lie in"),
+        (["--train-batches", "0"], r"--train-batches: must lie in"),
+    ],
+)
+def test_bench_models_refuses_bad_arguments(capsys, args, message):
+    assert cli.main(["bench", "models", *args]) == cli.EXIT_BAD_INPUT
+    assert re.search(message, capsys.readouterr().err)
+
+
+def test_bench_confidence_interval_matches_the_t_table():
+    from plm_highway.bench.models import _mean_ci
+
+    # mean 2, sample sd 1, n 3: half width t(0.975, 2) / sqrt(3) = 4.3027 / 1.7321 (t from tables)
+    figure = _mean_ci([1.0, 2.0, 3.0])
+    assert figure["mean"] == 2.0
+    assert figure["ci95_half_width"] == pytest.approx(4.3027 / 3**0.5, abs=1e-4)
+    assert _mean_ci([0.5])["ci95_half_width"] == 0.0

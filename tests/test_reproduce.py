@@ -11,7 +11,7 @@ from tiny_models import tiny_checkpoints
 from plm_highway import cli
 from plm_highway.evaluation import paper_results as paper
 from plm_highway.evaluation import reproduce
-from plm_highway.evaluation.steering import reduction_pct
+from plm_highway.metrics.steering import reduction_pct
 
 TABLE_NAMES = ["Table 3", "Table 4", "Table 5", "Table 6", "Table A1", "Table A2", "Table A3", "Table A4",
                "Table A5", "Table A6"]
@@ -134,8 +134,8 @@ def test_reproduce_writes_report_tables_and_figures(checkpoints, tmp_path, capsy
     (["--checkpoints", "{tmp}/nowhere"], "no such directory"),
     (["--track", "{bad_track}"], "field 'lanes'"),
     (["--generalise", "{tmp}/missing.json"], "neither a shipped track"),
-    (["--max-steps", "-3"], "--max-steps -3"),
-    (["--sweep", "--sweep-step", "0"], "sweep: step"),
+    (["--max-steps", "-3"], "argument --max-steps: -3 is outside the accepted range"),
+    (["--sweep", "--sweep-step", "0"], "argument --sweep-step: 0 is outside the accepted range"),
 ])
 def test_bad_input_exits_2_before_any_run(tmp_path, capsys, arguments, message, monkeypatch):
     bad_track = tmp_path / "bad.json"
@@ -156,6 +156,8 @@ def test_a_failing_run_leaves_previous_outputs_untouched(checkpoints, tmp_path, 
     out = tmp_path / "out"
     out.mkdir()
     (out / "report.md").write_text("previous report\n")
+    previous_results = json.dumps({"command": "plm-highway reproduce --out out"})
+    (out / "results.json").write_text(previous_results)
     real_drive = reproduce.drive
     calls = []
 
@@ -167,11 +169,13 @@ def test_a_failing_run_leaves_previous_outputs_untouched(checkpoints, tmp_path, 
 
     monkeypatch.setattr(reproduce, "drive", failing_drive)
     code = cli.main(["reproduce", "--out", str(out), "--checkpoints", str(checkpoints), "--max-steps", "20",
-                     "--settings", "const:0.2", "--generalise", "--no-progress"])
+                     "--settings", "const:0.2", "--generalise", "--no-progress", "--overwrite"])
     assert code == 2
     assert "simulated failure" in capsys.readouterr().err
-    assert [p.name for p in tmp_path.iterdir()] == ["out"] and [p.name for p in out.iterdir()] == ["report.md"]
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+    assert sorted(p.name for p in out.iterdir()) == ["report.md", "results.json"]
     assert (out / "report.md").read_text() == "previous report\n"
+    assert (out / "results.json").read_text() == previous_results
 
 
 @pytest.mark.slow

@@ -175,8 +175,8 @@ def test_cli_make_recording_then_diagnose_writes_json_and_report(tmp_path, capsy
     assert set(data["conditions"]) >= {"speed_mps", "abs_lat_accel_mps2", "steer_freq_hz", "direction"}
     assert all(len(w) == 2 and w[0] < w[1] for w in data["windows"])
     names = sorted(p.name for p in report.iterdir())
-    assert names == ["candidates.png", "conditions.png", "diagnosis.json", "overlay.png", "residuals.png",
-                     "summary.md"]
+    assert names == [".plm-highway-output.json", "candidates.png", "conditions.png", "diagnosis.json", "overlay.png",
+                     "residuals.png", "summary.md"]
     assert not [p for p in tmp_path.rglob("*.tmp*")]
 
 

@@ -10,7 +10,7 @@ import pytest
 from highway_env.vehicle.kinematics import Vehicle
 
 from plm_highway.cli import main
-from plm_highway.io.atomic import atomic_path
+from plm_highway.io import file_kind, write_output
 from plm_highway.sim2real.recording import (
     SIMULATOR_VEHICLE,
     Recording,
@@ -154,7 +154,7 @@ def test_write_read_round_trip_with_sidecar(tmp_path):
 
 def test_atomic_output_leaves_nothing_behind_on_failure(tmp_path):
     target = tmp_path / "result.json"
-    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+    with pytest.raises(RuntimeError), write_output(target, file_kind("test", "a test file")) as tmp:
         tmp.write_text("half")
         raise RuntimeError("crash mid-write")
     assert list(tmp_path.iterdir()) == []
@@ -210,12 +210,14 @@ def test_diagnose_reads_a_sim_log_from_the_cli(tmp_path):
 
 
 def test_an_evaluate_log_of_the_env_matches_the_simulator_model(tmp_path):
-    from plm_highway.evaluation.closed_loop import drive, write_log_csv
+    from plm_highway.evaluation.closed_loop import LOG_COLUMNS, drive
+    from plm_highway.evaluation.evaluate import log_rows
     from plm_highway.expert import ExpertPolicy
+    from plm_highway.io import write_csv_into
 
     log = drive("reference", ExpertPolicy(), "test", "const:0", seed=0, max_steps=400)  # 20 s at 20 Hz
     path = tmp_path / "out_reference.csv"
-    write_log_csv(log, path)
+    write_csv_into(path, LOG_COLUMNS, log_rows(log))
     out = tmp_path / "d.json"
     code = main(["sim2real", "diagnose", str(path), "--steer-column", "steering", "--steer-scale", "0.2",
                  "--json", str(out), "--quiet"])

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import shlex
 
 import numpy as np
 import pytest
@@ -86,7 +88,9 @@ def test_train_bm_and_tapm_through_the_cli_and_reload_them(data_dir, tmp_path, c
     training = tapm_document["training"]
     assert training["epochs_run"] == 2 and training["data_seed"] == 0 and training["config"]["seed"] == 3
     assert training["data_manifest"].endswith("manifest.json")
-    assert training["command"].startswith("plm-highway train tapm --data")
+    # the command exactly as typed, ready to paste back into a shell
+    assert training["command"] == shlex.join(["plm-highway", "train", "tapm", "--out", str(tmp_path / "tapm"),
+                                              "--bm", str(tmp_path / "bm"), *common])
     assert (tmp_path / "bm" / "steering_balance.png").is_file()
 
 
@@ -177,8 +181,99 @@ def test_train_reports_a_missing_dataset(tmp_path, capsys):
 
 
 def test_delta_grid_option_is_parsed_and_checked():
-    from plm_highway.training.cli import parse_delta_grid
+    from plm_highway.training.train import parse_delta_grid
 
     assert parse_delta_grid("0.1, 0.2,0.3") == (0.1, 0.2, 0.3)
     with pytest.raises(ValueError, match="--delta-grid"):
         parse_delta_grid("0.1,fast")
+
+
+# -- bad arguments and unusable datasets: exit 2 before training, nothing written ----------------------
+
+
+def run_train(command: str, data_dir, out, extra: list[str], bm_dir=None) -> int:
+    args = ["train", command, "--data", str(data_dir), "--out", str(out), "--quiet", "--threads", "1"]
+    if command == "tapm":
+        args += ["--bm", str(bm_dir)]
+    return cli.main(args + extra)
+
+
+# One line per bad training argument: (command, arguments, message).
+BAD_TRAIN_ARGUMENTS = [
+    pytest.param("bm", ["--epochs", "0"], r"--epochs: must lie in \[1, 1000\], got 0", id="epochs-0"),
+    pytest.param("bm", ["--epochs", "-2"], r"--epochs: must lie in \[1, 1000\], got -2", id="epochs-negative"),
+    pytest.param("bm", ["--epochs", "100000"], r"--epochs: must lie in \[1, 1000\], got 100000", id="epochs-huge"),
+    pytest.param("bm", ["--max-samples", "0"], r"--max-samples: must lie in \[2, 1000000000\], got 0",
+                 id="max-samples-0"),
+    pytest.param("bm", ["--max-samples", "1"], r"--max-samples: must lie in \[2, 1000000000\], got 1",
+                 id="max-samples-1"),
+    pytest.param("bm", ["--balance-max-per-bin", "-5"], r"--balance-max-per-bin: must be 0 \(off\) or >= 1, got -5",
+                 id="balance-negative"),
+    pytest.param("bm", ["--balance-max-per-bin", "10000000000"], r"--balance-max-per-bin: must lie in",
+                 id="balance-huge"),
+    pytest.param("bm", ["--threads", "0"], r"--threads: must lie in \[1, \d+\], got 0", id="threads-0"),
+    pytest.param("bm", ["--threads", "100000"], r"--threads: must lie in \[1, \d+\], got 100000", id="threads-huge"),
+    pytest.param("bm", ["--seed", "-1"], r"--seed: must lie in \[0, 9223372036854775807\], got -1", id="seed"),
+    pytest.param("tapm", ["--delta-grid", ""], r"--delta-grid: expected at least one latency", id="grid-empty"),
+    pytest.param("tapm", ["--delta-grid", ",,"], r"--delta-grid: expected at least one latency", id="grid-commas"),
+    pytest.param("tapm", ["--delta-grid", "0.15,abc"], r"--delta-grid: expected comma-separated seconds",
+                 id="grid-word"),
+    pytest.param("tapm", ["--delta-grid", "nan"], r"--delta-grid: latencies must be finite numbers in \(0, 10\] s, "
+                 r"got nan", id="grid-nan"),
+    pytest.param("tapm", ["--delta-grid", "0.2,inf"], r"--delta-grid: .*got inf", id="grid-inf"),
+    pytest.param("tapm", ["--delta-grid", "0"], r"--delta-grid: .*got 0.0", id="grid-zero"),
+    pytest.param("tapm", ["--delta-grid=-0.1,0.2"], r"--delta-grid: .*got -0.1", id="grid-negative"),
+    pytest.param("tapm", ["--delta-grid", "0.2,0.15"], r"--delta-grid: latencies must be strictly increasing",
+                 id="grid-decreasing"),
+    pytest.param("tapm", ["--delta-grid", "0.2,0.2"], r"--delta-grid: latencies must be strictly increasing",
+                 id="grid-repeated"),
+    pytest.param("tapm", ["--delta-grid", "20"], r"--delta-grid: .*\(0, 10\] s, got 20.0", id="grid-late"),
+    pytest.param("tapm", ["--delta-grid", ",".join(str(0.01 * (i + 1)) for i in range(33))],
+                 r"--delta-grid: expected 1 to 32 latencies, got 33", id="grid-33"),
+]
+
+
+@pytest.mark.parametrize(("command", "arguments", "message"), BAD_TRAIN_ARGUMENTS)
+def test_bad_training_arguments_exit_2_and_write_nothing(data_dir, trained_bm_dir, tmp_path, capsys, command,
+                                                         arguments, message):
+    out = tmp_path / "out"
+    code = run_train(command, data_dir, out, arguments, trained_bm_dir)
+    err = capsys.readouterr().err
+    assert code == cli.EXIT_BAD_INPUT, err
+    assert re.search(message, err), err
+    assert "Traceback" not in err and not out.exists()
+
+
+def short_episodes_dataset(path):
+    """Episodes of 0.2 s: no row has a label 0.35 s ahead."""
+    return make_synthetic_dataset(path, n_episodes=30, steps_per_episode=5)
+
+
+# One line per dataset that training cannot use: (dataset factory, command, message).
+UNUSABLE_DATASETS = [
+    pytest.param(short_episodes_dataset, "tapm", r"dataset .*: no usable rows to train on", id="no-future-labels"),
+    pytest.param(lambda path: make_synthetic_dataset(path, n_episodes=1, steps_per_episode=30), "bm",
+                 r"dataset .*: cannot split 30 rows into train and validation: they form one block",
+                 id="one-block"),
+    pytest.param(lambda path: make_synthetic_dataset(path, n_episodes=1, steps_per_episode=30), "tapm",
+                 r"dataset .* \(rows with a future label 0.35 s ahead\): cannot split 23 rows", id="one-block-tapm"),
+]
+
+
+@pytest.mark.parametrize(("factory", "command", "message"), UNUSABLE_DATASETS)
+def test_unusable_datasets_are_refused_before_training_and_leave_nothing(trained_bm_dir, tmp_path, capsys, factory,
+                                                                         command, message):
+    data = factory(tmp_path / "data")
+    out = tmp_path / "out"
+    code = run_train(command, data, out, [], trained_bm_dir)
+    err = capsys.readouterr().err
+    assert code == cli.EXIT_BAD_INPUT, err
+    assert re.search(message, err), err
+    assert not out.exists()  # in particular no steering_balance.png
+
+
+def test_train_config_defaults_are_the_command_line_defaults():
+    argv = ["train", "bm", "--data", "d", "--out", "o"]
+    args = cli.build_parser(argv).parse_args(argv)
+    assert (args.epochs, args.seed, args.balance_max_per_bin) == (
+        TrainConfig.epochs, TrainConfig.seed, TrainConfig.balance_max_per_bin)

@@ -7,19 +7,19 @@ policy; the reference side steers straight. The median of several repeats is rep
 
 from __future__ import annotations
 
-import json
 import os
 import statistics
 import time
 
 import numpy as np
 
-from plm_highway.io.atomic import write_text_atomic
+from plm_highway.bench import BENCH_RESULT
+from plm_highway.io import write_json
 
 
 def configure(parser) -> None:
     parser.add_argument("--steps", type=int, default=2000, help="policy steps per repeat and side")
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=3, help="repeats per side; the median is reported")
     parser.add_argument("--latency", default="const:0.2", help="latency profile of our side")
     parser.add_argument("--json", help="also write the figures to this JSON file")
 
@@ -82,5 +82,5 @@ def run(args) -> int:
     print(f"plm_highway LaneKeeping-v0 + camera + latency    : {result['plm_highway_camera_latency_steps_per_s']:8.0f} steps/s")
     print(f"ratio                                            : {result['ratio']:8.1f}x")
     if args.json:
-        write_text_atomic(args.json, json.dumps(result, indent=2) + "\n")
+        write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
     return 0

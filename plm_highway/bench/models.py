@@ -1,179 +1,390 @@
-"""``plm-highway bench models``: parameter counts and batch-1 CPU inference time of BM and PLM-Net.
+"""``plm-highway bench models``: PLM-Net's inference cost over the Base Model, batched throughput, training speed.
 
-Both models are freshly initialised (timing does not depend on the weights' values) and in eval
-mode under ``torch.inference_mode``. PLM-Net reuses the BM's convolution features (one conv pass)
-and runs its heads batched. After ``--warmup`` frames per model, the two are timed in alternating
-blocks of :data:`BLOCK_FRAMES` frames so that a slow spell of the machine hits both sides alike,
-while each block still runs with its own weights warm in cache as a deployed model would.
+Per preset (``--preset default|paper|both``), with freshly initialised models (timing does not
+depend on the weights' values), torch on ``--threads`` threads (1 by default: at batch size 1 a
+second thread gains nothing and in the closed loop the simulator needs the other core):
 
-One torch thread by default: at batch size 1 the matrix-vector products gain nothing from a
-second thread, and in the closed loop the simulator needs the other core. Besides wall time, the
-calling thread's CPU time is recorded (``*_cpu_ms_*``; the whole CPU time with ``--threads 1``),
-which other processes on a shared machine disturb far less. The 1-minute load average before
-the run is recorded for the same reason.
+1. **Overhead at batch size 1**, what the closed loop runs: the BM policy, the PLM-Net policy
+   (its fused inference form) and the PLM-Net reference (:meth:`PLMNet.forward`, every head) are
+   timed frame by frame in interleaved blocks of :data:`BLOCK_FRAMES` frames (rotating which goes
+   first), so that a slow spell of a shared machine hits all sides alike. The ratio of median
+   times is taken per repeat; the report gives the median over ``--repeats`` (3) and each repeat's,
+   for wall time and for the calling thread's CPU time (which other processes disturb less).
+   The fused and reference outputs are compared on every timed input (max |difference|).
+2. **Batched throughput**: ``steer_batch`` of both policies at batch sizes 1, 8 and 32, samples/s
+   from the median call time, interleaved the same way.
+3. **Training samples/s** of the BM and of the TAPM (on a frozen BM) over a short synthetic run:
+   the training loop itself (batches of 32, augmentation, Adam, deterministic algorithms), epochs
+   alternating between the two, the median over ``--repeats``.
+
+``--closed-loop`` also drives the shipped default checkpoints on the test track: the reference
+run (BM, no latency) and, for 5 seeds of the paper's time-variant profile (``steps:0.0-0.35:1.0``),
+PLM-Net with the reference forward and with the fused one, reporting each form's steering MAE
+against the reference (mean and 95% CI over the seeds), their paired difference, and the largest
+step-wise difference between the two. The fused form equals the reference up to float rounding
+(~1e-7), but a closed loop amplifies that: a difference that moves the car by a nanometre changes
+a rendered uint8 pixel sooner or later, so the runs part slightly; the MAE shows whether it matters.
+
+The 1-minute load average before the run is recorded: on a shared machine the absolute times
+mean little, the ratios measured side by side in one run are what to compare.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
-from typing import NamedTuple
 
 import numpy as np
+
+from plm_highway.bench import BENCH_RESULT
 
 BLOCK_FRAMES = 50
 TARGET_OVERHEAD_RATIO = 1.25
 LATENCY_RANGE_S = (0.0, 0.35)
 SPEED_MPS = 16.7
+BATCH_SIZES = (1, 8, 32)
+PRESETS = ("default", "paper")
+TRAIN_BATCH_SIZE = 32
+CLOSED_LOOP_LATENCY = "steps:0.0-0.35:1.0"  # the paper's time-variant profile
+CLOSED_LOOP_SEEDS = 5
+MAX_FRAMES = 100_000
+MAX_REPEATS = 100
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--preset", choices=("default", "paper"), default="default")
-    parser.add_argument(
-        "--frames", type=int, default=500, help="timed frames per model (>= 500 for the report)"
-    )
-    parser.add_argument("--warmup", type=int, default=50, help="untimed frames per model first")
-    parser.add_argument("--json", help="write the results to this JSON file (atomically)")
-    parser.add_argument(
-        "--threads", type=int, default=1, help="torch intra-op threads (default: %(default)s)"
-    )
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--preset", choices=(*PRESETS, "both"), default="both", help="model size preset(s) to time")
+    parser.add_argument("--frames", type=int, default=500, help="timed frames per side and repeat (>= 500 for the report)")
+    parser.add_argument("--warmup", type=int, default=50, help="untimed frames per side first")
+    parser.add_argument("--repeats", type=int, default=3, help="repeats of every measurement; medians are reported")
+    parser.add_argument("--train-batches", type=int, default=10,
+                        help=f"training batches of {TRAIN_BATCH_SIZE} per timed epoch (default: %(default)s)")
+    parser.add_argument("--closed-loop", action="store_true",
+                        help="also drive the shipped checkpoints with the reference and the fused PLM-Net")
+    parser.add_argument("--json", help="write the results to this JSON file")
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random weights and inputs")
 
 
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from plm_highway.io.atomic import write_text_atomic
+    from plm_highway.io import check_target, write_json
+    from plm_highway.models.config_checks import check_int
 
-    if args.frames < 1 or args.warmup < 0 or args.threads < 1:
-        raise ValueError(
-            f"--frames and --threads must be >= 1 and --warmup >= 0, got {args.frames}, "
-            f"{args.threads} and {args.warmup}"
-        )
+    check_int("--frames", args.frames, 1, MAX_FRAMES)
+    check_int("--warmup", args.warmup, 0, MAX_FRAMES)
+    check_int("--repeats", args.repeats, 1, MAX_REPEATS)
+    check_int("--train-batches", args.train_batches, 1, 10_000)
+    check_int("--threads", args.threads, 1, os.cpu_count() or 1)
+    check_int("--seed", args.seed, 0, 2**32 - 1)
+    if args.json:  # refuse before the benchmark runs, not after
+        check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
     torch.set_num_threads(args.threads)
-    result = benchmark_models(args.preset, args.frames, args.warmup, args.seed)
+    presets = PRESETS if args.preset == "both" else (args.preset,)
+    result = benchmark_models(presets, args.frames, args.warmup, args.repeats, args.train_batches, args.seed,
+                              args.closed_loop)
     print(format_report(result))
     if args.json:
-        write_text_atomic(args.json, json.dumps(result, indent=2) + "\n")
+        write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
     return 0
 
 
-def benchmark_models(preset: str = "default", n_frames: int = 500, n_warmup: int = 50, seed: int = 0) -> dict:
+def benchmark_models(presets=PRESETS, n_frames: int = 500, n_warmup: int = 50, repeats: int = 3,
+                     train_batches: int = 10, seed: int = 0, closed_loop: bool = False) -> dict:
+    import torch
+
+    result = {
+        "conditions": {
+            "threads": torch.get_num_threads(),
+            "load_average_1min": os.getloadavg()[0],
+            "cpus": os.cpu_count(),
+            "torch_version": torch.__version__,
+            "frames": n_frames,
+            "warmup_frames": n_warmup,
+            "repeats": repeats,
+            "seed": seed,
+        },
+        "target_overhead_ratio": TARGET_OVERHEAD_RATIO,
+        "presets": {
+            preset: benchmark_preset(preset, n_frames, n_warmup, repeats, train_batches, seed) for preset in presets
+        },
+    }
+    if closed_loop:
+        result["closed_loop"] = closed_loop_check()
+    return result
+
+
+def benchmark_preset(preset: str, n_frames: int, n_warmup: int, repeats: int, train_batches: int, seed: int) -> dict:
     import torch
 
     from plm_highway.models.base_model import BaseModel, count_parameters, preset_config
+    from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
     from plm_highway.models.plm_net import PLMNet
     from plm_highway.models.tapm import TAPM, TAPMConfig
 
     torch.manual_seed(seed)
-    bm = BaseModel(preset_config(preset))
+    bm = BaseModel(preset_config(preset)).eval()
     plm_net = PLMNet(bm, TAPM(TAPMConfig(image_feature_dim=bm.image_feature_dim))).eval()
-    inputs = _inputs(bm.config.image_size_px, n_frames + n_warmup, seed)
-    load_average_1min = os.getloadavg()[0]
-
-    def run_bm(frame, speed, latency):
-        return bm(frame, speed)
-
-    def run_plm(frame, speed, latency):
-        return plm_net(frame, speed, latency)
-
-    with torch.inference_mode():
-        for model in (run_bm, run_plm):
-            for frame in inputs[:n_warmup]:
-                model(*frame)
-        bm_times, plm_times = _time_alternating(run_bm, run_plm, inputs[n_warmup:])
+    policies = {
+        "bm": BaseModelPolicy(bm),
+        "plm": PLMNetPolicy(plm_net),
+        "plm_reference": PLMNetPolicy(plm_net, fused=False),
+    }
+    frames, latencies_s = _inputs(bm.config.image_size_px, max(n_warmup + n_frames, max(BATCH_SIZES)), seed)
+    overhead = _overhead(policies, frames, latencies_s, n_warmup, n_frames, repeats)
     return {
-        "preset": preset,
         "image_size_px": list(bm.config.image_size_px),
         "bm_params": count_parameters(bm),
         "tapm_trainable_params": count_parameters(plm_net.tapm, trainable=True),
         # The one frozen BM the TAPM reads from (the paper's Table 2 counts it twice, see notes).
         "tapm_frozen_params": count_parameters(plm_net, trainable=False),
         "plm_net_params": count_parameters(plm_net),
-        **_summary("bm", bm_times),
-        **_summary("plm", plm_times),
-        "overhead_ratio": float(np.mean(plm_times.wall_ms) / np.mean(bm_times.wall_ms)),
-        "overhead_ratio_median": float(np.median(plm_times.wall_ms) / np.median(bm_times.wall_ms)),
-        "overhead_ratio_cpu": float(np.mean(plm_times.cpu_ms) / np.mean(bm_times.cpu_ms)),
-        "target_overhead_ratio": TARGET_OVERHEAD_RATIO,
-        "frames": n_frames,
-        "warmup_frames": n_warmup,
-        "batch_size": 1,
-        "threads": torch.get_num_threads(),
-        "load_average_1min": load_average_1min,
-        "cpus": os.cpu_count(),
-        "torch_version": torch.__version__,
+        **overhead,
+        "max_abs_difference_fused_vs_reference": _max_difference(
+            policies["plm"], policies["plm_reference"], frames, latencies_s
+        ),
+        "throughput_samples_per_s": _throughput(policies, frames, latencies_s, n_frames, repeats),
+        "training_samples_per_s": _training_speed(bm.config, train_batches, repeats, seed),
     }
 
 
-def _inputs(image_size_px: tuple[int, int], n: int, seed: int) -> list[tuple]:
+def _inputs(image_size_px: tuple[int, int], n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    frames = rng.integers(0, 256, size=(n, *image_size_px), dtype=np.uint8)
+    return frames, rng.uniform(*LATENCY_RANGE_S, size=n)
+
+
+def _overhead(policies: dict, frames: np.ndarray, latencies_s: np.ndarray, n_warmup: int, n_frames: int,
+              repeats: int) -> dict:
     import torch
 
+    def call(name):
+        policy = policies[name]
+        return lambda i: policy(frames[i], SPEED_MPS, float(latencies_s[i]))
+
+    calls = {name: call(name) for name in policies}
+    with torch.inference_mode():
+        for fn in calls.values():
+            for i in range(n_warmup):
+                fn(i)
+        per_repeat = [
+            _time_interleaved(calls, range(n_warmup, n_warmup + n_frames), block=BLOCK_FRAMES, shift=repeat)
+            for repeat in range(repeats)
+        ]
+    repeats_summary = []
+    for times in per_repeat:
+        wall = {name: float(np.median(t[0])) for name, t in times.items()}
+        cpu = {name: float(np.median(t[1])) for name, t in times.items()}
+        repeats_summary.append({
+            **{f"{name}_ms_median": wall[name] for name in wall},
+            **{f"{name}_cpu_ms_median": cpu[name] for name in cpu},
+            "overhead_ratio": wall["plm"] / wall["bm"],
+            "overhead_ratio_cpu": cpu["plm"] / cpu["bm"],
+            "reference_overhead_ratio": wall["plm_reference"] / wall["bm"],
+            "reference_overhead_ratio_cpu": cpu["plm_reference"] / cpu["bm"],
+        })
+    summary = {key: float(np.median([r[key] for r in repeats_summary])) for key in repeats_summary[0]}
+    return {**summary, "repeats": repeats_summary}
+
+
+def _time_interleaved(calls: dict, indices, block: int, shift: int = 0) -> dict[str, tuple[list, list]]:
+    """(wall ms, thread CPU ms) per call, the sides alternating in blocks; the first side rotates."""
+    names = list(calls)
+    times: dict[str, tuple[list, list]] = {name: ([], []) for name in names}
+    indices = list(indices)
+    for block_index, start in enumerate(range(0, len(indices), block)):
+        offset = (block_index + shift) % len(names)
+        for name in names[offset:] + names[:offset]:
+            fn, (wall, cpu) = calls[name], times[name]
+            for i in indices[start : start + block]:
+                wall0_ns, cpu0_ns = time.perf_counter_ns(), time.thread_time_ns()
+                fn(i)
+                wall.append((time.perf_counter_ns() - wall0_ns) / 1e6)
+                cpu.append((time.thread_time_ns() - cpu0_ns) / 1e6)
+    return times
+
+
+def _max_difference(fused, reference, frames: np.ndarray, latencies_s: np.ndarray) -> float:
+    speeds = np.full(len(frames), SPEED_MPS)
+    worst = 0.0
+    for start in range(0, len(frames), 64):
+        chunk = slice(start, start + 64)
+        difference = fused.steer_batch(frames[chunk], speeds[chunk], latencies_s[chunk]) - reference.steer_batch(
+            frames[chunk], speeds[chunk], latencies_s[chunk]
+        )
+        worst = max(worst, float(np.max(np.abs(difference))))
+    return worst
+
+
+def _throughput(policies: dict, frames: np.ndarray, latencies_s: np.ndarray, n_frames: int, repeats: int) -> dict:
+    result: dict[str, dict[str, float]] = {"bm": {}, "plm": {}}
+    speeds = np.full(max(BATCH_SIZES), SPEED_MPS)
+    for batch_size in BATCH_SIZES:
+        n_calls = max(3, n_frames // batch_size // 2)
+        starts = np.arange(n_calls) * batch_size % (len(frames) - batch_size + 1)
+
+        def batched(name, batch_size=batch_size, starts=starts):
+            policy = policies[name]
+            return lambda k: policy.steer_batch(
+                frames[starts[k] : starts[k] + batch_size], speeds[:batch_size],
+                latencies_s[starts[k] : starts[k] + batch_size],
+            )
+
+        calls = {name: batched(name) for name in result}
+        for fn in calls.values():
+            fn(0)
+        medians = {name: [] for name in calls}
+        for repeat in range(repeats):
+            times = _time_interleaved(calls, range(n_calls), block=max(1, BLOCK_FRAMES // batch_size), shift=repeat)
+            for name, (wall, _) in times.items():
+                medians[name].append(float(np.median(wall)))
+        for name in calls:
+            result[name][str(batch_size)] = batch_size / (float(np.median(medians[name])) / 1e3)
+    return result
+
+
+def _training_speed(config, train_batches: int, repeats: int, seed: int) -> dict:
+    """Samples/s of the training loop on synthetic frames, BM and TAPM epochs alternating."""
+    import torch
+
+    from plm_highway.models.base_model import BaseModel
+    from plm_highway.models.tapm import TAPM, TAPMConfig
+    from plm_highway.training.samples import LabelledRows
+    from plm_highway.training.synthetic import render_lane_frames
+    from plm_highway.training.train import TrainConfig, bm_loss, deterministic, freeze, tapm_loss, train_epoch
+
     rng = np.random.default_rng(seed)
-    frames = rng.integers(0, 256, size=(n, 1, *image_size_px), dtype=np.uint8)
-    latencies_s = rng.uniform(*LATENCY_RANGE_S, size=(n, 1)).astype(np.float32)
-    speed = torch.tensor([SPEED_MPS])
-    return [(torch.from_numpy(frames[i]), speed, torch.from_numpy(latencies_s[i])) for i in range(n)]
+    n_rows = TRAIN_BATCH_SIZE * train_batches
+    steering = rng.uniform(-0.8, 0.8, n_rows).astype(np.float32)
+    frames = render_lane_frames(steering, config.image_size_px, rng)
+    train_config = TrainConfig(batch_size=TRAIN_BATCH_SIZE, seed=seed, show_progress=False)
+
+    def rows(n_targets: int) -> LabelledRows:
+        return LabelledRows(
+            frame_index=np.arange(n_rows), episode_id=np.zeros(n_rows, np.int32), t_s=np.arange(n_rows) * 0.05,
+            speed_mps=np.full(n_rows, SPEED_MPS, np.float32), steering=steering,
+            targets=np.repeat(steering[:, None], n_targets, axis=1),
+        )
+
+    with deterministic(seed):
+        bm = BaseModel(config)
+        tapm = TAPM(TAPMConfig(image_feature_dim=bm.image_feature_dim))
+        frozen_bm = freeze(BaseModel(config))
+        runs = {
+            "bm": (bm, bm_loss(bm), rows(1)),
+            "tapm": (tapm, tapm_loss(tapm, frozen_bm), rows(tapm.config.n_heads)),
+        }
+        optimizers = {
+            name: torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=train_config.learning_rate)
+            for name, (model, _, _) in runs.items()
+        }
+        generator = torch.Generator().manual_seed(seed)
+        seconds: dict[str, list[float]] = {name: [] for name in runs}
+        for repeat in range(repeats + 1):  # the first epoch of each warms up and is not counted
+            for name, (model, loss_fn, labelled) in runs.items():
+                start = time.perf_counter()
+                train_epoch(model, loss_fn, optimizers[name], frames, labelled, train_config, generator)
+                if repeat > 0:
+                    seconds[name].append(time.perf_counter() - start)
+    return {name: n_rows / float(np.median(values)) for name, values in seconds.items()}
 
 
-class Timings(NamedTuple):
-    wall_ms: np.ndarray
-    cpu_ms: np.ndarray  # the calling thread's CPU time
+def closed_loop_check(latency: str = CLOSED_LOOP_LATENCY, seeds: int = CLOSED_LOOP_SEEDS, track: str = "test") -> dict:
+    """Steering MAE of PLM-Net, reference forward vs fused, against the reference run; shipped checkpoints.
 
+    One reference run (the BM without latency, which no seed changes) and, per seed, PLM-Net with
+    each forward at ``latency`` (a random profile: the seed draws its realisation). Reports each
+    form's mean MAE with its 95% confidence interval over the seeds, the paired difference with its
+    interval, and the largest step-wise steering difference between the two forms.
+    """
+    from plm_highway.evaluation.closed_loop import drive
+    from plm_highway.evaluation.policies import VisionPolicy, single_threaded_inference
+    from plm_highway.metrics.steering import common_span, steering_mae
+    from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
+    from plm_highway.models.shipped import load_shipped_plm_net
 
-def _time_alternating(first, second, inputs: list[tuple]) -> tuple[Timings, Timings]:
-    samples: tuple[list, list] = ([], [])
-    for start in range(0, len(inputs), BLOCK_FRAMES):
-        block = inputs[start : start + BLOCK_FRAMES]
-        for model, out in ((first, samples[0]), (second, samples[1])):
-            for frame in block:
-                out.append(_time_call(model, frame))
-    return tuple(Timings(*(np.asarray(column) / 1e6 for column in zip(*times))) for times in samples)
-
-
-def _time_call(model, frame: tuple) -> tuple[int, int]:
-    """(wall ns, thread CPU ns) of one call."""
-    wall0_ns, cpu0_ns = time.perf_counter_ns(), time.thread_time_ns()
-    model(*frame)
-    return time.perf_counter_ns() - wall0_ns, time.thread_time_ns() - cpu0_ns
-
-
-def _summary(name: str, times: Timings) -> dict:
+    plm_net = load_shipped_plm_net("default")
+    forms = {"reference_forward": False, "fused": True}
+    mae: dict[str, list[float]] = {name: [] for name in forms}
+    largest_difference = 0.0
+    with single_threaded_inference():
+        reference = drive("reference", VisionPolicy(BaseModelPolicy(plm_net.bm)), track, "const:0", 0)
+        for seed in range(seeds):
+            steering = {}
+            for name, fused in forms.items():
+                log = drive(name, VisionPolicy(PLMNetPolicy(plm_net, fused=fused)), track, latency, seed)
+                steering[name] = log.columns["steering"]
+                mae[name].append(steering_mae(*common_span(reference.columns["steering"], steering[name])))
+            n = min(len(values) for values in steering.values())
+            largest_difference = max(largest_difference, float(np.max(np.abs(
+                steering["fused"][:n] - steering["reference_forward"][:n]))))
+    paired = np.asarray(mae["fused"]) - np.asarray(mae["reference_forward"])
     return {
-        f"{name}_ms_mean": float(np.mean(times.wall_ms)),
-        f"{name}_ms_median": float(np.median(times.wall_ms)),
-        f"{name}_ms_p95": float(np.percentile(times.wall_ms, 95)),
-        f"{name}_cpu_ms_mean": float(np.mean(times.cpu_ms)),
+        "track": track,
+        "latency": latency,
+        "seeds": list(range(seeds)),
+        "checkpoints": "shipped default",
+        **{f"{name}_mae": _mean_ci(values) for name, values in mae.items()},
+        "fused_minus_reference_mae": _mean_ci(paired),
+        "max_abs_steering_difference": largest_difference,
     }
+
+
+def _mean_ci(values) -> dict:
+    """Mean and 95% t-interval half-width (0 for a single value)."""
+    from scipy import stats
+
+    values = np.asarray(values, dtype=float)
+    half_width = 0.0
+    if len(values) > 1:
+        half_width = float(stats.t.ppf(0.975, len(values) - 1) * values.std(ddof=1) / np.sqrt(len(values)))
+    return {"mean": float(values.mean()), "ci95_half_width": half_width, "values": values.tolist()}
 
 
 def format_report(result: dict) -> str:
-    status = "meets" if result["overhead_ratio"] <= result["target_overhead_ratio"] else "MISSES"
-    height, width = result["image_size_px"]
+    conditions = result["conditions"]
     lines = [
-        (
-            f"preset {result['preset']} ({height}x{width} px), batch 1, {result['threads']} threads, "
-            f"{result['frames']} frames after {result['warmup_frames']} warm-up, "
-            f"load average {result['load_average_1min']:.2f} on {result['cpus']} CPUs"
-        ),
-        (
-            f"parameters: BM {result['bm_params']:,}; TAPM trainable {result['tapm_trainable_params']:,}, "
-            f"frozen (BM) {result['tapm_frozen_params']:,}"
-        ),
-        (
-            f"BM      : mean {result['bm_ms_mean']:.3f} ms, median {result['bm_ms_median']:.3f} ms, "
-            f"p95 {result['bm_ms_p95']:.3f} ms; CPU {result['bm_cpu_ms_mean']:.3f} ms"
-        ),
-        (
-            f"PLM-Net : mean {result['plm_ms_mean']:.3f} ms, median {result['plm_ms_median']:.3f} ms, "
-            f"p95 {result['plm_ms_p95']:.3f} ms; CPU {result['plm_cpu_ms_mean']:.3f} ms"
-        ),
-        (
-            f"overhead ratio PLM-Net / BM: {result['overhead_ratio']:.3f} (median "
-            f"{result['overhead_ratio_median']:.3f}, CPU time {result['overhead_ratio_cpu']:.3f}); "
-            f"{status} the target <= {result['target_overhead_ratio']}"
-        ),
+        f"{conditions['threads']} torch thread(s), load average {conditions['load_average_1min']:.2f} on "
+        f"{conditions['cpus']} CPUs; {conditions['frames']} timed frames per side and repeat after "
+        f"{conditions['warmup_frames']} warm-up, {conditions['repeats']} repeats (medians)",
     ]
+    target = result["target_overhead_ratio"]
+    for preset, figures in result["presets"].items():
+        height, width = figures["image_size_px"]
+        status = "meets" if figures["overhead_ratio"] <= target else "MISSES"
+        per_repeat = ", ".join(f"{r['overhead_ratio']:.3f}" for r in figures["repeats"])
+        lines += [
+            "",
+            f"preset {preset} ({height}x{width} px): BM {figures['bm_params']:,} parameters, TAPM "
+            f"{figures['tapm_trainable_params']:,} trainable + the frozen BM",
+            f"  batch 1, median ms:  BM {figures['bm_ms_median']:.3f} | PLM-Net {figures['plm_ms_median']:.3f} "
+            f"| PLM-Net reference forward {figures['plm_reference_ms_median']:.3f}",
+            f"  overhead PLM-Net / BM: {figures['overhead_ratio']:.3f} (repeats {per_repeat}; CPU time "
+            f"{figures['overhead_ratio_cpu']:.3f}); {status} the target <= {target}",
+            f"  before (reference forward) / BM: {figures['reference_overhead_ratio']:.3f} (CPU time "
+            f"{figures['reference_overhead_ratio_cpu']:.3f}); fused vs reference steering max |difference| "
+            f"{figures['max_abs_difference_fused_vs_reference']:.2e}",
+        ]
+        throughput = figures["throughput_samples_per_s"]
+        lines.append("  batched throughput, samples/s: " + "; ".join(
+            f"batch {b}: BM {throughput['bm'][str(b)]:,.0f}, PLM-Net {throughput['plm'][str(b)]:,.0f}"
+            for b in BATCH_SIZES
+        ))
+        training = figures["training_samples_per_s"]
+        lines.append(f"  training, samples/s: BM {training['bm']:,.0f}, TAPM (frozen BM) {training['tapm']:,.0f}")
+    if "closed_loop" in result:
+        check = result["closed_loop"]
+
+        def ci(figure: dict) -> str:
+            return f"{figure['mean']:.5f} +- {figure['ci95_half_width']:.5f}"
+
+        lines += [
+            "",
+            f"closed loop ({check['checkpoints']} checkpoints, track {check['track']}, {check['latency']}, "
+            f"seeds {check['seeds'][0]}-{check['seeds'][-1]}), PLM-Net steering MAE vs the reference run "
+            f"(mean +- 95% CI): reference forward {ci(check['reference_forward_mae'])}, fused "
+            f"{ci(check['fused_mae'])}; paired difference {ci(check['fused_minus_reference_mae'])}; largest "
+            f"step difference {check['max_abs_steering_difference']:.2e}",
+        ]
     return "\n".join(lines)

@@ -9,85 +9,134 @@ action. Every displacement starts a new episode, so future-action labels never s
 
 from __future__ import annotations
 
-import argparse
-import json
+import math
+from dataclasses import dataclass, replace
 
 import gymnasium
 import numpy as np
 from tqdm import tqdm
 
 import plm_highway  # noqa: F401  (registers the env)
-from plm_highway.data.dataset import STEP_COLUMNS, write_dataset
+from plm_highway.data.dataset import STEP_COLUMNS
 from plm_highway.envs.lane_keeping import PAPER_CAMERA
 from plm_highway.expert import ExpertPolicy
+from plm_highway.models.config_checks import check_choice, check_int, check_number
 
 RECOVERY_WINDOW_S = 2.0  # frames this soon after a displaced start are flagged `perturbed`
+MAX_EPISODES = 100_000
+MAX_EPISODE_S = 3600.0
+MAX_SPEED_MPS = 70.0
+MAX_HEADING_ERROR_DEG = 45.0
+MAX_SEED = 2**63 - 1
+# Frames are held in memory until the dataset is written (about 13 kB each at 66x200 px).
+MAX_FRAMES_BYTES = 8 * 1024**3
 
 
-def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--track", default="train", help="train, test, unseen or a track JSON path")
-    parser.add_argument("--out", required=True, help="dataset directory to write")
-    parser.add_argument("--episodes", type=int, default=200)
-    parser.add_argument("--episode-seconds", type=float, default=8.0)
-    parser.add_argument("--displaced-fraction", type=float, default=0.7,
-                        help="share of episodes that start off-centre (recovery demonstrations)")
-    parser.add_argument("--max-offset-m", type=float, default=1.5)
-    parser.add_argument("--max-heading-error-deg", type=float, default=6.0)
-    parser.add_argument("--speed-mps", type=float, default=16.7)
-    parser.add_argument("--camera", choices=["default", "paper"], default="default",
-                        help="paper: 160x160 frames like the original PLM-Net input")
-    parser.add_argument("--seed", type=int, default=0)
+@dataclass(frozen=True)
+class CollectConfig:
+    """What ``collect`` records; bounds are checked here (named as the command line spells them).
+
+    ``episodes`` in [1, 100000], ``episode_seconds`` in (0, 3600], ``displaced_fraction`` in [0, 1],
+    ``max_offset_m`` >= 0 and small enough that the car starts on the road (checked against the
+    track: at most the road half width minus the start lane's offset), ``max_heading_error_deg`` in
+    [0, 45], ``speed_mps`` in (0, 70], ``seed`` in [0, 2**63 - 1]; the frames of the whole run
+    (episodes x steps x frame size) at most :data:`MAX_FRAMES_BYTES`.
+    """
+
+    episodes: int = 200
+    episode_seconds: float = 8.0
+    displaced_fraction: float = 0.7
+    max_offset_m: float = 1.5
+    max_heading_error_deg: float = 6.0
+    speed_mps: float = 16.7
+    camera: str = "default"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        check_int("--episodes", self.episodes, 1, MAX_EPISODES)
+        check_number("--episode-seconds", self.episode_seconds, 0.0, MAX_EPISODE_S, low_open=True)
+        check_number("--displaced-fraction", self.displaced_fraction, 0.0, 1.0)
+        check_number("--max-offset-m", self.max_offset_m, 0.0, math.inf, high_open=True)
+        check_number("--max-heading-error-deg", self.max_heading_error_deg, 0.0, MAX_HEADING_ERROR_DEG)
+        check_number("--speed-mps", self.speed_mps, 0.0, MAX_SPEED_MPS, low_open=True)
+        check_choice("--camera", self.camera, CAMERAS)
+        check_int("--seed", self.seed, 0, MAX_SEED)
 
 
-def collect(track: str = "train", episodes: int = 200, episode_seconds: float = 8.0, displaced_fraction: float = 0.7,
-            max_offset_m: float = 1.5, max_heading_error_deg: float = 6.0, speed_mps: float = 16.7,
-            camera: str = "default", seed: int = 0, progress: bool = True) -> tuple[np.ndarray, dict, dict]:
-    """Drive ``episodes`` expert episodes; return (frames, step columns, manifest)."""
-    if episodes < 1 or episode_seconds <= 0:
-        raise ValueError(f"--episodes ({episodes}) must be >= 1 and --episode-seconds ({episode_seconds}) > 0")
-    if not 0.0 <= displaced_fraction <= 1.0:
-        raise ValueError(f"--displaced-fraction {displaced_fraction} must lie in [0, 1]")
-    config = {"track": track, "speed_mps": speed_mps, "camera": PAPER_CAMERA if camera == "paper" else {}}
-    env = gymnasium.make("plm_highway/LaneKeeping-v0", config=config)
+CAMERAS = ("default", "paper")
+
+
+def collect(track: str = "train", progress: bool = True, config: CollectConfig | None = None,
+            **fields) -> tuple[np.ndarray, dict, dict]:
+    """Drive the expert episodes of ``config`` (its fields may be given as keywords); return
+    (frames, step columns, manifest). Every argument is checked before the first episode."""
+    config = replace(config or CollectConfig(), **fields)
+    env_config = {"track": track, "speed_mps": config.speed_mps,
+                  "camera": PAPER_CAMERA if config.camera == "paper" else {}}
+    env = gymnasium.make("plm_highway/LaneKeeping-v0", config=env_config)
     unwrapped = env.unwrapped
-    env.reset(seed=seed)
-    rng = np.random.default_rng(seed)
+    env.reset(seed=config.seed)
+    rng = np.random.default_rng(config.seed)
     expert = ExpertPolicy()
-    usable_length_m = unwrapped.track.length_m - speed_mps * episode_seconds
-    if usable_length_m <= 0 and not unwrapped.track.closed:
-        raise ValueError(f"track {track!r} ({unwrapped.track.length_m:.0f} m) is shorter than one episode")
-    frames: list[np.ndarray] = []
+    track_spec = unwrapped.track
+    steps_per_episode = int(round(config.episode_seconds * unwrapped.config["policy_frequency"]))
+    frame_shape = env.observation_space.shape
+    _check_against_track(config, track, track_spec, unwrapped.start_lane_offset_m)
+    max_rows = config.episodes * steps_per_episode
+    if max_rows * int(np.prod(frame_shape)) > MAX_FRAMES_BYTES:
+        raise ValueError(
+            f"--episodes {config.episodes} x --episode-seconds {config.episode_seconds:g}: {max_rows} frames of "
+            f"{frame_shape[0]}x{frame_shape[1]} px exceed the {MAX_FRAMES_BYTES / 1024**3:g} GiB a dataset may hold"
+        )
+    usable_length_m = track_spec.length_m - config.speed_mps * config.episode_seconds
+    # Filled in place (not a list stacked at the end): the peak memory is the dataset's own size.
+    frames = np.empty((max_rows, *frame_shape), dtype=np.uint8)
+    n_rows = 0
     columns: dict[str, list] = {name: [] for name in STEP_COLUMNS}
-    for episode_id in tqdm(range(episodes), desc="collect", unit="episode", disable=not progress):
-        displaced = rng.random() < displaced_fraction
+    for episode_id in tqdm(range(config.episodes), desc="collect", unit="episode", disable=not progress):
+        displaced = rng.random() < config.displaced_fraction
         options = {
             # Open tracks: start early enough to drive the whole episode before the end of the road.
             "start_arc_length_m": float(rng.uniform(
-                0.0, unwrapped.track.length_m if unwrapped.track.closed else usable_length_m)),
-            "start_offset_m": float(rng.uniform(-max_offset_m, max_offset_m)) if displaced else 0.0,
-            "start_heading_error_rad": float(np.radians(rng.uniform(-max_heading_error_deg, max_heading_error_deg)))
-            if displaced else 0.0,
+                0.0, track_spec.length_m if track_spec.closed else usable_length_m)),
+            "start_offset_m": float(rng.uniform(-config.max_offset_m, config.max_offset_m)) if displaced else 0.0,
+            "start_heading_error_rad": float(np.radians(
+                rng.uniform(-config.max_heading_error_deg, config.max_heading_error_deg))) if displaced else 0.0,
         }
         obs, info = env.reset(options=options)
-        for _ in range(int(round(episode_seconds * unwrapped.config["policy_frequency"]))):
+        for _ in range(steps_per_episode):
             label = expert(obs, info)
-            frames.append(obs)
+            frames[n_rows] = obs
+            n_rows += 1
             _append_step(columns, episode_id, info, label, displaced and info["time_s"] < RECOVERY_WINDOW_S)
             obs, _, terminated, truncated, info = env.step(np.array([label], dtype=np.float32))
             if terminated or truncated:
                 break
     manifest = {
-        "track": track, "speed_mps": speed_mps,
+        "track": track, "speed_mps": config.speed_mps,
         "simulation_frequency": unwrapped.config["simulation_frequency"],
         "policy_frequency": unwrapped.config["policy_frequency"],
         "max_steering_rad": unwrapped.config["max_steering_rad"],
-        "seed": seed, "camera": dict(vars(unwrapped.camera_config)),
-        "collector": {"episodes": episodes, "episode_seconds": episode_seconds,
-                      "displaced_fraction": displaced_fraction, "max_offset_m": max_offset_m,
-                      "max_heading_error_deg": max_heading_error_deg, "expert": vars(expert.params)},
+        "seed": config.seed, "camera": dict(vars(unwrapped.camera_config)),
+        "collector": {"episodes": config.episodes, "episode_seconds": config.episode_seconds,
+                      "displaced_fraction": config.displaced_fraction, "max_offset_m": config.max_offset_m,
+                      "max_heading_error_deg": config.max_heading_error_deg, "expert": vars(expert.params)},
     }
     steps = {name: np.asarray(values, dtype=STEP_COLUMNS[name]) for name, values in columns.items()}
-    return np.stack(frames), steps, manifest
+    return frames[:n_rows], steps, manifest
+
+
+def _check_against_track(config: CollectConfig, track: str, track_spec, start_lane_offset_m: float) -> None:
+    """Bounds that depend on the track: episodes fit on an open road, displaced starts stay on it."""
+    episode_length_m = config.speed_mps * config.episode_seconds
+    if not track_spec.closed and track_spec.length_m - episode_length_m <= 0:
+        raise ValueError(f"track {track!r} ({track_spec.length_m:.0f} m) is shorter than one episode "
+                         f"({episode_length_m:.0f} m at --speed-mps {config.speed_mps:g})")
+    # The car's centre must start on the road, on either side of the start lane's centre.
+    room_m = track_spec.road_half_width_m - abs(start_lane_offset_m)
+    if config.max_offset_m > room_m:
+        raise ValueError(f"--max-offset-m {config.max_offset_m:g} would start the car off the road of track "
+                         f"{track!r}: at most {room_m:g} m from the start lane's centre to the road edge")
 
 
 def _append_step(columns: dict, episode_id: int, info: dict, label: float, perturbed: bool) -> None:
@@ -99,14 +148,3 @@ def _append_step(columns: dict, episode_id: int, info: dict, label: float, pertu
     for name, value in row.items():
         columns[name].append(value)
 
-
-def run(args) -> int:
-    frames, steps, manifest = collect(
-        args.track, args.episodes, args.episode_seconds, args.displaced_fraction, args.max_offset_m,
-        args.max_heading_error_deg, args.speed_mps, args.camera, args.seed,
-    )
-    manifest["command"] = "plm-highway collect " + " ".join(
-        f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if k != "command")
-    out = write_dataset(args.out, frames, steps, manifest)
-    print(json.dumps({"out": str(out), "samples": len(frames), "episodes": int(args.episodes)}))
-    return 0

@@ -4,10 +4,15 @@ A dataset is a directory:
 
 - ``manifest.json``: ``{"format": "plm_highway.dataset/1", "track", "speed_mps",
   "simulation_frequency", "policy_frequency", "seed", "camera": {...}, "counts": {"samples",
-  "episodes"}, "collector": {...}}``.
+  "episodes"}, "collector": {...}}``. UTF-8 JSON (a byte-order mark is accepted), at most
+  :data:`MAX_MANIFEST_BYTES`. ``format`` and ``counts`` are required; ``counts`` must agree with
+  the arrays.
 - ``frames.npy``: uint8 array (N, H, W), the camera frame the expert's label belongs to
-  (memory-mappable: training does not load it all at once).
-- ``steps.npz``: one 1-D array of length N per column in :data:`STEP_COLUMNS`.
+  (memory-mappable: training does not load it all at once). Its header is checked against the
+  file size before it is mapped, so a truncated file is named as such.
+- ``steps.npz``: one 1-D array of length N per column in :data:`STEP_COLUMNS` (no pickled objects).
+
+A dataset has 1 to :data:`MAX_SAMPLES` rows; frames are at most :data:`MAX_FRAME_SIDE_PX` px a side.
 
 Rows are in time order within each episode. An *episode* is one continuous stretch of driving:
 a perturbation that teleports the car starts a new episode, so a future-action look-up by time
@@ -20,14 +25,18 @@ is kept for collectors that perturb the steering itself.
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from plm_highway.io.atomic import atomic_path
+from plm_highway.io import directory_kind, write_output
 
 FORMAT = "plm_highway.dataset/1"
+MAX_MANIFEST_BYTES = 4 * 1024 * 1024
+MAX_SAMPLES = 10_000_000
+MAX_FRAME_SIDE_PX = 4096
 STEP_COLUMNS: dict[str, type] = {
     "episode_id": np.int32,
     "t_s": np.float64,
@@ -42,6 +51,17 @@ STEP_COLUMNS: dict[str, type] = {
 }
 
 
+def _has_dataset_manifest(path: Path) -> bool:
+    """Datasets written before output markers existed: a manifest of this format."""
+    try:
+        return json.loads((path / "manifest.json").read_text(encoding="utf-8")).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+DATASET = directory_kind("dataset", "a plm-highway dataset directory", _has_dataset_manifest)
+
+
 @dataclass
 class Dataset:
     manifest: dict
@@ -52,17 +72,16 @@ class Dataset:
         return len(self.frames)
 
 
-def write_dataset(out_dir: str | Path, frames: np.ndarray, steps: dict[str, np.ndarray], manifest: dict) -> Path:
-    """Validate and write a dataset atomically; returns the directory."""
+def write_dataset(out_dir: str | Path, frames: np.ndarray, steps: dict[str, np.ndarray], manifest: dict,
+                  overwrite: bool = False) -> Path:
+    """Validate and write a dataset atomically (see :mod:`plm_highway.io.outputs`); returns the directory."""
     frames = np.asarray(frames)
-    if frames.dtype != np.uint8 or frames.ndim != 3:
-        raise ValueError(f"frames: expected uint8 (N, H, W), got {frames.dtype} {frames.shape}")
+    _check_frames(frames.dtype, frames.shape, "frames")
     columns = _validated_columns(steps, len(frames), source="steps")
     manifest = {**manifest, "format": FORMAT}
     manifest["counts"] = {"samples": int(len(frames)), "episodes": int(len(np.unique(columns["episode_id"])))}
     out_dir = Path(out_dir)
-    with atomic_path(out_dir) as tmp:
-        tmp.mkdir()
+    with write_output(out_dir, DATASET, overwrite=overwrite) as tmp:
         np.save(tmp / "frames.npy", frames)
         np.savez(tmp / "steps.npz", **columns)
         (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2))
@@ -70,17 +89,96 @@ def write_dataset(out_dir: str | Path, frames: np.ndarray, steps: dict[str, np.n
 
 
 def read_dataset(data_dir: str | Path, mmap: bool = True) -> Dataset:
+    """The dataset at ``data_dir``, checked (see the module docstring); ValueError names the culprit."""
     data_dir = Path(data_dir)
     manifest_path = data_dir / "manifest.json"
     if not manifest_path.is_file():
         raise FileNotFoundError(f"{manifest_path}: no dataset manifest (run 'plm-highway collect' first)")
-    manifest = json.loads(manifest_path.read_text())
-    if manifest.get("format") != FORMAT:
-        raise ValueError(f"{manifest_path}: field 'format' is {manifest.get('format')!r}, expected {FORMAT!r}")
-    frames = np.load(data_dir / "frames.npy", mmap_mode="r" if mmap else None)
-    with np.load(data_dir / "steps.npz") as npz:
-        steps = _validated_columns(dict(npz), len(frames), source=str(data_dir / "steps.npz"))
+    manifest = _read_manifest(manifest_path)
+    frames = _load_frames(data_dir / "frames.npy", mmap)
+    steps_path = data_dir / "steps.npz"
+    if not steps_path.is_file():
+        raise FileNotFoundError(f"{steps_path}: dataset file not found")
+    try:
+        with np.load(steps_path, allow_pickle=False) as npz:
+            steps = {name: npz[name] for name in npz.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise ValueError(f"{steps_path}: not a readable .npz of step columns ({exc})") from exc
+    steps = _validated_columns(steps, len(frames), source=str(steps_path))
+    _check_counts(manifest_path, manifest, frames, steps)
     return Dataset(manifest=manifest, frames=frames, steps=steps)
+
+
+def _read_manifest(path: Path) -> dict:
+    size_bytes = path.stat().st_size
+    if size_bytes > MAX_MANIFEST_BYTES:
+        raise ValueError(f"{path}: {size_bytes} bytes, a dataset manifest is at most {MAX_MANIFEST_BYTES}")
+    try:
+        manifest = json.loads(path.read_bytes().decode("utf-8-sig"))
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text ({exc})") from exc
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(manifest, dict):
+        raise ValueError(f"{path}: expected a JSON object, found {type(manifest).__name__}")
+    if manifest.get("format") != FORMAT:
+        raise ValueError(f"{path}: field 'format' is {manifest.get('format')!r}, expected {FORMAT!r}")
+    counts = manifest.get("counts")
+    if not isinstance(counts, dict) or not all(
+        isinstance(counts.get(name), int) and not isinstance(counts.get(name), bool)
+        for name in ("samples", "episodes")
+    ):
+        raise ValueError(f"{path}: field 'counts' must be an object with integer 'samples' and 'episodes', "
+                         f"got {counts!r}")
+    return manifest
+
+
+def _check_counts(path: Path, manifest: dict, frames: np.ndarray, steps: dict[str, np.ndarray]) -> None:
+    counts = manifest["counts"]
+    if counts["samples"] != len(frames):
+        raise ValueError(f"{path}: counts.samples is {counts['samples']}, but frames.npy holds {len(frames)} frames")
+    n_episodes = len(np.unique(steps["episode_id"]))
+    if counts["episodes"] != n_episodes:
+        raise ValueError(f"{path}: counts.episodes is {counts['episodes']}, but steps.npz holds {n_episodes}")
+
+
+def _check_frames(dtype: np.dtype, shape: tuple, source: str) -> None:
+    if dtype != np.uint8 or len(shape) != 3:
+        raise ValueError(f"{source}: expected uint8 (N, H, W), got {dtype} {shape}")
+    n, height, width = shape
+    if not 1 <= n <= MAX_SAMPLES:
+        raise ValueError(f"{source}: a dataset has 1 to {MAX_SAMPLES} samples, got {n}")
+    if not (1 <= height <= MAX_FRAME_SIDE_PX and 1 <= width <= MAX_FRAME_SIDE_PX):
+        raise ValueError(f"{source}: frames must be 1 to {MAX_FRAME_SIDE_PX} px a side, got {height}x{width}")
+
+
+def _load_frames(path: Path, mmap: bool) -> np.ndarray:
+    """frames.npy, its header checked against the file size first (a truncated file is named as such)."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: dataset file not found")
+    try:
+        with open(path, "rb") as handle:
+            version = np.lib.format.read_magic(handle)
+            read_header = {(1, 0): np.lib.format.read_array_header_1_0,
+                           (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+            if read_header is None:
+                raise ValueError(f"unsupported .npy format version {version}")
+            shape, fortran_order, dtype = read_header(handle)
+            header_bytes = handle.tell()
+    except (ValueError, EOFError, OSError) as exc:
+        raise ValueError(f"{path}: not a .npy array file ({exc})") from exc
+    _check_frames(dtype, shape, str(path))
+    if fortran_order:
+        raise ValueError(f"{path}: expected a C-ordered array, found Fortran order")
+    expected_bytes = header_bytes + int(np.prod(shape)) * dtype.itemsize
+    size_bytes = path.stat().st_size
+    if size_bytes != expected_bytes:
+        kind = "truncated" if size_bytes < expected_bytes else "longer than its header says"
+        raise ValueError(
+            f"{path}: {kind}: {size_bytes} bytes, its header ({shape[0]} frames of {shape[1]}x{shape[2]} px) "
+            f"needs {expected_bytes}"
+        )
+    return np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)
 
 
 def _validated_columns(steps: dict[str, np.ndarray], n_rows: int, source: str) -> dict[str, np.ndarray]:

@@ -8,15 +8,12 @@ seed and so the same latency realisation.
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import gymnasium
 import numpy as np
 
 import plm_highway  # noqa: F401  (registers the env)
-from plm_highway.io.atomic import atomic_path
 from plm_highway.latency import LatencyWrapper, parse_profile
 
 LOG_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_m", "heading_rad", "speed_mps",
@@ -75,11 +72,3 @@ def drive(name: str, policy, track="test", latency="const:0", seed: int = 0, cam
     columns = {column: np.asarray(values) for column, values in rows.items()}
     extras = {"latency_clamped_steps": int(policy.clamped_count)} if hasattr(policy, "clamped_count") else {}
     return RunLog(name, columns, bool(terminated), float(info["completed_fraction"]), extras)
-
-
-def write_log_csv(log: RunLog, path: str | Path) -> None:
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(LOG_COLUMNS)
-        for row in zip(*(log.columns[column] for column in LOG_COLUMNS)):
-            writer.writerow([f"{value:.6g}" if isinstance(value, (float, np.floating)) else value for value in row])

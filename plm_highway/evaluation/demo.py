@@ -1,4 +1,4 @@
-"""``plm-highway demo zigzag``: the paper's Figure 2, a lane keeper with and without latency.
+"""The paper's Figure 2, a lane keeper with and without latency.
 
 The Base Model drives when trained checkpoints are shipped; until then the expert, fed the same
 delayed snapshots, plays its part. The figure shows both trajectories over the road around the
@@ -7,25 +7,14 @@ first curve (green: no latency, red: delayed) and the lateral offset over time.
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 
 from plm_highway.evaluation.closed_loop import drive
 from plm_highway.evaluation.plots import draw_road
 from plm_highway.evaluation.policies import make_policy
+from plm_highway.io import FIGURE, check_target, pyplot, save_figure
 from plm_highway.latency import parse_profile
 from plm_highway.road.track import load_track
-
-
-def configure(parser) -> None:
-    parser.add_argument("--latency", default="const:0.25", help="a profile spec, or seconds (e.g. 0.25)")
-    parser.add_argument("--track", default="test")
-    parser.add_argument("--policy", choices=["auto", "bm", "expert"], default="auto",
-                        help="auto: the shipped Base Model if present, else the expert")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default="figures/zigzag.png")
 
 
 def _choose_policy(name: str):
@@ -38,7 +27,9 @@ def _choose_policy(name: str):
         return "expert"
 
 
-def zigzag(latency="const:0.25", track="test", policy="auto", seed=0, out="figures/zigzag.png") -> dict:
+def zigzag(latency="const:0.25", track="test", policy="auto", seed=0, out="figures/zigzag.png",
+           overwrite=False) -> dict:
+    check_target(out, FIGURE, overwrite=overwrite)
     spec = parse_profile(latency if not _is_number(latency) else f"const:{latency}").spec
     policy = _choose_policy(policy)
     track_spec = load_track(track)
@@ -46,7 +37,7 @@ def zigzag(latency="const:0.25", track="test", policy="auto", seed=0, out="figur
         "no latency": drive("reference", make_policy(policy), track, "const:0", seed),
         f"latency {spec}": drive("baseline", make_policy(policy), track, spec, seed),
     }
-    _plot(track_spec, runs, policy, out)
+    _plot(track_spec, runs, policy, out, overwrite)
     return {name: log.summary() for name, log in runs.items()} | {"policy": policy, "figure": str(out)}
 
 
@@ -58,9 +49,8 @@ def _is_number(text) -> bool:
         return False
 
 
-def _plot(track_spec, runs: dict, policy: str, out) -> None:
-    os.environ.setdefault("MPLBACKEND", "Agg")
-    import matplotlib.pyplot as plt
+def _plot(track_spec, runs: dict, policy: str, out, overwrite: bool) -> None:
+    plt = pyplot()
 
     colours = ["tab:green", "tab:red"]
     # 60 m of road around where the delayed run weaves most: wide enough to see the road bend, narrow
@@ -89,22 +79,7 @@ def _plot(track_spec, runs: dict, policy: str, out) -> None:
     ax_offset.set_ylabel("lateral offset from lane centre [m]\n(positive: left)")
     ax_offset.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    Path(out).parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(out).with_name(f".{Path(out).stem}.tmp{Path(out).suffix}")
     try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, out)
+        save_figure(fig, out, overwrite=overwrite, dpi=110)
     finally:
         plt.close(fig)
-        tmp.unlink(missing_ok=True)
-
-
-def run(args) -> int:
-    result = zigzag(args.latency, args.track, args.policy, args.seed, args.out)
-    print(f"policy: {result['policy']}")
-    for name, summary in result.items():
-        if isinstance(summary, dict):
-            print(f"{name:>24}: lateral offset max {summary['lateral_offset_max_m']:.3f} m, "
-                  f"RMS {summary['lateral_offset_rms_m']:.3f} m, left road: {summary['left_road']}")
-    print(f"figure: {result['figure']}")
-    return 0

@@ -2,18 +2,18 @@
 
 Colours follow the paper: blue the BM without latency (``reference``), green the BM with latency
 (``baseline``), red PLM-Net with latency (``mitigated``). Maps are north-up and never mirrored.
-Every figure is saved atomically (a temporary file renamed into place).
+Figures are written inside an output directory that :mod:`plm_highway.io` is staging.
 """
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
 from plm_highway.evaluation.plots import draw_road
 from plm_highway.evaluation.trajectory import PARTS, LaneCentre, representative_segment, start_lane_offset_m
+from plm_highway.io import pyplot, save_figure_into
 from plm_highway.road.geometry import segment_starts_m
 from plm_highway.road.track import TrackSpec
 
@@ -23,14 +23,7 @@ DPI = 100
 
 
 def _pyplot():
-    os.environ.setdefault("MPLBACKEND", "Agg")
-    import matplotlib
-
-    if matplotlib.get_backend().lower() not in ("agg", "module://matplotlib_inline.backend_inline"):
-        matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return pyplot()
 
 
 def run_labels(latency_label: str) -> dict[str, str]:
@@ -40,17 +33,12 @@ def run_labels(latency_label: str) -> dict[str, str]:
 
 
 def save_figure(fig, path: str | Path) -> Path:
-    """Save ``fig`` to ``path`` through a temporary file renamed into place; closes the figure."""
-    plt = _pyplot()
+    """Save ``fig`` (tagged as plm-highway's) inside a staged output directory; closes the figure."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
     try:
-        fig.savefig(tmp, dpi=DPI)
-        os.replace(tmp, path)
+        save_figure_into(fig, path, dpi=DPI)
     finally:
-        plt.close(fig)
-        tmp.unlink(missing_ok=True)
+        pyplot().close(fig)
     return path
 
 

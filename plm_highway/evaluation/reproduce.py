@@ -25,22 +25,17 @@ The checkpoints are trained on the ``train`` track; nothing here is tuned on the
 
 from __future__ import annotations
 
-import csv
 import json
-import os
 import re
-import shutil
 import sys
-import tempfile
 from pathlib import Path
 
 from tqdm import tqdm
 
 from plm_highway.evaluation import paper_results as paper
-from plm_highway.evaluation.cli import check_inputs, compare_runs, run_steps
 from plm_highway.evaluation.closed_loop import drive
-from plm_highway.evaluation.policies import checkpoint_pair, make_policy, single_threaded_inference
-from plm_highway.evaluation.steering import ERROR_NAMES, reduction_pct
+from plm_highway.evaluation.evaluate import check_inputs, compare_runs, run_steps
+from plm_highway.evaluation.policies import checkpoint_pair, make_policy
 from plm_highway.evaluation.trajectory import (
     METRIC_LABELS,
     METRICS,
@@ -48,6 +43,8 @@ from plm_highway.evaluation.trajectory import (
     RESAMPLE_SPACING_M,
     representative_segment,
 )
+from plm_highway.io import check_target, directory_kind, json_text, write_csv_into, write_output
+from plm_highway.metrics.steering import ERROR_NAMES, reduction_pct
 from plm_highway.road.track import TrackSpec, load_track
 
 DEFAULT_SETTINGS = ("const:0.15", "const:0.2", "const:0.25", "const:0.3", "steps:0.0-0.35:1.0")
@@ -62,23 +59,17 @@ SHORT_METRIC = {"pcm": "PCM", "frechet_dist": "Frechet", "area_between_two_curve
                 "curve_length_measure": "Curve length", "dtw": "DTW", "dtsi": "DTSI"}
 
 
-def configure(parser) -> None:
-    parser.add_argument("--out", help="output directory (default: figures/reproduce, or figures/reproduce/TRACK "
-                                      "for a track other than test)")
-    parser.add_argument("--track", default="test", help="train, test, unseen or a track JSON path")
-    parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: shipped)")
-    parser.add_argument("--settings", nargs="+", default=list(DEFAULT_SETTINGS), metavar="SPEC",
-                        help="latency specs, space or comma separated (default: %(default)s)")
-    parser.add_argument("--generalise", nargs="*", metavar="TRACK",
-                        help="tracks for the generalisation section (default: unseen when --track is test; "
-                             "give the flag alone for none)")
-    parser.add_argument("--sweep", action="store_true",
-                        help="also the latency sweep 0-0.5 s and PLM-Net with a wrong latency estimate")
-    parser.add_argument("--sweep-max", type=float, default=0.5, help="last sweep latency [s]")
-    parser.add_argument("--sweep-step", type=float, default=0.05, help="sweep latency step [s]")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--max-steps", type=int, help="stop each run after this many policy steps (quick looks)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+def _is_reproduce_report(path: Path) -> bool:
+    """Report directories written before output markers existed: results.json recording this command."""
+    try:
+        command = json.loads((path / "results.json").read_text(encoding="utf-8")).get("command", "")
+    except (OSError, ValueError, AttributeError):
+        return False
+    return (path / "report.md").is_file() and str(command).startswith("plm-highway reproduce")
+
+
+REPRODUCE_REPORT = directory_kind("reproduce-report", "a plm-highway reproduction report directory",
+                                  _is_reproduce_report)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -218,7 +209,8 @@ def evaluate_targets(settings: dict) -> list[dict]:
 
 
 def reproduce(track="test", settings=DEFAULT_SETTINGS, checkpoints=None, seed=0, max_steps=None, out=None,
-              generalise=None, sweep=False, sweep_max=0.5, sweep_step=0.05, progress=True, command="") -> dict:
+              generalise=None, sweep=False, sweep_max=0.5, sweep_step=0.05, progress=True, command="",
+              overwrite=False) -> dict:
     """Validate everything, drive every run, then write the outputs; returns the results dict."""
     from plm_highway.evaluation import sweep as sweep_module
 
@@ -238,6 +230,7 @@ def reproduce(track="test", settings=DEFAULT_SETTINGS, checkpoints=None, seed=0,
     policies = {"bm": make_policy("bm", checkpoints), "plm": make_policy("plm", checkpoints)}
     grid_max_s = round(float(policies["plm"].model_policy.model.delta_ref_s[-1]), 6)  # the TAPM's last latency
     out = output_dir(out, track, main_name)
+    check_target(out, REPRODUCE_REPORT, overwrite=overwrite)
 
     n_runs = (1 + 2 * len(specs)) * (1 + len(generalise))
     if sweep:
@@ -270,7 +263,7 @@ def reproduce(track="test", settings=DEFAULT_SETTINGS, checkpoints=None, seed=0,
                                   "targets": evaluate_targets(run["settings"])} for name, run in others.items()},
         "sweep": sweep_result,
     }
-    write_outputs(results, main, others, main_spec, out)
+    write_outputs(results, main, others, main_spec, out, overwrite)
     return results
 
 
@@ -297,15 +290,13 @@ def _display_path(path: Path) -> str:
 # ---------------------------------------------------------------------------------------------
 
 
-def write_outputs(results: dict, main: dict, others: dict, track_spec: TrackSpec, out: Path) -> None:
-    """Render every file into a temporary directory beside ``out``, then move each into ``out``."""
+def write_outputs(results: dict, main: dict, others: dict, track_spec: TrackSpec, out: Path,
+                  overwrite: bool = False) -> None:
+    """Render every file into a staged directory, published as ``out`` in one step."""
     from plm_highway.evaluation import figures
     from plm_highway.evaluation.sweep import write_sweep_csv
 
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-    try:
+    with write_output(out, REPRODUCE_REPORT, overwrite=overwrite) as tmp:
         figure_files: dict[str, dict[str, str]] = {}
         for spec, entry in main["settings"].items():
             figure_files[spec] = _setting_figures(figures, entry["logs"], track_spec, spec, tmp, prefix="",
@@ -322,14 +313,9 @@ def write_outputs(results: dict, main: dict, others: dict, track_spec: TrackSpec
                                tmp / "sweep.png")
             write_sweep_csv(results["sweep"], tmp / "sweep.csv")
         _write_tables_csv(results, tmp)
-        (tmp / "results.json").write_text(json.dumps(results, indent=1, allow_nan=False) + "\n")
-        (tmp / "report.md").write_text(render_report(results, figure_files, other_figures, track_spec))
-        out.mkdir(parents=True, exist_ok=True)
-        names = sorted(p.name for p in tmp.iterdir() if p.name != "report.md") + ["report.md"]  # report last
-        for name in names:
-            os.replace(tmp / name, out / name)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        (tmp / "results.json").write_text(json_text(results, REPRODUCE_REPORT, indent=1), encoding="utf-8")
+        (tmp / "report.md").write_text(render_report(results, figure_files, other_figures, track_spec),
+                                       encoding="utf-8")
 
 
 def _setting_figures(figures, logs, track_spec, spec, directory: Path, prefix: str, track_name: str) -> dict[str, str]:
@@ -380,11 +366,7 @@ def _write_tables_csv(results: dict, directory: Path) -> None:
 
 
 def _write_csv(path: Path, header: list[str], rows: list[list]) -> None:
-    with open(path, "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(header)
-        for row in rows:
-            writer.writerow(["" if v is None else f"{v:.6g}" if isinstance(v, float) else v for v in row])
+    write_csv_into(path, header, rows)
 
 
 def steering_table_rows(result: dict, key: str | None) -> list[list]:
@@ -668,17 +650,3 @@ def _methods_markdown(track_spec: TrackSpec) -> list[str]:
     ]
     lines += [f"- {note}" for note in paper.NOTES]
     return lines + [""]
-
-
-def run(args) -> int:
-    command = "plm-highway reproduce " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["reproduce"] else ""
-    with single_threaded_inference():
-        results = reproduce(args.track, args.settings, args.checkpoints, args.seed, args.max_steps, args.out,
-                            args.generalise, args.sweep, args.sweep_max, args.sweep_step, not args.no_progress,
-                            command.strip())
-    out = output_dir(args.out, args.track, results["track"])
-    for target in results["targets"]:
-        print(f"{'met   ' if target['met'] else 'MISSED'} {setting_label(target['setting']):>26}: {target['target']}: "
-              f"{target['detail']}")
-    print(f"report: {out / 'report.md'}")
-    return 0

@@ -14,7 +14,6 @@ Every run uses the same track and seed as the no-latency reference, which is dri
 
 from __future__ import annotations
 
-import csv
 from collections.abc import Callable
 from pathlib import Path
 
@@ -22,8 +21,8 @@ import numpy as np
 
 from plm_highway.evaluation.closed_loop import RunLog, drive
 from plm_highway.evaluation.policies import VisionPolicy
-from plm_highway.evaluation.steering import steering_errors
-from plm_highway.io.atomic import atomic_path
+from plm_highway.io import write_csv_into
+from plm_highway.metrics.steering import common_span, steering_mae
 
 SWEEP_MAX_S = 0.5
 SWEEP_STEP_S = 0.05
@@ -82,7 +81,7 @@ def latency_sweep(track, bm_policy, plm_policy: VisionPolicy, reference: RunLog,
 def _row(key: str, latency_s: float, bias_s: float, log: RunLog, reference_steering: np.ndarray) -> dict:
     summary = log.summary()
     return {"policy": key, "latency_s": latency_s, "bias_s": bias_s,
-            "steering_mae": steering_errors(reference_steering, log.columns["steering"])["mae"],
+            "steering_mae": steering_mae(*common_span(reference_steering, log.columns["steering"])),
             "lateral_offset_rms_m": summary["lateral_offset_rms_m"],
             "lateral_offset_max_m": summary["lateral_offset_max_m"], "left_road": summary["left_road"],
             "completed_fraction": summary["completed_fraction"], "steps": summary["steps"],
@@ -90,11 +89,8 @@ def _row(key: str, latency_s: float, bias_s: float, log: RunLog, reference_steer
 
 
 def write_sweep_csv(sweep: dict, path: str | Path) -> None:
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(SWEEP_COLUMNS)
-        for row in sweep["rows"]:
-            writer.writerow([f"{row[c]:.6g}" if isinstance(row[c], float) else row[c] for c in SWEEP_COLUMNS])
+    """The sweep table, inside a report directory being staged."""
+    write_csv_into(Path(path), SWEEP_COLUMNS, [[row[c] for c in SWEEP_COLUMNS] for row in sweep["rows"]])
 
 
 def sweep_markdown(sweep: dict) -> list[str]:

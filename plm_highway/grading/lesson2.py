@@ -3,7 +3,9 @@
 Three pieces of PLM-Net: the TAPM's future-action labels (looked up by time), the TAPM's heads
 (N sub-models run as one batched computation) and Algorithm 1 (linear interpolation in latency).
 Expected values in the hand-made cases were worked out by hand and are written out below; the
-checks on larger inputs compare with the package's implementation.
+checks on larger inputs compare with the package's implementation, computed before the student's
+code runs (while it runs, the package's implementation is switched off). A ``seed`` (nbgrader's
+hidden tests) draws further cases.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import torch
 from torch import nn
 from torch.overrides import TorchFunctionMode
 
-from plm_highway.grading.checks import CheckFailed, call_student, expect_close, expect_true, graded
+from plm_highway.grading.checks import CheckFailed, call_student, expect_close, expect_true, format_number, graded
 
 # --- Exercise A: future labels -----------------------------------------------------------------------
 
@@ -37,7 +39,8 @@ HAND_LABELS = np.array([  # the valid rows only, worked out by hand
 
 def _call_future_labels(future_labels, t_s, episode_id, steering, deltas_s):
     result = call_student(future_labels, t_s, episode_id, steering, deltas_s,
-                          what="future_labels(t_s, episode_id, steering, deltas_s)")
+                          what=f"future_labels(...) on {len(t_s)} rows, deltas_s = {tuple(deltas_s)}",
+                          exercise="lesson2.future_labels")
     expect_true(isinstance(result, tuple) and len(result) == 2,
                 f"future_labels must return a tuple (labels, valid), received {type(result).__name__}")
     labels, valid = np.asarray(result[0], dtype=float), np.asarray(result[1])
@@ -52,8 +55,11 @@ def _call_future_labels(future_labels, t_s, episode_id, steering, deltas_s):
 
 
 @graded(points=2)
-def check_future_labels_by_hand(future_labels) -> None:
+def check_future_labels_by_hand(future_labels, seed: int | None = None) -> None:
     """Two tiny episodes with a dropped frame: labels by time, never across an episode's end."""
+    if seed is not None:
+        _random_episode_cases(future_labels, np.random.default_rng(seed))
+        return
     labels, valid = _call_future_labels(future_labels, HAND_T_S, HAND_EPISODE_ID, HAND_STEERING, HAND_DELTAS_S)
     for row in range(len(HAND_T_S)):
         where = f"row {row} (episode {HAND_EPISODE_ID[row]}, t = {HAND_T_S[row]:.2f} s)"
@@ -70,7 +76,7 @@ def check_future_labels_by_hand(future_labels) -> None:
 
 @graded(points=2)
 def check_future_labels_on_data(future_labels, steps: dict) -> None:
-    """The collected dataset: the same labels and valid rows as ``plm_highway.training.labels``."""
+    """The collected dataset: the same labels and valid rows as the kit's training uses."""
     from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S
     from plm_highway.training.labels import future_steering_labels
 
@@ -80,20 +86,45 @@ def check_future_labels_on_data(future_labels, steps: dict) -> None:
     wrong = np.flatnonzero(valid != expected_valid)
     if len(wrong):
         row = int(wrong[0])
-        raise CheckFailed(
-            f"valid differs from the reference on {len(wrong)} of {len(t_s)} rows; first at row {row} (episode "
-            f"{episode_id[row]}, t = {t_s[row]:.2f} s): expected {bool(expected_valid[row])}, received "
-            f"{bool(valid[row])}. Hint: expected {int(expected_valid.sum())} valid rows, you have "
-            f"{int(valid.sum())}; the last {max(DEFAULT_DELTA_GRID_S)} s of each episode have no future")
+        raise CheckFailed(f"valid on the collected data ({len(t_s)} rows)", f"{int(expected_valid.sum())} valid rows",
+                          f"{int(valid.sum())} valid rows",
+                          f"the last {max(DEFAULT_DELTA_GRID_S)} s of each episode have no future",
+                          [f"first difference at row {row} (episode {episode_id[row]}, t = {t_s[row]:.2f} s): "
+                           f"expected {bool(expected_valid[row])}, received {bool(valid[row])}"])
     rows = np.flatnonzero(expected_valid)
-    errors = np.abs(labels[rows] - expected[rows])
-    bad = np.flatnonzero(~(errors <= 1e-5).all(axis=1))
-    if len(bad):
-        row = int(rows[bad[0]])
-        raise CheckFailed(
-            f"labels differ from the reference on {len(bad)} valid rows; first at row {row} (episode "
-            f"{episode_id[row]}, t = {t_s[row]:.2f} s): expected {np.round(expected[row], 5)}, received "
-            f"{np.round(labels[row], 5)}. Hint: column j is the steering at t + deltas_s[j] of the same episode")
+    expect_close(f"labels of the {len(rows)} valid rows of the collected data", expected[rows], labels[rows],
+                 atol=1e-5, hint="column j is the steering at t + deltas_s[j] of the same episode")
+
+
+def _random_episode_cases(future_labels, rng: np.random.Generator) -> None:
+    """Episodes in shuffled order, each with its own clock, rate and dropped frames; random deltas."""
+    from plm_highway.training.labels import future_steering_labels
+
+    t_parts, id_parts = [], []
+    for episode in rng.permutation(7):
+        dt_s = float(rng.choice([0.05, 0.1, 0.04]))
+        t_s = np.arange(int(rng.integers(3, 30))) * dt_s
+        keep = np.ones(len(t_s), bool)
+        keep[1:-1] = rng.random(len(t_s) - 2) > 0.2
+        t_parts.append(np.round(t_s[keep], 6))
+        id_parts.append(np.full(int(keep.sum()), int(episode) * 3 + 1))
+    t_s, episode_id = np.concatenate(t_parts), np.concatenate(id_parts)
+    steering = rng.uniform(-1, 1, len(t_s))
+    deltas_s = tuple(sorted(float(d) for d in rng.choice([0.05, 0.1, 0.15, 0.2, 0.25, 0.3], 3, replace=False)))
+    expected, expected_valid = future_steering_labels(episode_id, t_s, steering, deltas_s)
+    labels, valid = _call_future_labels(future_labels, t_s, episode_id, steering, deltas_s)
+    wrong = np.flatnonzero(valid != expected_valid)
+    if len(wrong):
+        row = int(wrong[0])
+        raise CheckFailed(f"valid on {len(t_s)} rows of 7 shuffled episodes with dropped frames, deltas {deltas_s}",
+                          f"valid[{row}] = {bool(expected_valid[row])}", f"valid[{row}] = {bool(valid[row])}",
+                          f"row {row} is episode {episode_id[row]} at t = {t_s[row]:g} s; a row is valid only if "
+                          "t + max(deltas) is at or before the last time of its own episode",
+                          [f"{len(wrong)} of {len(t_s)} rows differ"])
+    rows = np.flatnonzero(expected_valid)
+    expect_close(f"labels of the valid rows of 7 shuffled episodes with dropped frames, deltas {deltas_s}",
+                 expected[rows], labels[rows], atol=1e-5,
+                 hint="interpolate the steering at t + delta within the row's own episode (np.interp)")
 
 
 # --- Exercise B: the TAPM heads ---------------------------------------------------------------------
@@ -111,7 +142,7 @@ def _layer_shapes(n_heads: int) -> list[tuple[tuple[int, ...], tuple[int, ...]]]
 
 
 def _make_heads(heads_class, n_heads: int):
-    heads = call_student(heads_class, n_heads, what=f"TAPMHeads({n_heads})")
+    heads = call_student(heads_class, n_heads, what=f"TAPMHeads({n_heads})", exercise="lesson2.TAPMHeads")
     expect_true(isinstance(heads, nn.Module), f"TAPMHeads({n_heads}) must be a torch.nn.Module",
                 hint="class TAPMHeads(nn.Module) and call super().__init__() first")
     for name in ("weights", "biases"):
@@ -130,7 +161,8 @@ def _make_heads(heads_class, n_heads: int):
 
 
 def _forward(heads, x: torch.Tensor) -> torch.Tensor:
-    output = call_student(heads, x, what="TAPMHeads.forward")
+    output = call_student(heads, x, what=f"TAPMHeads.forward on a batch of shape {tuple(x.shape)}",
+                          exercise="lesson2.TAPMHeads")
     expect_true(isinstance(output, torch.Tensor), f"forward must return a torch.Tensor, received {type(output).__name__}")
     return output
 
@@ -144,6 +176,15 @@ def check_tapm_heads_shapes(heads_class) -> None:
         expect_close(f"number of parameters with {n_heads} heads", n_heads * PARAMS_PER_HEAD, n_params, atol=0,
                      hint=f"each head has {PARAMS_PER_HEAD:,} = (700*200+200) + (200*100+100) + (100*50+50) + "
                           "(50*1+1) parameters, and nothing else is a parameter")
+        for layer, (fan_in, weight) in enumerate(zip((HEAD_IN_FEATURES, *HEAD_WIDTHS[:-1]), heads.weights)):
+            bound = 1 / np.sqrt(fan_in)
+            values = torch.cat([weight.detach().ravel(), heads.biases[layer].detach().ravel()])
+            expect_true(bool(values.abs().max() <= bound + 1e-6) and float(values.std()) > 0.45 * bound,
+                        f"initial weights and biases of layer {layer} with {n_heads} heads (fan-in {fan_in})",
+                        "initialise like nn.Linear: uniform in [-1/sqrt(fan_in), 1/sqrt(fan_in)]",
+                        expected=f"uniform in +-{format_number(bound)} (std {format_number(bound / np.sqrt(3))})",
+                        received=f"largest |value| {format_number(float(values.abs().max()))}, std "
+                                 f"{format_number(float(values.std()))}")
         heads.eval()
         x = torch.randn(7, HEAD_IN_FEATURES, generator=torch.Generator().manual_seed(n_heads))
         output = _forward(heads, x)
@@ -253,11 +294,12 @@ HAND_CASES = [
 
 def _call_interpolate(interpolate, latency_s, delta_ref_s, a_ref) -> np.ndarray:
     result = call_student(interpolate, latency_s, delta_ref_s, a_ref,
-                          what="interpolate(latency_s, delta_ref_s, a_ref)")
+                          what=f"interpolate(latency_s, delta_ref_s, a_ref) for {len(latency_s)} latencies",
+                          exercise="lesson2.interpolate")
     try:
         result = np.asarray(result, dtype=float)
     except (TypeError, ValueError):
-        raise CheckFailed(f"interpolate must return a numpy array, received {type(result).__name__}") from None
+        raise CheckFailed("what interpolate returned", "a numpy array of floats", type(result).__name__) from None
     expect_true(result.shape == (len(latency_s),),
                 f"for {len(latency_s)} latencies interpolate must return shape ({len(latency_s)},), received "
                 f"{result.shape}", hint="one action per row of a_ref")
@@ -290,20 +332,26 @@ def check_interpolate_rejects_bad_latency(interpolate) -> None:
         latency_s = np.array([0.1, bad, 0.2])
         try:
             result = call_student(interpolate, latency_s, HAND_DELTA_REF_S.copy(), a_ref.copy(),
-                                  what="interpolate(latency_s, delta_ref_s, a_ref)")
-        except ValueError:
-            continue
-        raise CheckFailed(f"interpolate({latency_s.tolist()}, ...) returned {result!r} instead of raising ValueError. "
-                          f"Hint: `if not np.all(latency_s >= 0): raise ValueError(...)` catches NaN too")
+                                  what=f"interpolate({latency_s.tolist()}, ...)", exercise="lesson2.interpolate")
+        except CheckFailed as failure:
+            if failure.headline and failure.headline.startswith("your code raised ValueError"):
+                continue
+            raise
+        raise CheckFailed(f"interpolate({latency_s.tolist()}, ...)", "ValueError", repr(result)[:80],
+                          "`if not np.all(latency_s >= 0): raise ValueError(...)` catches NaN too")
 
 
 @graded(points=2)
-def check_interpolate_matches_package(interpolate) -> None:
-    """Random latencies (many on the grid) on two grids: equal to ``plm_net.interpolate_actions``."""
+def check_interpolate_matches_package(interpolate, seed: int | None = None) -> None:
+    """Random latencies (many on the grid) on two grids: equal to the kit's Algorithm 1."""
     from plm_highway.models.plm_net import interpolate_actions
 
-    rng = np.random.default_rng(7)
-    for delta_ref_s in (HAND_DELTA_REF_S, np.array([0.0, 0.1, 0.3, 0.4])):
+    rng = np.random.default_rng(7 if seed is None else seed)
+    grids = [HAND_DELTA_REF_S, np.array([0.0, 0.1, 0.3, 0.4])]
+    if seed is not None:
+        grids = [np.concatenate([[0.0], np.sort(rng.choice(np.arange(1, 60) / 100, int(rng.integers(1, 8)),
+                                                            replace=False))]) for _ in range(3)]
+    for delta_ref_s in grids:
         n = 1000
         latency_s = rng.uniform(0.0, 0.6, size=n)
         on_grid = rng.random(n) < 0.2
@@ -314,11 +362,12 @@ def check_interpolate_matches_package(interpolate) -> None:
         wrong = np.flatnonzero(~np.isclose(received, expected, rtol=0, atol=1e-9))
         if len(wrong):
             i = int(wrong[0])
-            raise CheckFailed(
-                f"with delta_ref_s = {delta_ref_s.tolist()}, {len(wrong)} of {n} results differ from the "
-                f"reference; first at latency {latency_s[i]:.4f} s with a_ref {np.round(a_ref[i], 4).tolist()}: "
-                f"expected {expected[i]:.6f}, received {received[i]:.6f}. Hint: do not assume the paper's grid "
-                f"or its spacing, use delta_ref_s as given")
+            raise CheckFailed(f"interpolate for {n} random latencies on delta_ref_s = "
+                              "[" + ", ".join(format_number(v) for v in delta_ref_s) + "]",
+                              f"{format_number(expected[i], received[i])} at latency {format_number(latency_s[i])} s "
+                              f"(row {i})", format_number(received[i], expected[i]),
+                              "do not assume the paper's grid or its spacing, use delta_ref_s as given",
+                              [f"{len(wrong)} of {n} results differ"])
 
 
 # --- Helpers for the notebook (not graded) -----------------------------------------------------------

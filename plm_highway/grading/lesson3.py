@@ -3,6 +3,8 @@
 Students write the steering errors (MAE, MSE, RMSE) and PLM-Net's reduction, the discrete Frechet
 distance and arc-length resampling, drive the three runs of the paper's Table 3 and measure them.
 Every check calls the student's code first, so that a stub fails fast with "not implemented yet".
+A ``seed`` (nbgrader's hidden tests) draws further cases, compared with the kit's implementations
+computed before the student's code runs.
 """
 
 from __future__ import annotations
@@ -25,42 +27,83 @@ def _random_curves(seed: int, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
             np.column_stack([t_q, np.sin(t_q) + 0.3 + rng.normal(0, 0.1, m)]))
 
 
+def _errors(steering_errors, reference, other, what: str) -> dict:
+    result = call_student(steering_errors, reference, other, what=what, exercise="lesson3.steering_errors")
+    expect_true(isinstance(result, dict) and {"mae", "mse", "rmse"} <= set(result), f"what {what} returned",
+                expected="a dict with keys 'mae', 'mse', 'rmse'", received=repr(result)[:80])
+    return result
+
+
 @graded(points=2)
-def check_steering_errors(steering_errors) -> None:
+def check_steering_errors(steering_errors, seed: int | None = None) -> None:
     """MAE, MSE and RMSE of one steering series against another, over their common length."""
+    if seed is not None:
+        from plm_highway.metrics.steering import common_span
+        from plm_highway.metrics.steering import steering_errors as kit_steering_errors
+
+        def kit_errors(reference, other):  # the lesson's rule: over the steps both runs reached
+            return kit_steering_errors(*common_span(reference, other))
+
+        rng = np.random.default_rng(seed)
+        for _ in range(5):
+            reference = rng.uniform(-1, 1, int(rng.integers(5, 400)))
+            n_other = int(rng.integers(3, len(reference) + 40))  # a run may also be longer than the reference
+            other = np.resize(reference, n_other) + rng.normal(0.05, 0.2) * rng.random() + rng.normal(0, 0.1, n_other)
+            expected = kit_errors(reference, other)
+            result = _errors(steering_errors, reference, other,
+                             f"steering_errors on {len(reference)} and {len(other)} random steps")
+            for metric in ("mae", "mse", "rmse"):
+                expect_close(f"{metric.upper()} on {len(reference)} and {len(other)} random steps", expected[metric],
+                             result[metric], atol=1e-12)
+        return
     reference = np.array([0.0, 0.1, -0.2, 0.3])
     other = np.array([0.1, 0.1, 0.0, -0.1])
-    result = call_student(steering_errors, reference, other, what="steering_errors(reference, other)")
-    expect_true(isinstance(result, dict) and {"mae", "mse", "rmse"} <= set(result),
-                f"steering_errors must return a dict with keys 'mae', 'mse', 'rmse', received {result!r}")
+    result = _errors(steering_errors, reference, other, "steering_errors([0, 0.1, -0.2, 0.3], [0.1, 0.1, 0, -0.1])")
     # differences 0.1, 0, 0.2, -0.4: MAE = 0.7 / 4, MSE = (0.01 + 0.04 + 0.16) / 4, RMSE = sqrt(MSE)
     expect_close("MAE", 0.175, result["mae"], atol=1e-12, hint="mean of |other - reference|")
     expect_close("MSE", 0.0525, result["mse"], atol=1e-12, hint="mean of (other - reference)^2")
     expect_close("RMSE", np.sqrt(0.0525), result["rmse"], atol=1e-12, hint="square root of the MSE")
-    same = call_student(steering_errors, reference, reference, what="steering_errors(reference, reference)")
+    same = _errors(steering_errors, reference, reference, "steering_errors(reference, reference)")
     expect_close("MAE of a series against itself", 0.0, same["mae"], atol=0)
-    short = call_student(steering_errors, np.array([0.0, 0.1, 0.2, 0.3, 0.4]), np.array([0.5, 0.1, 0.2]),
-                         what="steering_errors with a shorter run")
+    short = _errors(steering_errors, np.array([0.0, 0.1, 0.2, 0.3, 0.4]), np.array([0.5, 0.1, 0.2]),
+                    "steering_errors([0, 0.1, 0.2, 0.3, 0.4], [0.5, 0.1, 0.2])")
     expect_close("MAE when the other run is shorter (it left the road)", 0.5 / 3, short["mae"], atol=1e-12,
                  hint="compare over the common length: the first min(len(reference), len(other)) steps")
 
 
 @graded(points=1)
-def check_reduction(reduction_pct) -> None:
+def check_reduction(reduction_pct, seed: int | None = None) -> None:
     """PLM-Net's error reduction against the baseline's, in %."""
     cases = [((0.1915, 0.0726), 100 * (1 - 0.0726 / 0.1915), "the paper's Table 3 MAE: 62.1%"),
              ((0.2, 0.2), 0.0, "equal errors"), ((0.1, 0.2), -100.0, "a mitigation that doubles the error"),
              ((0.0, 0.0), 0.0, "a zero baseline error: define the reduction as 0")]
+    if seed is not None:
+        rng = np.random.default_rng(seed)
+        pairs = [(float(b), float(m)) for b, m in rng.uniform(0.001, 0.5, (8, 2))] + [(0.0, float(rng.random()))]
+        cases = [((b, m), 100 * (1 - m / b) if b > 0 else 0.0, "random errors") for b, m in pairs]
     for (baseline, mitigated), expected, what in cases:
-        received = call_student(reduction_pct, baseline, mitigated, what="reduction_pct(baseline, mitigated)")
+        received = call_student(reduction_pct, baseline, mitigated, what=f"reduction_pct({baseline}, {mitigated})",
+                                exercise="lesson3.reduction_pct")
         expect_close(f"reduction_pct({baseline}, {mitigated}) ({what})", expected, received, atol=1e-9,
                      hint="100 * (1 - mitigated / baseline), and 0.0 when the baseline error is 0")
 
 
 @graded(points=3)
-def check_frechet(discrete_frechet) -> None:
+def check_frechet(discrete_frechet, seed: int | None = None) -> None:
     """The discrete Frechet distance, by hand on small curves and against the kit's on random ones."""
     from plm_highway.metrics import frechet_dist
+
+    if seed is not None:
+        rng = np.random.default_rng(seed)
+        for _ in range(4):
+            n, m = (int(v) for v in rng.integers(2, 45, 2))
+            p, q = _random_curves(int(rng.integers(1_000_000)), n, m)
+            q = q if rng.random() < 0.5 else q[::-1]
+            expected = frechet_dist(p, q)
+            received = call_student(discrete_frechet, p, q, what=f"discrete_frechet on random curves of {n} and "
+                                    f"{m} points", exercise="lesson3.discrete_frechet")
+            expect_close(f"Frechet distance of random curves with {n} and {m} points", expected, received, atol=1e-9)
+        return
 
     line = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
     cases = [
@@ -69,40 +112,69 @@ def check_frechet(discrete_frechet) -> None:
         (line, line[::-1], 2.0, "the same points in reverse order (the ends must be coupled)"),
         (line[[0, 2]], np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 0.0]]), np.sqrt(2.0),
          "a detour: (1, 1) is sqrt(2) from both ends of the other curve"),
+        (line[:1], np.array([[0.0, 0.0], [3.0, 0.0], [0.0, 0.0]]), 3.0,
+         "one point against a curve that goes 3 m away and back (the leash must reach every point)"),
+        (np.array([[0.0, 0.0], [0.0, 3.0], [0.0, 0.0]]), line[:1], 3.0, "the same with the curves swapped"),
     ]
     for p, q, expected, what in cases:
-        received = call_student(discrete_frechet, p, q, what="discrete_frechet(p, q)")
+        received = call_student(discrete_frechet, p, q, what=f"discrete_frechet for {what}",
+                                exercise="lesson3.discrete_frechet")
         expect_close(f"Frechet distance for {what}", expected, received, atol=1e-12,
                      hint="dynamic programming: ca[i, j] = max(d(p_i, q_j), min(ca[i-1, j], ca[i, j-1], ca[i-1, j-1]))")
     for seed, (n, m) in enumerate([(7, 7), (12, 30), (40, 9)]):
         p, q = _random_curves(seed, n, m)
-        received = call_student(discrete_frechet, p, q, what="discrete_frechet(p, q)")
-        expect_close(f"Frechet distance of random curves with {n} and {m} points", frechet_dist(p, q), received,
+        expected = frechet_dist(p, q)
+        received = call_student(discrete_frechet, p, q, what=f"discrete_frechet on random curves of {n} and {m} "
+                                "points", exercise="lesson3.discrete_frechet")
+        expect_close(f"Frechet distance of random curves with {n} and {m} points", expected, received,
                      atol=1e-9, hint="the first row and column can only be reached along the row / column")
 
 
+def _resample(resample, xy, spacing_m, what: str):
+    return call_student(resample, xy, spacing_m, what=what, exercise="lesson3.resample")
+
+
 @graded(points=2)
-def check_resample(resample) -> None:
+def check_resample(resample, seed: int | None = None) -> None:
     """Arc-length resampling: a point every ``spacing_m`` along the polyline, plus its end."""
     from plm_highway.metrics import resample_by_arc_length
 
+    if seed is not None:
+        rng = np.random.default_rng(seed)
+        for _ in range(4):
+            xy, _ = _random_curves(int(rng.integers(1_000_000)), int(rng.integers(2, 40)), 2)
+            xy = np.repeat(xy, rng.integers(1, 3, len(xy)), axis=0)  # some points repeated
+            spacing_m = float(rng.choice([0.25, 0.5, 0.9, 1.3]))
+            expected = resample_by_arc_length(xy, spacing_m)
+            expect_close(f"resample(random curve of {len(xy)} points, {spacing_m})", expected,
+                         _resample(resample, xy, spacing_m, f"resample(random curve of {len(xy)} points, {spacing_m})"),
+                         atol=1e-9)
+        return
+
     corner = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
     expected = [[0.0, 0.0], [0.5, 0.0], [1.0, 0.0], [1.0, 0.5], [1.0, 1.0]]
-    expect_close("resample(corner, 0.5)", expected, call_student(resample, corner, 0.5, what="resample(xy, spacing_m)"),
+    expect_close("resample([[0, 0], [1, 0], [1, 1]], 0.5)", expected,
+                 _resample(resample, corner, 0.5, "resample([[0, 0], [1, 0], [1, 1]], 0.5)"),
                  atol=1e-12, hint="walk along the polyline: the corner is 1 m from the start")
     segment = np.array([[0.0, 0.0], [1.0, 0.0]])
     expect_close("resample(a 1 m segment, 0.4)", [[0.0, 0.0], [0.4, 0.0], [0.8, 0.0], [1.0, 0.0]],
-                 call_student(resample, segment, 0.4, what="resample(xy, spacing_m)"), atol=1e-12,
+                 _resample(resample, segment, 0.4, "resample([[0, 0], [1, 0]], 0.4)"), atol=1e-12,
                  hint="keep the last point even when the last gap is shorter than the spacing")
+    short = np.array([[0.0, 0.0], [0.9, 0.0]])
+    expect_close("resample([[0, 0], [0.9, 0]], 0.3)", [[0.0, 0.0], [0.3, 0.0], [0.6, 0.0], [0.9, 0.0]],
+                 _resample(resample, short, 0.3, "resample([[0, 0], [0.9, 0]], 0.3)"), atol=1e-12,
+                 hint="0.9 / 0.3 is 3.0000000000000004 in floating point: a last station within rounding of the end "
+                      "IS the end (no extra point)")
     repeated = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
     expect_close("resample with a repeated point", [[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]],
-                 call_student(resample, repeated, 1.0, what="resample(xy, spacing_m)"), atol=1e-12,
+                 _resample(resample, repeated, 1.0, "resample([[0, 0], [1, 0], [1, 0], [2, 0]], 1.0)"), atol=1e-12,
                  hint="drop points that repeat the previous one before interpolating (np.interp needs increasing x)")
     for seed in range(3):
         xy, _ = _random_curves(seed, 25, 2)
         spacing_m = (0.3, 0.7, 1.1)[seed]
-        expect_close(f"resample(random curve {seed}, {spacing_m})", resample_by_arc_length(xy, spacing_m),
-                     call_student(resample, xy, spacing_m, what="resample(xy, spacing_m)"), atol=1e-9,
+        expected = resample_by_arc_length(xy, spacing_m)
+        expect_close(f"resample(random curve {seed}, {spacing_m})", expected,
+                     _resample(resample, xy, spacing_m, f"resample(random curve {seed}, {spacing_m})"), atol=1e-9,
                      hint="np.interp of each coordinate against the cumulative arc length")
 
 
@@ -123,29 +195,33 @@ def kit_table_3_runs(max_steps: int | None, checkpoints: str | None, latency: st
 def check_table_3(drive_table_3, steering_errors, reduction_pct, max_steps=None, checkpoints=None) -> dict:
     """The student's three runs are the paper's (BM without latency, BM and PLM-Net with 0.2 s, one
     seed) and their Table 3 numbers equal the kit's. Returns the student's runs."""
-    from plm_highway.evaluation.steering import steering_comparison
+    from plm_highway.evaluation.comparison import steering_comparison
 
     logs = call_student(drive_table_3, TABLE_3_LATENCY, max_steps=max_steps, checkpoints=checkpoints,
-                        what="drive_table_3(latency, max_steps, checkpoints)")
-    expect_true(isinstance(logs, dict) and set(logs) == set(RUNS),
-                f"drive_table_3 must return {{'reference': ..., 'baseline': ..., 'mitigated': ...}}, received "
-                f"{sorted(logs) if isinstance(logs, dict) else type(logs).__name__}")
+                        what=f"drive_table_3({TABLE_3_LATENCY!r}, max_steps={max_steps})",
+                        exercise="lesson3.drive_table_3")
+    expect_true(isinstance(logs, dict) and set(logs) == set(RUNS), "what drive_table_3 returned",
+                expected="{'reference': RunLog, 'baseline': RunLog, 'mitigated': RunLog}",
+                received=sorted(logs) if isinstance(logs, dict) else type(logs).__name__)
     expected = kit_table_3_runs(max_steps, None if checkpoints is None else str(checkpoints))
     hints = {"reference": "the Base Model ('bm') with latency 'const:0'",
              "baseline": f"the Base Model ('bm') with latency {TABLE_3_LATENCY!r}",
              "mitigated": f"PLM-Net ('plm') with latency {TABLE_3_LATENCY!r}"}
     for name in RUNS:
         theirs, ours = logs[name].columns["steering"], expected[name].columns["steering"]
-        expect_true(len(theirs) == len(ours) and np.allclose(theirs, ours, atol=1e-6),
-                    f"the {name!r} run's steering differs from the expected run", hint=f"{hints[name]}, seed 0, "
-                    "track 'test', the same max_steps for every run")
+        expect_true(len(theirs) == len(ours), f"number of steps of the {name!r} run", expected=len(ours),
+                    received=len(theirs), hint=f"{hints[name]}, seed 0, track 'test', the same max_steps for every run")
+        expect_close(f"steering of the {name!r} run", ours, theirs, atol=1e-6,
+                     hint=f"{hints[name]}, seed 0, track 'test', the same max_steps for every run")
     kit = steering_comparison(logs)
     reference = logs["reference"].columns["steering"]
     for run in ("baseline", "mitigated"):
-        errors = call_student(steering_errors, reference, logs[run].columns["steering"], what="steering_errors")
+        errors = _errors(steering_errors, reference, logs[run].columns["steering"],
+                         f"steering_errors(reference run, {run} run)")
         for metric in ("mae", "mse", "rmse"):
             expect_close(f"{metric.upper()} of the {run} run", kit[run][metric], errors[metric], atol=1e-9)
-    received = call_student(reduction_pct, kit["baseline"]["mae"], kit["mitigated"]["mae"], what="reduction_pct")
+    received = call_student(reduction_pct, kit["baseline"]["mae"], kit["mitigated"]["mae"],
+                            what="reduction_pct(baseline MAE, mitigated MAE)", exercise="lesson3.reduction_pct")
     expect_close("MAE reduction", kit["mae_reduction_pct"], received, atol=1e-9)
     return logs
 
@@ -158,8 +234,9 @@ def check_trajectory_frechet(discrete_frechet, resample, max_steps=None, checkpo
     from plm_highway.metrics import frechet_dist, resample_by_arc_length
     from plm_highway.road.track import load_track
 
-    call_student(resample, np.array([[0.0, 0.0], [1.0, 0.0]]), 0.5, what="resample(xy, spacing_m)")
-    call_student(discrete_frechet, np.zeros((2, 2)), np.ones((2, 2)), what="discrete_frechet(p, q)")
+    _resample(resample, np.array([[0.0, 0.0], [1.0, 0.0]]), 0.5, "resample([[0, 0], [1, 0]], 0.5)")
+    call_student(discrete_frechet, np.zeros((2, 2)), np.ones((2, 2)), what="discrete_frechet(zeros, ones)",
+                 exercise="lesson3.discrete_frechet")
     logs = kit_table_3_runs(max_steps, None if checkpoints is None else str(checkpoints))
     centre = LaneCentre(load_track("test"))
     values = {}
@@ -167,11 +244,14 @@ def check_trajectory_frechet(discrete_frechet, resample, max_steps=None, checkpo
         c = logs[name].columns
         path = np.column_stack([c["x_m"], c["y_m"]])
         lane = centre.between(float(c["arc_length_m"].min()), float(c["arc_length_m"].max()))
-        expected = frechet_dist(resample_by_arc_length(lane, LESSON_SPACING_M),
-                                resample_by_arc_length(path, LESSON_SPACING_M))
-        received = call_student(discrete_frechet, call_student(resample, lane, LESSON_SPACING_M, what="resample"),
-                                call_student(resample, path, LESSON_SPACING_M, what="resample"),
-                                what="discrete_frechet")
+        lane_points, path_points = (resample_by_arc_length(xy, LESSON_SPACING_M) for xy in (lane, path))
+        expected = frechet_dist(lane_points, path_points)
+        their_path = _resample(resample, path, LESSON_SPACING_M, f"resample({name} path, 1)")
+        expect_close(f"the {name!r} path resampled every 1 m", path_points, their_path, atol=1e-9,
+                     hint="a point every metre along the path from its start, plus its end")
+        received = call_student(discrete_frechet, _resample(resample, lane, LESSON_SPACING_M, "resample(lane centre, 1)"),
+                                their_path, what=f"discrete_frechet of the resampled lane centre and {name} path",
+                                exercise="lesson3.discrete_frechet")
         expect_close(f"Frechet distance of the {name!r} run to the lane centre [m]", expected, received, atol=1e-9,
                      hint="resample the lane centre and the path with the same spacing, lane centre first")
         values[name] = float(received)

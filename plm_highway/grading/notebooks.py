@@ -1,4 +1,4 @@
-"""``plm-highway lessons build``: write the student notebooks in lessons/ from solutions/.
+"""``plm-highway lessons build``: the student notebooks in lessons/ are nbgrader's release of solutions/.
 
 One source: a solution notebook marks each piece students write with nbgrader's markers::
 
@@ -6,53 +6,44 @@ One source: a solution notebook marks each piece students write with nbgrader's 
     ...the answer...
     ### END SOLUTION
 
-The student copy replaces each marked region with ``raise NotImplementedError(...)`` at the
-same indentation. Both copies are normalised: outputs stripped, execution counts cleared and
-cell ids ``"0"``, ``"1"``, ... so that regenerating is idempotent and diffs stay textual.
+and carries nbgrader cell metadata (see :mod:`plm_highway.grading.course`). ``build``:
+
+1. normalises each solution: outputs stripped, execution counts cleared, cell ids ``"0"``, ``"1"``, ...,
+   cell metadata reduced to ``nbgrader`` and ``tags`` (an instructor's nbgrader metadata is kept as it
+   is; a cell without any gets the metadata its content implies), the lesson's target figures embedded
+   from ``figures/lessons/``;
+2. validates the nbgrader metadata (``ValueError`` naming each wrong cell);
+3. runs nbgrader's ``generate_assignment`` on them in a temporary course and writes its release
+   notebooks, byte for byte, to lessons/.
+
 ``--check`` changes nothing and exits 1 if any file would change.
 """
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import nbformat
 
-from plm_highway.io.atomic import write_text_atomic
-
-BEGIN = "### BEGIN SOLUTION"
-END = "### END SOLUTION"
-STUB = 'raise NotImplementedError("your code here")'
+from plm_highway.grading.course import BEGIN_SOLUTION, annotate, attach_figures, generate_student_versions, validate
+from plm_highway.io import file_kind, write_text
 
 
-def configure(parser) -> None:
-    parser.add_argument("--solutions", default="solutions")
-    parser.add_argument("--lessons", default="lessons")
-    parser.add_argument("--check", action="store_true", help="exit 1 if any notebook would change")
+def _is_notebook(path: Path) -> bool:
+    try:
+        return isinstance(nbformat.read(path, as_version=4).cells, list)
+    except Exception:  # any unreadable file is not a notebook this build wrote
+        return False
 
 
-def strip_solutions(source: str, where: str = "cell") -> str:
-    """Replace every BEGIN/END SOLUTION region with a NotImplementedError stub."""
-    lines = source.split("\n")
-    out: list[str] = []
-    inside = False
-    for number, line in enumerate(lines, start=1):
-        stripped = line.strip()
-        if stripped == BEGIN:
-            if inside:
-                raise ValueError(f"{where}, line {number}: nested '{BEGIN}'")
-            inside = True
-            out.append(line[: len(line) - len(line.lstrip())] + STUB)
-        elif stripped == END:
-            if not inside:
-                raise ValueError(f"{where}, line {number}: '{END}' without '{BEGIN}'")
-            inside = False
-        elif not inside:
-            out.append(line)
-    if inside:
-        raise ValueError(f"{where}: '{BEGIN}' is never closed")
-    return "\n".join(out)
+# `lessons build` regenerates the kit's own notebooks: it replaces notebooks only, never other files.
+NOTEBOOK = file_kind("notebook", "a Jupyter notebook", None, _is_notebook)
+
+BEGIN = BEGIN_SOLUTION  # kept for callers of the old name
+DEFAULT_SOLUTIONS = "solutions"
+DEFAULT_LESSONS = "lessons"
+DEFAULT_FIGURES = "figures/lessons"
+KEPT_CELL_METADATA = ("nbgrader", "tags")
 
 
 def normalise(notebook: nbformat.NotebookNode) -> nbformat.NotebookNode:
@@ -61,7 +52,7 @@ def normalise(notebook: nbformat.NotebookNode) -> nbformat.NotebookNode:
         if cell.cell_type == "code":
             cell.outputs = []
             cell.execution_count = None
-        cell.metadata = {key: value for key, value in cell.metadata.items() if key in ("tags",)}
+        cell.metadata = {key: value for key, value in cell.metadata.items() if key in KEPT_CELL_METADATA}
     notebook.metadata = {
         "kernelspec": {"display_name": "Python 3", "language": "python", "name": "python3"},
         "language_info": {"name": "python"},
@@ -70,46 +61,34 @@ def normalise(notebook: nbformat.NotebookNode) -> nbformat.NotebookNode:
     return notebook
 
 
-def student_version(solution: nbformat.NotebookNode, name: str) -> nbformat.NotebookNode:
-    student = nbformat.from_dict(solution)
-    for index, cell in enumerate(student.cells):
-        if cell.cell_type == "code":
-            cell.source = strip_solutions(cell.source, f"{name}, cell {index}")
-    return normalise(student)
-
-
 def _text(notebook: nbformat.NotebookNode) -> str:
     return nbformat.writes(notebook) + "\n"
 
 
-def build(solutions_dir: Path, lessons_dir: Path, check: bool = False) -> list[Path]:
-    """Write (or with ``check`` only compare) normalised solutions and their student copies."""
-    sources = sorted(Path(solutions_dir).glob("*.ipynb"))
-    if not sources:
+def normalised_solution(path: Path, figures_dir: Path) -> str:
+    """The solution notebook as ``build`` keeps it: normalised, annotated, figures embedded, validated."""
+    notebook = normalise(nbformat.read(path, as_version=4))
+    annotate(notebook)
+    attach_figures(notebook, figures_dir, str(path))
+    validate(notebook, str(path))
+    return _text(notebook)
+
+
+def build(solutions_dir: Path, lessons_dir: Path, check: bool = False,
+          figures_dir: Path = Path(DEFAULT_FIGURES)) -> list[Path]:
+    """Write (or with ``check`` only compare) the normalised solutions and nbgrader's student versions."""
+    paths = sorted(Path(solutions_dir).glob("*.ipynb"))
+    if not paths:
         raise FileNotFoundError(f"{solutions_dir}: no solution notebooks")
+    solutions = {path.name: normalised_solution(path, Path(figures_dir)) for path in paths}
+    students = generate_student_versions(solutions)
     changed: list[Path] = []
-    for path in sources:
-        solution = normalise(nbformat.read(path, as_version=4))
-        if not any(BEGIN in cell.source for cell in solution.cells if cell.cell_type == "code"):
-            raise ValueError(f"{path}: no '{BEGIN}' region, so the student copy would be the solution")
-        targets = {path: _text(solution),
-                   Path(lessons_dir) / path.name: _text(student_version(solution, str(path)))}
+    for path in paths:
+        targets = {path: solutions[path.name], Path(lessons_dir) / path.name: students[path.name]}
         for target, text in targets.items():
             if not target.exists() or target.read_text() != text:
                 changed.append(target)
                 if not check:
-                    write_text_atomic(target, text)
+                    write_text(target, text, NOTEBOOK, overwrite=True)
     return changed
-
-
-def run(args) -> int:
-    changed = build(Path(args.solutions), Path(args.lessons), args.check)
-    for path in changed:
-        print(f"{'would change' if args.check else 'wrote'}: {path}")
-    if args.check and changed:
-        print("lessons are out of date: run 'plm-highway lessons build'", file=sys.stderr)
-        return 1
-    print("lessons up to date" if not changed else f"{len(changed)} notebook(s) written")
-    return 0
-
 

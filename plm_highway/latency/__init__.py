@@ -1,6 +1,6 @@
 """Perception latency: profiles of how late the camera is, and a wrapper that makes it so."""
 
-from plm_highway.latency.profiles import LatencyProfile, parse_profile
-from plm_highway.latency.wrapper import LatencyWrapper
+from plm_highway.latency.profiles import SPEC_HELP, LatencyProfile, parse_profile
+from plm_highway.latency.wrapper import INJECTIONS, LatencyWrapper
 
-__all__ = ["LatencyProfile", "LatencyWrapper", "parse_profile"]
+__all__ = ["INJECTIONS", "SPEC_HELP", "LatencyProfile", "LatencyWrapper", "parse_profile"]

@@ -1,24 +1,73 @@
 """Latency profiles: how late the camera is, as a function of time since reset.
 
-Spec strings (``parse_profile``):
+Spec strings (``parse_profile``); ``S``, ``LO``, ``HI`` ... are plain decimal numbers such as ``0.2``
+or ``1e-3`` (no sign, ``nan``, ``inf``, hex or ``_``):
 
-- ``const:0.2`` - always 0.2 s (``none`` is ``const:0``).
-- ``steps:0.0-0.35:1.0`` - a value drawn uniformly from [0.0, 0.35] s, redrawn every 1.0 s
-  (the original PLM-Net experiment redrew about every second). Seeded at each reset.
-- ``sine:MEAN:AMP:PERIOD`` - MEAN + AMP sin(2 pi t / PERIOD); it must stay non-negative.
+- ``none``, ``S`` or ``const:S`` - always S seconds (``none`` and ``0`` mean no latency).
+- ``steps:LO-HI:PERIOD`` - a value drawn uniformly from [LO, HI] s, redrawn every PERIOD s.
+  ``steps:0.0-0.35:1.0`` is the time-varying profile as the PLM-Net paper states it.
+- ``frames:LO-HI:EVERY@RATE`` - an integer number of frames drawn uniformly from LO..HI (both
+  included), redrawn every EVERY frames, of a loop running at RATE Hz; the latency is
+  frames / RATE seconds. ``frames:9-21:60@30`` is what the original PLM-Net code did (its ROS loop
+  ran at 30 Hz: 0.30..0.70 s redrawn every 2 s); ``frames:9-21:60@60`` is how the paper reads the
+  same numbers (60 fps: 0.15..0.35 s redrawn every 1 s). Both readings are runnable because the
+  original's timebase is ambiguous.
+- ``sine:MEAN:AMP:PERIOD`` - MEAN + AMP sin(2 pi t / PERIOD); AMP <= MEAN so it stays >= 0.
 - ``ramp:FROM-TO:SECONDS`` - linear from FROM to TO over SECONDS, then held at TO.
-- ``trace:PATH.csv`` - a CSV with columns ``t`` and ``latency_s``, interpolated linearly in
-  time and held at its first and last values outside its range.
+- ``trace:PATH.csv`` - a CSV with columns ``t`` and ``latency_s`` (others are ignored),
+  interpolated linearly in time and held at its first and last values outside its range.
+
+Bounds, checked before any work starts (a ``ValueError`` names the spec or the file, row and value):
+
+- a spec is at most ``MAX_SPEC_CHARS`` (4096) characters without control characters; an empty spec
+  is an error (write ``none`` for no latency);
+- every latency is in [0, ``MAX_LATENCY_S``] = [0, 10] s;
+- every period and duration is in [``MIN_PERIOD_S``, ``MAX_PERIOD_S``] = [0.001, 1e6] s;
+- ``frames``: LO <= HI integers, EVERY >= 1, RATE in [``MIN_RATE_HZ``, ``MAX_RATE_HZ``] = [1, 1000] Hz
+  (so HI / RATE <= 10 s and EVERY / RATE within the period bounds);
+- a trace file is at most ``MAX_TRACE_BYTES`` (32 MiB) and ``MAX_TRACE_ROWS`` (1,000,000) data rows of
+  UTF-8 text without a byte-order mark or control characters; its times are strictly increasing in
+  [0, ``MAX_TRACE_DURATION_S``] = [0, 1e6] s.
+
+Random profiles (``steps``, ``frames``) draw lazily in O(1) memory: the value of redraw period ``i``
+is the ``i``-th draw of the generator given to ``reset``, reached by jumping the PCG64 stream ahead
+(``advance``) instead of storing earlier draws. Their values are the same as drawing them one after
+another, so a realisation depends only on the seed, never on which times were asked for.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+MAX_SPEC_CHARS = 4096
+MAX_LATENCY_S = 10.0
+MIN_PERIOD_S = 1e-3
+MAX_PERIOD_S = 1e6
+MIN_RATE_HZ = 1.0
+MAX_RATE_HZ = 1000.0
+MAX_TRACE_BYTES = 32 * 1024 * 1024
+MAX_TRACE_ROWS = 1_000_000
+MAX_TRACE_DURATION_S = 1e6
+
+SPEC_FORMS = ("none", "S", "const:S", "steps:LO-HI:PERIOD", "frames:LO-HI:EVERY@RATE", "sine:MEAN:AMP:PERIOD",
+              "ramp:FROM-TO:SECONDS", "trace:PATH.csv")
+SPEC_HELP = (
+    "latency profile: none | S | const:S | steps:LO-HI:PERIOD (uniform in [LO,HI] s, redrawn every PERIOD s) | "
+    "frames:LO-HI:EVERY@RATE (integer frames LO..HI of a RATE Hz loop, redrawn every EVERY frames; "
+    "frames:9-21:60@30 is the original code, @60 the paper's reading) | sine:MEAN:AMP:PERIOD | "
+    "ramp:FROM-TO:SECONDS | trace:PATH.csv (columns t, latency_s). Latencies 0..10 s, periods 0.001..1e6 s"
+)
+
+_DECIMAL = re.compile(r"(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
+_INTEGER = re.compile(r"\d{1,9}")
+_CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")  # tab, CR and LF are whitespace, not garbage
 
 
 class LatencyProfile:
@@ -40,10 +89,82 @@ class LatencyProfile:
         return self.spec
 
 
+# -- bounds shared by the profiles and the parser ------------------------------------------------
+
+
+def check_latency_s(value: float, what: str = "latency") -> float:
+    value = float(value)
+    if not (math.isfinite(value) and 0.0 <= value <= MAX_LATENCY_S):
+        raise ValueError(f"{what} {value!r} s is outside [0, {MAX_LATENCY_S:g}] s")
+    return value
+
+
+def check_period_s(value: float, what: str = "period") -> float:
+    value = float(value)
+    if not (math.isfinite(value) and MIN_PERIOD_S <= value <= MAX_PERIOD_S):
+        raise ValueError(f"{what} {value!r} s is outside [{MIN_PERIOD_S:g}, {MAX_PERIOD_S:g}] s")
+    return value
+
+
+def _check_time_s(t_s: float) -> float:
+    t_s = float(t_s)
+    if not math.isfinite(t_s):
+        raise ValueError(f"time {t_s!r} s is not finite")
+    return t_s
+
+
+def _period_index(t_s: float, period_s: float) -> int:
+    # Snapshot times are multiples of the simulation step: absorb their float error at period edges.
+    return int(math.floor(max(_check_time_s(t_s), 0.0) / period_s + 1e-9))
+
+
+class _LazyUniformDraws:
+    """The ``i``-th draw of a generator's stream, in O(1) memory and O(1) time per new index.
+
+    PCG64's ``advance(n)`` jumps the state ``n`` 64-bit outputs ahead, and ``random``/``uniform``
+    consume exactly one output per double, so jumping gives the values sequential draws would.
+    Only the generator's starting state (a few integers) and the last draw are kept.
+    """
+
+    def __init__(self, rng: np.random.Generator) -> None:
+        bit_generator = rng.bit_generator
+        if not isinstance(bit_generator, (np.random.PCG64, np.random.PCG64DXSM)):
+            # No per-output jump ahead: derive a PCG64 stream from the caller's generator instead.
+            bit_generator = np.random.PCG64(np.random.SeedSequence(rng.integers(0, 2**32, size=4)))
+        self._start_state = bit_generator.state
+        self._generator = np.random.Generator(type(bit_generator)())
+        self._rewind()
+
+    def _rewind(self) -> None:
+        self._generator.bit_generator.state = self._start_state
+        self._next_index = 0  # the index the next draw from the generator has
+        self._index, self._value = -1, 0.0
+
+    def uniform(self, index: int, low: float = 0.0, high: float = 1.0) -> float:
+        """Draw ``index`` (0-based) of ``uniform(low, high)``; ``low`` and ``high`` must not change."""
+        if index == self._index:
+            return self._value
+        if index < self._next_index:
+            self._rewind()
+        if index > self._next_index:
+            # PCG64 has period 2**128: jumping by the index modulo the period is exact.
+            self._generator.bit_generator.advance((index - self._next_index) % 2**128)
+        self._value = float(self._generator.uniform(low, high))
+        self._index, self._next_index = index, index + 1
+        return self._value
+
+
+# -- profiles ----------------------------------------------------------------------------------
+
+
 @dataclass
 class ConstantProfile(LatencyProfile):
     value_s: float
     spec: str = ""
+
+    def __post_init__(self) -> None:
+        self.value_s = check_latency_s(self.value_s)
+        self.spec = self.spec or f"const:{self.value_s!r}"
 
     def latency_s(self, t_s: float) -> float:
         return self.value_s
@@ -55,29 +176,83 @@ class ConstantProfile(LatencyProfile):
 
 @dataclass
 class StepsProfile(LatencyProfile):
+    """Uniform in [low_s, high_s], redrawn every ``period_s``: draw ``i`` holds in period ``i``."""
+
     low_s: float
     high_s: float
     period_s: float
     spec: str = ""
-    _values_s: list[float] = field(default_factory=list, repr=False)
-    _rng: np.random.Generator | None = field(default=None, repr=False)
+    _draws: _LazyUniformDraws | None = field(default=None, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self.low_s, self.high_s = check_latency_s(self.low_s, "range start"), check_latency_s(self.high_s, "range end")
+        if self.high_s < self.low_s:
+            raise ValueError(f"range end {self.high_s!r} s is below its start {self.low_s!r} s")
+        self.period_s = check_period_s(self.period_s)
+        self.spec = self.spec or f"steps:{self.low_s!r}-{self.high_s!r}:{self.period_s!r}"
 
     def reset(self, rng: np.random.Generator) -> None:
-        self._rng = rng
-        self._values_s = []
+        self._draws = _LazyUniformDraws(rng)
 
     def latency_s(self, t_s: float) -> float:
-        if self._rng is None:
+        if self._draws is None:
             raise RuntimeError(f"{self.spec}: reset(rng) must be called before use")
-        index = int(math.floor(max(t_s, 0.0) / self.period_s + 1e-9))
-        # Draw lazily but in order, so the realisation depends only on the seed.
-        while len(self._values_s) <= index:
-            self._values_s.append(float(self._rng.uniform(self.low_s, self.high_s)))
-        return self._values_s[index]
+        return self._draws.uniform(_period_index(t_s, self.period_s), self.low_s, self.high_s)
 
     @property
     def max_latency_s(self) -> float:
         return self.high_s
+
+
+@dataclass
+class FramesProfile(LatencyProfile):
+    """The original PLM-Net profile: integer frames of a ``rate_hz`` loop, redrawn every ``every_frames``.
+
+    Frame ``n`` of the loop is the one at ``t = n / rate_hz`` since reset; the draw for block
+    ``n // every_frames`` is ``low + floor(u (high - low + 1))`` with ``u`` the block's uniform draw
+    (one generator output per block, so blocks are reached by jumping ahead, as in ``steps``).
+    """
+
+    low_frames: int
+    high_frames: int
+    every_frames: int
+    rate_hz: float
+    spec: str = ""
+    _draws: _LazyUniformDraws | None = field(default=None, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.rate_hz, (int, float)) and MIN_RATE_HZ <= self.rate_hz <= MAX_RATE_HZ):
+            raise ValueError(f"loop rate {self.rate_hz!r} Hz is outside [{MIN_RATE_HZ:g}, {MAX_RATE_HZ:g}] Hz")
+        for name in ("low_frames", "high_frames", "every_frames"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+                raise ValueError(f"{name} {value!r} must be a non-negative integer")
+        if self.high_frames < self.low_frames:
+            raise ValueError(f"frame range end {self.high_frames} is below its start {self.low_frames}")
+        check_latency_s(self.high_frames / self.rate_hz, f"{self.high_frames} frames at {self.rate_hz:g} Hz =")
+        if self.every_frames < 1:
+            raise ValueError(f"redraw every {self.every_frames} frames: must be at least 1")
+        check_period_s(self.every_frames / self.rate_hz, f"redraw period {self.every_frames} frames at {self.rate_hz:g} Hz =")
+        self.spec = self.spec or f"frames:{self.low_frames}-{self.high_frames}:{self.every_frames}@{self.rate_hz:g}"
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self._draws = _LazyUniformDraws(rng)
+
+    def frames(self, t_s: float) -> int:
+        """The latency in frames of the loop at time ``t_s`` since reset."""
+        if self._draws is None:
+            raise RuntimeError(f"{self.spec}: reset(rng) must be called before use")
+        frame = _period_index(t_s, 1.0 / self.rate_hz)
+        count = self.high_frames - self.low_frames + 1
+        draw = self._draws.uniform(frame // self.every_frames)
+        return self.low_frames + min(int(draw * count), count - 1)
+
+    def latency_s(self, t_s: float) -> float:
+        return self.frames(t_s) / self.rate_hz
+
+    @property
+    def max_latency_s(self) -> float:
+        return self.high_frames / self.rate_hz
 
 
 @dataclass
@@ -87,12 +262,21 @@ class SineProfile(LatencyProfile):
     period_s: float
     spec: str = ""
 
+    def __post_init__(self) -> None:
+        self.mean_s = check_latency_s(self.mean_s, "mean")
+        self.amplitude_s = check_latency_s(self.amplitude_s, "amplitude")
+        if self.amplitude_s > self.mean_s:
+            raise ValueError(f"amplitude {self.amplitude_s!r} s exceeds mean {self.mean_s!r} s; latency would be negative")
+        check_latency_s(self.mean_s + self.amplitude_s, "crest (mean + amplitude)")
+        self.period_s = check_period_s(self.period_s)
+        self.spec = self.spec or f"sine:{self.mean_s!r}:{self.amplitude_s!r}:{self.period_s!r}"
+
     def latency_s(self, t_s: float) -> float:
-        return self.mean_s + self.amplitude_s * math.sin(2 * math.pi * t_s / self.period_s)
+        return self.mean_s + self.amplitude_s * math.sin(2 * math.pi * _check_time_s(t_s) / self.period_s)
 
     @property
     def max_latency_s(self) -> float:
-        return self.mean_s + abs(self.amplitude_s)
+        return self.mean_s + self.amplitude_s
 
 
 @dataclass
@@ -102,8 +286,13 @@ class RampProfile(LatencyProfile):
     duration_s: float
     spec: str = ""
 
+    def __post_init__(self) -> None:
+        self.from_s, self.to_s = check_latency_s(self.from_s, "ramp start"), check_latency_s(self.to_s, "ramp end")
+        self.duration_s = check_period_s(self.duration_s, "duration")
+        self.spec = self.spec or f"ramp:{self.from_s!r}-{self.to_s!r}:{self.duration_s!r}"
+
     def latency_s(self, t_s: float) -> float:
-        fraction = min(max(t_s / self.duration_s, 0.0), 1.0)
+        fraction = min(max(_check_time_s(t_s) / self.duration_s, 0.0), 1.0)
         return self.from_s + (self.to_s - self.from_s) * fraction
 
     @property
@@ -111,62 +300,85 @@ class RampProfile(LatencyProfile):
         return max(self.from_s, self.to_s)
 
 
-@dataclass
+@dataclass(eq=False)
 class TraceProfile(LatencyProfile):
     t_s: np.ndarray
     values_s: np.ndarray
     spec: str = ""
 
     def latency_s(self, t_s: float) -> float:
-        return float(np.interp(t_s, self.t_s, self.values_s))
+        return float(np.interp(_check_time_s(t_s), self.t_s, self.values_s))
 
     @property
     def max_latency_s(self) -> float:
         return float(self.values_s.max())
 
 
+# -- parsing -----------------------------------------------------------------------------------
+
+
 def parse_profile(spec: str | LatencyProfile | float) -> LatencyProfile:
-    """Parse a latency spec; a ValueError quotes the offending text."""
+    """Parse a latency spec (module docstring); a ValueError quotes the offending text."""
     if isinstance(spec, LatencyProfile):
         return spec
-    if isinstance(spec, (int, float)) and not isinstance(spec, bool):
-        spec = f"const:{spec}"
+    if isinstance(spec, (int, float, np.integer, np.floating)) and not isinstance(spec, (bool, np.bool_)):
+        try:
+            return ConstantProfile(float(spec))
+        except ValueError as error:
+            raise ValueError(f"latency {spec!r}: {error}") from None
     if not isinstance(spec, str):
         raise ValueError(f"latency spec {spec!r}: expected a string such as 'const:0.2'")
+    if len(spec) > MAX_SPEC_CHARS:
+        raise ValueError(f"latency spec {spec[:40]!r}...: {len(spec)} characters, more than the {MAX_SPEC_CHARS} allowed")
+    control = _CONTROL.search(spec)
+    if control:
+        raise ValueError(f"latency spec {spec!r}: control character {control.group()!r} at position {control.start()}")
     text = spec.strip()
-    if text in ("none", "0", ""):
+    if not text:
+        raise ValueError(f"latency spec {spec!r} is empty; write 'none' or 'const:0' for no latency")
+    if text == "none":
         text = "const:0"
+    elif _DECIMAL.fullmatch(text):
+        text = f"const:{text}"
     kind, _, rest = text.partition(":")
-    parsers = {"const": _parse_const, "steps": _parse_steps, "sine": _parse_sine, "ramp": _parse_ramp,
-               "trace": _parse_trace}
+    parsers = {"const": _parse_const, "steps": _parse_steps, "frames": _parse_frames, "sine": _parse_sine,
+               "ramp": _parse_ramp, "trace": _parse_trace}
     if kind not in parsers or not rest:
-        raise ValueError(
-            f"latency spec {spec!r}: expected one of const:S, steps:LO-HI:PERIOD, sine:MEAN:AMP:PERIOD, "
-            f"ramp:FROM-TO:SECONDS, trace:PATH.csv"
-        )
-    profile = parsers[kind](rest, spec)
+        raise ValueError(f"latency spec {spec!r}: expected one of {', '.join(SPEC_FORMS)}")
+    try:
+        profile = parsers[kind](rest, spec)
+    except ValueError as error:
+        message = str(error)
+        raise ValueError(message if message.startswith("latency spec") else f"latency spec {spec!r}: {message}") from None
     profile.spec = text
     return profile
 
 
-def _number(text: str, spec: str, what: str, positive: bool = False) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise ValueError(f"latency spec {spec!r}: {what} {text!r} is not a number") from None
-    if not math.isfinite(value):
+def _number(text: str, spec: str, what: str) -> float:
+    if not _DECIMAL.fullmatch(text):
+        raise ValueError(f"latency spec {spec!r}: {what} {text!r} is not a plain non-negative decimal number")
+    value = float(text)
+    if not math.isfinite(value):  # e.g. 1e999
         raise ValueError(f"latency spec {spec!r}: {what} {text!r} is not finite")
-    if value < 0 or (positive and value == 0):
-        raise ValueError(f"latency spec {spec!r}: {what} {text!r} must be {'positive' if positive else '>= 0'}")
     return value
 
 
-def _range(text: str, spec: str, what: str) -> tuple[float, float]:
+def _integer(text: str, spec: str, what: str) -> int:
+    if not _INTEGER.fullmatch(text):
+        raise ValueError(f"latency spec {spec!r}: {what} {text!r} is not a whole number of at most 9 digits")
+    return int(text)
+
+
+def _split_range(text: str, spec: str, what: str) -> tuple[str, str]:
     # Split at the first '-' that is not a sign (leading, or an exponent's as in 1e-05).
     split = next((i for i, char in enumerate(text) if char == "-" and i > 0 and text[i - 1] not in "eE"), None)
     if split is None:
         raise ValueError(f"latency spec {spec!r}: {what} {text!r} must look like LO-HI")
-    low, high = text[:split], text[split + 1:]
+    return text[:split], text[split + 1:]
+
+
+def _range(text: str, spec: str, what: str) -> tuple[float, float]:
+    low, high = _split_range(text, spec, what)
     return _number(low, spec, f"{what} start"), _number(high, spec, f"{what} end")
 
 
@@ -185,56 +397,133 @@ def _parse_const(rest: str, spec: str) -> LatencyProfile:
 def _parse_steps(rest: str, spec: str) -> LatencyProfile:
     span, period = _fields(rest, spec, 2)
     low_s, high_s = _range(span, spec, "range")
-    if high_s < low_s:
-        raise ValueError(f"latency spec {spec!r}: range {span!r} ends below its start")
-    return StepsProfile(low_s, high_s, _number(period, spec, "period", positive=True))
+    return StepsProfile(low_s, high_s, _number(period, spec, "period"))
+
+
+def _parse_frames(rest: str, spec: str) -> LatencyProfile:
+    span, timing = _fields(rest, spec, 2)
+    low, high = _split_range(span, spec, "frame range")
+    every, at, rate = timing.partition("@")
+    if not at:
+        raise ValueError(f"latency spec {spec!r}: {timing!r} must look like EVERY@RATE (frames @ loop Hz), e.g. 60@30")
+    return FramesProfile(_integer(low, spec, "frame range start"), _integer(high, spec, "frame range end"),
+                         _integer(every, spec, "redraw interval"), _number(rate, spec, "loop rate"))
 
 
 def _parse_sine(rest: str, spec: str) -> LatencyProfile:
     mean, amplitude, period = _fields(rest, spec, 3)
-    mean_s, amplitude_s = _number(mean, spec, "mean"), _number(amplitude, spec, "amplitude")
-    if amplitude_s > mean_s:
-        raise ValueError(f"latency spec {spec!r}: amplitude {amplitude!r} exceeds mean {mean!r}; latency would be negative")
-    return SineProfile(mean_s, amplitude_s, _number(period, spec, "period", positive=True))
+    return SineProfile(_number(mean, spec, "mean"), _number(amplitude, spec, "amplitude"), _number(period, spec, "period"))
 
 
 def _parse_ramp(rest: str, spec: str) -> LatencyProfile:
     span, duration = _fields(rest, spec, 2)
     from_s, to_s = _range(span, spec, "range")
-    return RampProfile(from_s, to_s, _number(duration, spec, "duration", positive=True))
+    return RampProfile(from_s, to_s, _number(duration, spec, "duration"))
 
 
 def _parse_trace(rest: str, spec: str) -> LatencyProfile:
-    path = Path(rest)
-    if not path.is_file():
-        raise ValueError(f"latency spec {spec!r}: trace file {str(path)!r} does not exist")
-    t_s, values_s = read_trace(path)
+    t_s, values_s = read_trace(Path(rest))
     return TraceProfile(t_s, values_s)
 
 
+# -- trace files ---------------------------------------------------------------------------------
+
+
 def read_trace(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a latency trace CSV (columns ``t``, ``latency_s``); errors name the file and row."""
-    with open(path, newline="") as handle:
-        reader = csv.DictReader(handle)
-        missing = {"t", "latency_s"} - set(reader.fieldnames or [])
-        if missing:
-            raise ValueError(f"{path}: missing columns {sorted(missing)} (header: {reader.fieldnames})")
-        times, values = [], []
-        for row_number, row in enumerate(reader, start=2):
-            for name in ("t", "latency_s"):
-                try:
-                    value = float(row[name])
-                except (TypeError, ValueError):
-                    raise ValueError(f"{path}: row {row_number}, column {name!r}: {row[name]!r} is not a number") from None
-                if not math.isfinite(value):
-                    raise ValueError(f"{path}: row {row_number}, column {name!r}: {row[name]!r} is not finite")
-            t, latency = float(row["t"]), float(row["latency_s"])
-            if latency < 0:
-                raise ValueError(f"{path}: row {row_number}, column 'latency_s': {latency} is negative")
+    """Read a latency trace CSV (columns ``t``, ``latency_s``); errors name the file, row and value."""
+    path = Path(path)
+    raw = _read_bounded(path)
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raise ValueError(f"trace file {str(path)!r}: row 1 starts with a UTF-8 byte-order mark (BOM); "
+                         "save it as UTF-8 without BOM")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as error:
+        row = raw.count(b"\n", 0, error.start) + 1
+        raise ValueError(f"trace file {str(path)!r}: row {row}: byte {raw[error.start]:#04x} at offset {error.start} "
+                         "is not UTF-8 text (a binary file?)") from None
+    control = _CONTROL.search(text)
+    if control:
+        row = text.count("\n", 0, control.start()) + 1
+        raise ValueError(f"trace file {str(path)!r}: row {row}: control character {control.group()!r} "
+                         "(a binary file?)")
+    return _parse_trace_rows(path, text)
+
+
+def _read_bounded(path: Path) -> bytes:
+    try:
+        if not path.is_file():
+            what = "does not exist" if not path.exists() else "is not a regular file"
+            raise ValueError(f"trace file {str(path)!r} {what}")
+        size = path.stat().st_size
+        if size > MAX_TRACE_BYTES:
+            raise ValueError(f"trace file {str(path)!r}: {size} bytes, more than the {MAX_TRACE_BYTES} allowed")
+        with open(path, "rb") as handle:
+            raw = handle.read(MAX_TRACE_BYTES + 1)  # the file may grow after stat
+    except OSError as error:
+        raise ValueError(f"trace file {str(path)!r}: cannot be read ({error.strerror or error})") from None
+    if len(raw) > MAX_TRACE_BYTES:
+        raise ValueError(f"trace file {str(path)!r}: more than the {MAX_TRACE_BYTES} bytes allowed")
+    return raw
+
+
+def _parse_trace_rows(path: Path, text: str) -> tuple[np.ndarray, np.ndarray]:
+    name = repr(str(path))
+    reader = csv.reader(io.StringIO(text, newline=""))
+    try:
+        header = [column.strip() for column in next(reader)]
+    except StopIteration:
+        raise ValueError(f"trace file {name}: empty (expected a header row 't,latency_s')") from None
+    except csv.Error as error:
+        raise ValueError(f"trace file {name}: row 1: {error}") from None
+    missing = [column for column in ("t", "latency_s") if column not in header]
+    if missing:
+        raise ValueError(f"trace file {name}: row 1: missing columns {missing} (header: {header})")
+    duplicated = sorted({column for column in ("t", "latency_s") if header.count(column) > 1})
+    if duplicated:
+        raise ValueError(f"trace file {name}: row 1: columns {duplicated} appear more than once")
+    t_column, value_column = header.index("t"), header.index("latency_s")
+    times, values = [], []
+    try:
+        for cells in reader:
+            if not cells or all(not cell.strip() for cell in cells):
+                continue  # blank lines carry no data
+            row = reader.line_num
+            if len(times) >= MAX_TRACE_ROWS:
+                raise ValueError(f"trace file {name}: row {row}: more than the {MAX_TRACE_ROWS} data rows allowed")
+            t = _trace_number(name, row, "t", cells, t_column)
+            latency = _trace_number(name, row, "latency_s", cells, value_column)
+            if t > MAX_TRACE_DURATION_S:
+                raise ValueError(f"trace file {name}: row {row}, column 't': {t!r} s is beyond the "
+                                 f"{MAX_TRACE_DURATION_S:g} s allowed")
             if times and t <= times[-1]:
-                raise ValueError(f"{path}: row {row_number}, column 't': {t} does not increase")
+                raise ValueError(f"trace file {name}: row {row}, column 't': {t!r} does not increase "
+                                 f"(previous {times[-1]!r})")
+            if latency > MAX_LATENCY_S:
+                raise ValueError(f"trace file {name}: row {row}, column 'latency_s': {latency!r} s is beyond the "
+                                 f"{MAX_LATENCY_S:g} s allowed")
             times.append(t)
             values.append(latency)
+    except csv.Error as error:
+        raise ValueError(f"trace file {name}: row {reader.line_num}: {error}") from None
     if not times:
-        raise ValueError(f"{path}: no rows")
+        raise ValueError(f"trace file {name}: no rows after the header")
     return np.array(times), np.array(values)
+
+
+def _trace_number(name: str, row: int, column: str, cells: list[str], index: int) -> float:
+    text = cells[index].strip() if index < len(cells) else ""
+    where = f"trace file {name}: row {row}, column {column!r}"
+    if not text:
+        raise ValueError(f"{where}: missing value")
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{where}: {text[:40]!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{where}: {text!r} is not finite")
+    if value < 0:
+        raise ValueError(f"{where}: {text!r} is negative")
+    if not _DECIMAL.fullmatch(text.lstrip("+")):
+        raise ValueError(f"{where}: {text[:40]!r} is not a plain decimal number")
+    return value

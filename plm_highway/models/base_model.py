@@ -24,20 +24,34 @@ Choices that differ from, or are not fixed by, the paper:
 
 Image preprocessing lives in :func:`normalise_frames` and runs inside the model, so callers
 always pass raw uint8 frames.
+
+Architecture bounds (checked, with the field named, before any layer is allocated; a checkpoint's
+``architecture`` is a :class:`BaseModelConfig`): each image side in [:data:`MIN_IMAGE_SIDE_PX`,
+:data:`MAX_IMAGE_SIDE_PX`] px (the upper bound keeps the BM under ~61 M parameters, 243 MB; at
+3000x3000 px it would need 4.4 G parameters, 17.7 GB), ``input_channels`` in [1, 4],
+``speed_scale_mps`` in (0, 1000], ``dropout`` in [0, 1), booleans as JSON ``true``/``false``.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, replace
 
 import torch
 from torch import nn
+
+from plm_highway.models.config_checks import check_bool, check_choice, check_int, check_number
 
 # (filters, kernel, stride) of the five convolutions, PilotNet's.
 CONV_LAYERS: tuple[tuple[int, int, int], ...] = ((24, 5, 2), (36, 5, 2), (48, 5, 2), (64, 3, 1), (64, 3, 1))
 SPEED_FEATURES = 144
 MLP_WIDTHS = (512, 100, 50, 10)
 CONV_ACTIVATIONS = ("relu", "none")
+# The smallest side the valid-padded stack leaves 1 px of (5x5/2 three times, then 3x3 twice).
+MIN_IMAGE_SIDE_PX = 61
+MAX_IMAGE_SIDE_PX = 400
+MAX_INPUT_CHANNELS = 4
+MAX_SPEED_SCALE_MPS = 1000.0
 
 
 def conv_output_size_px(height_px: int, width_px: int) -> tuple[int, int]:
@@ -62,11 +76,15 @@ class BaseModelConfig:
     dropout: float = 0.3
 
     def __post_init__(self) -> None:
-        if self.conv_activation not in CONV_ACTIVATIONS:
-            raise ValueError(f"conv_activation: {self.conv_activation!r} is not one of {CONV_ACTIVATIONS}")
-        if self.input_channels < 1:
-            raise ValueError(f"input_channels: must be >= 1, got {self.input_channels}")
-        conv_output_size_px(self.image_height_px, self.image_width_px)  # raises if the image is too small
+        # Sizes first: everything else allocates in proportion to them.
+        check_int("image_height_px", self.image_height_px, MIN_IMAGE_SIDE_PX, MAX_IMAGE_SIDE_PX)
+        check_int("image_width_px", self.image_width_px, MIN_IMAGE_SIDE_PX, MAX_IMAGE_SIDE_PX)
+        check_int("input_channels", self.input_channels, 1, MAX_INPUT_CHANNELS)
+        check_choice("conv_activation", self.conv_activation, CONV_ACTIVATIONS)
+        check_bool("embed_acceleration", self.embed_acceleration)
+        check_bool("throttle_head", self.throttle_head)
+        check_number("speed_scale_mps", self.speed_scale_mps, 0.0, MAX_SPEED_SCALE_MPS, low_open=True)
+        check_number("dropout", self.dropout, 0.0, 1.0, high_open=True)
 
     @property
     def image_size_px(self) -> tuple[int, int]:
@@ -136,12 +154,27 @@ class BaseModel(nn.Module):
         self, z_o: torch.Tensor, z_v: torch.Tensor, accel_mps2: torch.Tensor | None = None
     ) -> torch.Tensor:
         """(z_o, z_v) -> steering (B,) in [-1, 1]; the part of the BM after :meth:`encode`."""
+        return self.steering_from_first_layer(self.mlp[0](self.mlp_input(z_o, z_v, accel_mps2)))
+
+    def mlp_input(
+        self, z_o: torch.Tensor, z_v: torch.Tensor, accel_mps2: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """The concatenated features the MLP's first layer reads: (B, image_feature_dim + 144 [+ 144])."""
         features = [z_o, z_v]
         if self.accel_embedding is not None:
             if accel_mps2 is None:
                 accel_mps2 = torch.zeros(len(z_o), dtype=z_o.dtype)
             features.append(self.accel_embedding(accel_mps2.view(-1, 1)))
-        hidden = self.mlp(torch.cat(features, dim=1))
+        return torch.cat(features, dim=1)
+
+    def steering_from_first_layer(self, first_layer_output: torch.Tensor) -> torch.Tensor:
+        """The BM after its first FC layer (its pre-activation, (B, 512)) -> steering (B,).
+
+        Split out so that PLM-Net inference can compute this layer fused with the TAPM's image branch.
+        """
+        hidden = first_layer_output
+        for layer in itertools.islice(self.mlp, 1, None):
+            hidden = layer(hidden)
         return torch.tanh(self.steering_head(hidden)).view(-1)
 
     def forward(

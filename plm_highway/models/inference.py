@@ -1,8 +1,22 @@
 """Closed-loop policies: (frame uint8 (H, W), speed m/s, latency s) -> normalised steering.
 
-They run one frame at a time (batch size 1) under ``torch.inference_mode`` with the model in
-eval mode. Both take the latency so that the evaluation code can swap them; the BM ignores it
-(it is the unmitigated baseline). Both reject NaN or negative latency.
+Both policies run under ``torch.inference_mode`` with the model in eval mode and take the latency,
+so that the evaluation code can swap them; the BM ignores it (it is the unmitigated baseline).
+
+Two calls:
+
+- ``policy(frame, speed_mps, latency_s) -> float``: one frame (batch size 1), as one env steps.
+- ``policy.steer_batch(frames, speeds_mps, latencies_s) -> np.ndarray``: frames uint8 (B, H, W),
+  speeds (B,), latencies (B,) -> steering (B,) float64, for B envs stepped together. One forward
+  pass. Per sample it equals the batch-1 call up to float rounding, not bit for bit: the BLAS and
+  oneDNN kernels pick their summation order by batch size (measured: |difference| below 1e-6
+  on steering with the shipped checkpoints). With ``batch_invariant=True`` the policy runs each sample as its own batch-1 pass
+  instead: bit-identical to the batch-1 call, at batch-1 cost.
+
+Inputs are checked: frames uint8 of the model's size, finite speeds, finite latencies >= 0, and
+at most :data:`MAX_BATCH` samples. A non-finite steering output (NaN weights that slipped past the
+checkpoint checks, an input the model cannot handle) raises :class:`NonFiniteSteeringError`
+naming the sample: a run must stop there rather than drive on NaN.
 """
 
 from __future__ import annotations
@@ -13,59 +27,120 @@ import numpy as np
 import torch
 
 from plm_highway.models.base_model import BaseModel
-from plm_highway.models.plm_net import PLMNet
+from plm_highway.models.plm_net import FusedPLMNet, PLMNet
+
+MAX_BATCH = 4096
 
 
-class BaseModelPolicy:
-    def __init__(self, bm: BaseModel):
-        self.model = bm.eval()
-        self.image_size_px = bm.config.image_size_px
-        self.clamped_latency_count = 0  # always 0: the BM has no latency grid
+class NonFiniteSteeringError(ValueError):
+    """A policy produced NaN or infinite steering."""
+
+
+class _Policy:
+    """Input checks, the batch-1 call and the non-finite check shared by both policies."""
+
+    name = "policy"
+    max_latency_s = math.inf  # latencies above this use the last head (PLM-Net); inf: never clamped
+
+    def __init__(self, image_size_px: tuple[int, int], batch_invariant: bool):
+        self.image_size_px = tuple(image_size_px)
+        self.batch_invariant = bool(batch_invariant)
+        self.clamped_latency_count = 0
 
     def reset(self) -> None:
         self.clamped_latency_count = 0
 
     def __call__(self, frame: np.ndarray, speed_mps: float, latency_s: float = 0.0) -> float:
-        _check_latency(latency_s)
+        frame = np.asarray(frame)
+        if frame.dtype != np.uint8 or frame.shape != self.image_size_px:
+            raise ValueError(f"frame: expected uint8 {self.image_size_px}, got {frame.dtype} {frame.shape}")
+        return float(self.steer_batch(frame[None], [speed_mps], [latency_s])[0])
+
+    def steer_batch(self, frames: np.ndarray, speeds_mps, latencies_s=None) -> np.ndarray:
+        """Frames uint8 (B, H, W), speeds (B,) m/s, latencies (B,) s (default 0) -> steering (B,) float64."""
+        frames_t, speeds_t, latencies = self._checked_batch(frames, speeds_mps, latencies_s)
         with torch.inference_mode():
-            return float(self.model(frame_batch(frame, self.image_size_px), speed_batch(speed_mps))[0])
-
-
-class PLMNetPolicy:
-    """PLM-Net; counts the steps whose latency was above the TAPM grid (the last head was used)."""
-
-    def __init__(self, plm_net: PLMNet):
-        self.model = plm_net.eval()
-        self.image_size_px = plm_net.bm.config.image_size_px
-        self.clamped_latency_count = 0
-
-    def reset(self) -> None:
-        self.clamped_latency_count = 0
-
-    def __call__(self, frame: np.ndarray, speed_mps: float, latency_s: float) -> float:
-        _check_latency(latency_s)
-        with torch.inference_mode():
-            output = self.model(
-                frame_batch(frame, self.image_size_px),
-                speed_batch(speed_mps),
-                torch.tensor([latency_s], dtype=torch.float32),
+            if self.batch_invariant and len(frames_t) > 1:
+                steering = torch.cat([
+                    self._forward(frames_t[i : i + 1], speeds_t[i : i + 1], latencies[i : i + 1])
+                    for i in range(len(frames_t))
+                ])
+            else:
+                steering = self._forward(frames_t, speeds_t, latencies)
+        steering_np = steering.numpy().astype(np.float64)
+        if not np.all(np.isfinite(steering_np)):
+            i = int(np.flatnonzero(~np.isfinite(steering_np))[0])
+            raise NonFiniteSteeringError(
+                f"{self.name} policy: steering is {steering_np[i]} for sample {i} (speed {float(speeds_t[i])} m/s, "
+                f"latency {float(latencies[i])} s); the model's weights or configuration are not usable"
             )
-        self.clamped_latency_count += output.n_clamped
-        return float(output.steering[0])
+        return steering_np
+
+    def _forward(self, frames: torch.Tensor, speeds_mps: torch.Tensor, latencies_s: np.ndarray) -> torch.Tensor:
+        raise NotImplementedError
+
+    def _checked_batch(self, frames, speeds_mps, latencies_s) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
+        frames = np.asarray(frames)
+        if frames.dtype != np.uint8 or frames.ndim != 3 or frames.shape[1:] != self.image_size_px:
+            raise ValueError(
+                f"frames: expected uint8 (B, {self.image_size_px[0]}, {self.image_size_px[1]}), "
+                f"got {frames.dtype} {frames.shape}"
+            )
+        n = len(frames)
+        if not 1 <= n <= MAX_BATCH:
+            raise ValueError(f"frames: batch size must lie in [1, {MAX_BATCH}], got {n}")
+        speeds = _column("speeds_mps", speeds_mps, n)
+        if not np.all(np.isfinite(speeds)):
+            raise ValueError(f"speeds_mps: must be finite, got {speeds[~np.isfinite(speeds)][0]}")
+        latencies = np.zeros(n, np.float32) if latencies_s is None else _column("latencies_s", latencies_s, n)
+        if not np.all(np.isfinite(latencies) & (latencies >= 0)):
+            bad = latencies[~(np.isfinite(latencies) & (latencies >= 0))][0]
+            raise ValueError(f"latency_s: must be a finite number >= 0 s, got {bad}")
+        # Sharing memory with a contiguous frame batch: no copy at batch size 1.
+        return torch.from_numpy(np.ascontiguousarray(frames)), torch.from_numpy(speeds), latencies
 
 
-def frame_batch(frame: np.ndarray, image_size_px: tuple[int, int]) -> torch.Tensor:
-    """uint8 (H, W) -> uint8 tensor (1, H, W), sharing memory when the frame is contiguous."""
-    frame = np.asarray(frame)
-    if frame.dtype != np.uint8 or frame.shape != tuple(image_size_px):
-        raise ValueError(f"frame: expected uint8 {tuple(image_size_px)}, got {frame.dtype} {frame.shape}")
-    return torch.from_numpy(np.ascontiguousarray(frame)).unsqueeze(0)
+def _column(name: str, values, n: int) -> np.ndarray:
+    try:
+        column = np.asarray(values, dtype=np.float32)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: expected {n} numbers, got {values!r}") from exc
+    if column.shape != (n,):
+        raise ValueError(f"{name}: expected shape ({n},), one per frame, got {column.shape}")
+    return column
 
 
-def speed_batch(speed_mps: float) -> torch.Tensor:
-    return torch.tensor([speed_mps], dtype=torch.float32)
+class BaseModelPolicy(_Policy):
+    name = "BM"
+
+    def __init__(self, bm: BaseModel, batch_invariant: bool = False):
+        super().__init__(bm.config.image_size_px, batch_invariant)
+        self.model = bm.eval()
+
+    def _forward(self, frames, speeds_mps, latencies_s):
+        return self.model(frames, speeds_mps)
 
 
-def _check_latency(latency_s: float) -> None:
-    if math.isnan(latency_s) or latency_s < 0:
-        raise ValueError(f"latency_s: must be a number >= 0 s, got {latency_s}")
+class PLMNetPolicy(_Policy):
+    """PLM-Net; counts the samples whose latency was above the TAPM grid (the last head was used).
+
+    ``fused=True`` (default) runs :class:`~plm_highway.models.plm_net.FusedPLMNet`, the inference
+    form; ``False`` runs :meth:`PLMNet.forward` itself (every head), the reference it is checked against.
+    """
+
+    name = "PLM-Net"
+
+    def __init__(self, plm_net: PLMNet, batch_invariant: bool = False, fused: bool = True):
+        super().__init__(plm_net.bm.config.image_size_px, batch_invariant)
+        self.model = plm_net.eval()
+        self.fused = FusedPLMNet(plm_net) if fused else None
+        self.max_latency_s = plm_net.last_grid_s
+
+    def _forward(self, frames, speeds_mps, latencies_s):
+        if self.fused is None:
+            output = self.model(frames, speeds_mps, torch.from_numpy(latencies_s))
+            self.clamped_latency_count += output.n_clamped
+            return output.steering
+        output = self.fused(frames, speeds_mps, latencies_s)
+        self.clamped_latency_count += int(output.clamped.sum())
+        return output.steering

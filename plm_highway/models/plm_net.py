@@ -8,6 +8,14 @@ Outside the grid (the paper leaves this undefined): a latency above the last gri
 last head's action (clamping; extrapolating a tanh-bounded prediction is not better founded), and
 the number of clamped samples is reported so that a run can record it. NaN or negative latency
 raises ValueError: it is a bug upstream, not a condition to mitigate.
+
+:class:`PLMNet` is the model as specified (every head, the BM's and the TAPM's layers one after
+the other) and what training and analysis use. :class:`FusedPLMNet` is its inference form, equal
+to it up to float rounding (measured: at most a few 1e-8 apart) and cheaper where PLM-Net's cost over
+the BM lies: the BM's first FC layer and the TAPM's image branch read the same features, so they
+run as one matrix product (the image features are read once, one call instead of two), and only
+the heads that bracket each sample's latency run (Algorithm 1 reads no others: one or two heads
+at batch size 1 instead of five).
 """
 
 from __future__ import annotations
@@ -60,24 +68,27 @@ def interpolate_actions(latency_s, delta_ref_s, a_ref):
     return result.numpy() if as_numpy else result
 
 
-def interpolate_batch(
-    latency_s: torch.Tensor, delta_ref_s: torch.Tensor, a_ref: torch.Tensor
-) -> torch.Tensor:
-    """Vectorised Algorithm 1 on validated inputs: latency (B,), delta_ref (M,), a_ref (B, M) -> (B,)."""
-    latency = latency_s.clamp(max=delta_ref_s[-1])  # above the grid: the last head
+def interpolate_batch(latency_s, delta_ref_s, a_ref):
+    """Vectorised Algorithm 1 on validated inputs: latency (B,), delta_ref (M,), a_ref (B, M) -> (B,).
+
+    All torch tensors or all numpy arrays (of one float dtype): the same element-wise IEEE
+    arithmetic either way, so both give the same values (a zero's sign may differ). Numpy is the cheaper of the two at batch
+    size 1 (an operation costs ~1 us instead of ~5 us), which is why inference uses it.
+    """
+    xp = torch if isinstance(a_ref, torch.Tensor) else np
+    latency = xp.minimum(latency_s, delta_ref_s[-1])  # above the grid: the last head
     # Segment [lo, lo + 1] with delta_ref[lo] < latency <= delta_ref[lo + 1] (latency 0 falls in the
     # first): searching the interior grid points gives lo directly, with no clamping.
-    lo = torch.searchsorted(delta_ref_s[1:-1], latency)
+    lo = xp.searchsorted(delta_ref_s[1:-1], latency)
     # Both neighbours in one take/gather each: at batch size 1 the op count is the cost.
-    neighbours = torch.stack((lo, lo + 1), dim=1)
-    delta_lo, delta_hi = delta_ref_s.take(neighbours).unbind(1)
-    a_lo, a_hi = a_ref.gather(1, neighbours).unbind(1)
+    neighbours = xp.stack((lo, lo + 1), 1)
+    deltas = xp.take(delta_ref_s, neighbours)
+    actions = torch.gather(a_ref, 1, neighbours) if xp is torch else np.take_along_axis(a_ref, neighbours, 1)
+    delta_lo, delta_hi, a_lo, a_hi = deltas[:, 0], deltas[:, 1], actions[:, 0], actions[:, 1]
     weight = (latency - delta_lo) / (delta_hi - delta_lo)
     # Rounding must not step outside the neighbours, and a grid point returns its action bit-exactly.
-    value = (a_lo + weight * (a_hi - a_lo)).clamp(
-        min=torch.minimum(a_lo, a_hi), max=torch.maximum(a_lo, a_hi)
-    )
-    return torch.where(latency == delta_hi, a_hi, value)
+    value = xp.clip(a_lo + weight * (a_hi - a_lo), xp.minimum(a_lo, a_hi), xp.maximum(a_lo, a_hi))
+    return xp.where(latency == delta_hi, a_hi, value)
 
 
 def _validate_reference(delta_ref_s: torch.Tensor, a_ref: torch.Tensor, n_latencies: int) -> None:
@@ -92,6 +103,14 @@ def _validate_reference(delta_ref_s: torch.Tensor, a_ref: torch.Tensor, n_latenc
         or (a_ref.dim() == 2 and len(a_ref) != n_latencies)
     ):
         raise ValueError(f"a_ref: expected ({n_latencies}, {n_ref}) or ({n_ref},), got {tuple(a_ref.shape)}")
+
+
+def check_latency_array(latency_s: np.ndarray, last_grid_s: float) -> np.ndarray:
+    """:func:`check_latency` on the host: raise on NaN or negative latency; return the above-grid mask."""
+    if not bool(np.all(latency_s >= 0)):  # NaN fails the comparison too
+        bad = latency_s[~(latency_s >= 0)]
+        raise ValueError(f"latency_s: must be a number >= 0 s, got {float(bad[0])}")
+    return latency_s > np.float32(last_grid_s)
 
 
 class PLMNet(nn.Module):
@@ -128,3 +147,106 @@ class PLMNet(nn.Module):
         a_bm = self.bm.steering_from_features(z_o, z_v)
         a_ref = torch.cat([a_bm.unsqueeze(1), self.tapm(a_bm, z_o, z_v)], dim=1)
         return PLMNetOutput(interpolate_batch(latency_s, self.delta_ref_s, a_ref), a_ref, n_clamped)
+
+
+class PLMNetSteering(NamedTuple):
+    steering: torch.Tensor  # (B,) the interpolated action a_PLM
+    clamped: np.ndarray  # (B,) bool: latency above the last grid value (the last head was used)
+
+
+class FusedPLMNet:
+    """Inference-only PLM-Net, equal to :meth:`PLMNet.forward`'s steering up to float rounding.
+
+    Built from a trained, frozen ``plm_net``: the fused first layer, the action branch and the packed
+    heads are copies taken then (~5 MB for the default preset, ~44 MB for the paper preset), so a
+    ``plm_net`` whose weights change afterwards needs a new ``FusedPLMNet``. Runs under
+    ``torch.inference_mode`` (no gradients).
+    """
+
+    def __init__(self, plm_net: PLMNet):
+        bm, tapm = plm_net.bm.eval(), plm_net.tapm.eval()
+        self.bm, self.tapm = bm, tapm
+        first, image_fc = bm.mlp[0], tapm.image_fc
+        self.bm_width = first.out_features
+        # The TAPM reads z_o only: its rows get zero weights for the speed (and acceleration) features,
+        # so one product over the BM's concatenated MLP input yields both layers.
+        padding = torch.zeros(image_fc.out_features, first.in_features - image_fc.in_features)
+        with torch.no_grad():
+            self.weight = torch.cat([first.weight, torch.cat([image_fc.weight, padding], dim=1)]).contiguous()
+            self.bias = torch.cat([first.bias, image_fc.bias])
+            # a_BM -> FC 100 is a rank-1 map: a_BM * w + b, one fused op instead of a (B, 1) product.
+            self.action_weight = tapm.action_fc.weight.view(1, -1).clone()
+            self.action_bias = tapm.action_fc.bias.clone()
+        self.delta_ref_s = plm_net.delta_ref_s.numpy().copy()  # float32
+        self._interior_grid_s = self.delta_ref_s[1:-1]
+        self.last_grid_s = plm_net.last_grid_s
+        self.n_heads = tapm.config.n_heads
+        # Per contiguous head range (at most n (n + 1) / 2 of them, built when first needed).
+        self._sub_grids: dict[tuple[int, int], np.ndarray] = {}
+        self._packed_heads: dict[tuple[int, int], tuple[tuple[torch.Tensor, torch.Tensor], ...]] = {}
+
+    @torch.inference_mode()
+    def __call__(self, frames: torch.Tensor, speed_mps: torch.Tensor, latency_s) -> PLMNetSteering:
+        """Frames uint8 (B, H, W), speed (B,) m/s, latency (B,) s (tensor or array) -> steering (B,)."""
+        latency_np = np.asarray(latency_s, dtype=np.float32).reshape(-1)
+        if len(latency_np) != len(frames):
+            raise ValueError(f"latency_s: expected one latency per frame ({len(frames)}), got {len(latency_np)}")
+        clamped = check_latency_array(latency_np, self.last_grid_s)
+        z_o, z_v = self.bm.encode(frames, speed_mps)
+        first_layer = torch.nn.functional.linear(self.bm.mlp_input(z_o, z_v), self.weight, self.bias)
+        a_bm = self.bm.steering_from_first_layer(first_layer[:, : self.bm_width])
+        if not latency_np.any():  # every latency 0: Algorithm 1 returns a_BM, no head is needed
+            return PLMNetSteering(a_bm, clamped)
+        # Grid segment of each sample, as interpolate_batch finds it: a_ref entries lo and lo + 1,
+        # i.e. heads lo - 1 (none for lo = 0: the BM) and lo.
+        lo = np.searchsorted(self._interior_grid_s, np.minimum(latency_np, np.float32(self.last_grid_s)))
+        first_head, stop_head = max(int(lo.min()) - 1, 0), int(lo.max()) + 1
+        trunk = torch.cat([
+            torch.addcmul(self.action_bias, a_bm.view(-1, 1), self.action_weight),
+            first_layer[:, self.bm_width :],
+            self.tapm.speed_fc(z_v),
+        ], dim=1).relu_()
+        heads = self._heads(trunk, first_head, stop_head)
+        a_ref = np.concatenate([a_bm.numpy()[:, None], heads.numpy()], axis=1)
+        # The sub-grid [0, heads' latencies] puts every sample in the same segment as the full grid
+        # (all latencies lie above delta_ref[first_head + 1] when first_head > 0, and at most at
+        # delta_ref[stop_head]), so the interpolation is the reference's, value for value.
+        steering = interpolate_batch(latency_np, self._sub_grid(first_head, stop_head), a_ref)
+        return PLMNetSteering(torch.from_numpy(steering), clamped)
+
+    def _heads(self, trunk: torch.Tensor, first_head: int, stop_head: int) -> torch.Tensor:
+        """:meth:`TAPM.heads` in eval mode, as four plain products: (B, 700) -> (B, stop - first)."""
+        key = (first_head, stop_head)
+        if key not in self._packed_heads:
+            self._packed_heads[key] = _pack_heads(self.tapm, first_head, stop_head)
+        (w_in, b_in), (w_hidden, b_hidden), (w_tanh, b_tanh), (w_out, b_out) = self._packed_heads[key]
+        functional = torch.nn.functional
+        hidden = functional.linear(trunk, w_in, b_in).relu_()
+        hidden = functional.linear(hidden, w_hidden, b_hidden).relu_()
+        hidden = functional.linear(hidden, w_tanh, b_tanh).tanh_()
+        return functional.linear(hidden, w_out, b_out).tanh_()
+
+    def _sub_grid(self, first_head: int, stop_head: int) -> np.ndarray:
+        key = (first_head, stop_head)
+        if key not in self._sub_grids:
+            self._sub_grids[key] = np.concatenate(
+                [self.delta_ref_s[:1], self.delta_ref_s[first_head + 1 : stop_head + 1]]
+            )
+        return self._sub_grids[key]
+
+
+def _pack_heads(tapm: TAPM, first: int, stop: int) -> tuple[tuple[torch.Tensor, torch.Tensor], ...]:
+    """(weight (out, in), bias) of heads ``first .. stop - 1``, layer by layer, as ``F.linear`` takes them.
+
+    The grouped layers become block-diagonal matrices (head h's block maps head h's units only), so
+    that the heads run as four products with no reshaping: at batch size 1 the number of operations,
+    not their arithmetic, is the cost. The zero blocks add exact zeros.
+    """
+    width = tapm.heads_in.out_features // tapm.config.n_heads
+    rows = slice(first * width, stop * width)
+    with torch.no_grad():
+        layers = [(tapm.heads_in.weight[rows].clone(), tapm.heads_in.bias[rows].clone())]
+        for grouped in (tapm.heads_hidden, tapm.heads_tanh, tapm.heads_out):
+            blocks = [weight.T for weight in grouped.weight[first:stop]]  # (in, out) per head -> (out, in)
+            layers.append((torch.block_diag(*blocks).contiguous(), grouped.bias[first:stop].reshape(-1).clone()))
+    return tuple(layers)

@@ -228,3 +228,53 @@ def markdown_table(rows: list[dict]) -> str:
 
 def outcomes_json(outcomes: list[Outcome]) -> list[dict]:
     return [asdict(o) for o in outcomes]
+
+
+def run_benchmarks(names: list[str], *, seeds: int = 3, duration_s: float = 600.0, baseline_tree: str | None = None,
+                   json_path=None, overwrite: bool = False) -> int:
+    """``plm-highway bench sim2real``: print each asked benchmark; ``names`` from timing, match and
+    :data:`CASE_SETS`. Returns the exit code (0)."""
+    from tqdm import tqdm
+
+    from plm_highway.bench import BENCH_RESULT
+    from plm_highway.errors import BadInput
+    from plm_highway.io import check_target, write_json
+
+    unknown = sorted(set(names) - {"timing", "match", *CASE_SETS})
+    if unknown or not names:
+        raise BadInput(f"--cases: unknown {', '.join(unknown) or '(none given)'}; known: timing, match, "
+                       f"{', '.join(CASE_SETS)}")
+    if json_path is not None:
+        check_target(json_path, BENCH_RESULT, overwrite=overwrite)
+    results: dict = {"load_average_at_start": os.getloadavg()[0], "cpus": os.cpu_count()}
+    for name in names:
+        if name == "timing":
+            mine = timing(duration_s)
+            results["timing"] = {"this_tree": mine}
+            print(f"timing: {duration_s:.0f} s at 50 Hz ({mine['samples']} samples): {mine['wall_s']:.1f} s wall, "
+                  f"{mine['cpu_s']:.1f} s CPU, verdict {mine['verdict']} ({' + '.join(mine['named'])}); "
+                  f"load average {mine['load_average']:.1f} on {mine['cpus']} CPUs")
+            if baseline_tree:
+                other = baseline_timing(baseline_tree, duration_s)
+                results["timing"]["baseline"] = other | {"tree": baseline_tree}
+                print(f"baseline {baseline_tree}: {other['wall_s']:.1f} s wall, {other['cpu_s']:.1f} s CPU, verdict "
+                      f"{other['verdict']}; this tree / baseline wall = {mine['wall_s'] / other['wall_s']:.2f}")
+        elif name == "match":
+            bar = tqdm(total=20 * seeds, desc="match", file=sys.stderr)
+            verdicts = match_rate(range(20 * seeds), progress=lambda _, bar=bar: bar.update())
+            bar.close()
+            counts = {v: verdicts.count(v) for v in sorted(set(verdicts))}
+            results["match"] = counts
+            print(f"match: simulator's own model + noise, {len(verdicts)} seeds: {counts} "
+                  f"({100 * counts.get('match', 0) / len(verdicts):.0f}% match)")
+        else:
+            cases = CASE_SETS[name]
+            bar = tqdm(total=len(cases) * seeds, desc=name, file=sys.stderr)
+            outcomes = recovery(cases, range(1, seeds + 1), progress=lambda _, bar=bar: bar.update())
+            bar.close()
+            results[name] = {"summary": summarize(outcomes), "outcomes": outcomes_json(outcomes)}
+            print(f"\n{name} (seeds 1-{seeds}, 120 s recordings):\n{markdown_table(summarize(outcomes))}")
+    if json_path is not None:
+        write_json(json_path, results, BENCH_RESULT, overwrite=overwrite)
+        print(f"wrote {json_path}")
+    return 0

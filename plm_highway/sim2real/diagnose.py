@@ -39,6 +39,7 @@ from scipy import stats
 from scipy.interpolate import CubicSpline
 from scipy.ndimage import correlate1d
 
+from plm_highway.io import json_safe
 from plm_highway.sim2real.effects import EFFECT_NAMES, EFFECTS, EffectParams, separating_text
 from plm_highway.sim2real.recording import Recording
 from plm_highway.sim2real.replay import (
@@ -87,6 +88,9 @@ EXCITATION_NOISE_FACTOR = 3.0
 # What is left after a fit: unexplained share of the error above the noise, excess variance over
 # the noise, whiteness level, and the smallest correlation worth naming.
 PARTLY_EXPLAINED_BELOW = 0.8
+# A held-out error below this fraction of the signal's RMS is the simulator's own replay written
+# with finitely many digits (a 6-digit log leaves ~2e-5): rounding, not physics.
+REPRODUCED_RELATIVE = 1e-4
 STRUCTURE_EXCESS = 0.2
 WHITENESS_ALPHA = 0.01
 MIN_CORRELATION = 0.1
@@ -478,7 +482,9 @@ def summary_text(d: Diagnosis) -> str:
         if d.verdict == "match":
             lines.append(f"No significant mismatch: the simulator's model reproduces '{d.recording.name}' within its "
                          f"measurement noise (held-out {label} RMSE {fit['rmse_before']:.4f} {unit}, noise "
-                         f"{fit['noise_sigma']:.4f} {unit}; residual white).")
+                         f"{fit['noise_sigma']:.4f} {unit}; "
+                         + ("the replay reproduces the recording to the digits it was written with)."
+                            if d.data.get("reproduced") else "residual white)."))
         else:
             lines.append(f"Inconclusive: no candidate beats the simulator's model on '{d.recording.name}', but "
                          f"{d.data['inconclusive_because']}, so this is not a match (held-out {label} RMSE "
@@ -751,8 +757,9 @@ def _noise(problem: FitProblem, best_fit: CandidateFit, res_before: np.ndarray) 
 def _verdict(sel: Selection, fit: dict, data: dict, left: dict, left_plain: dict, noise: float,
              signal: FitSignal, plain_signal: np.ndarray) -> str:
     scale = max(float(np.sqrt(np.mean(signal.values[signal.usable] ** 2))), 1e-12)
-    if fit["rmse_before"] <= 1e-9 * scale:
-        return "match"  # the recording is the simulator's own replay, exactly
+    data["reproduced"] = bool(fit["rmse_before"] <= REPRODUCED_RELATIVE * scale)
+    if data["reproduced"]:
+        return "match"  # the simulator's own replay, up to the digits the file was written with
     floor = EXCITATION_NOISE_FACTOR * max(noise, 1e-9 * scale)
     steering_flat = data["model_signal_rms"] <= floor
     data["steering_flat"] = bool(steering_flat and data["recorded_signal_rms"] > floor)
@@ -781,21 +788,6 @@ def _candidate_json(c: CandidateFit) -> dict:
             "rmse_heldout_by_signal": {k: math.sqrt(v) for k, v in c.channel_mse.items()}}
 
 
-def strict(value):
-    """JSON-safe copy: NaN and infinities become null (strict JSON has neither)."""
-    if isinstance(value, dict):
-        return {str(k): strict(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [strict(v) for v in value]
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    return value
-
-
 def to_json(d: Diagnosis) -> dict:
     """The diagnosis as the documented JSON (effect names and parameter keys are fixed; no NaN)."""
     sel = d.selection
@@ -807,7 +799,7 @@ def to_json(d: Diagnosis) -> dict:
     runner["margin"] = sel.margin
     runner["margin_ci95"] = list(sel.margin_ci)
     rec = d.recording
-    return strict({
+    return json_safe({
         "verdict": d.verdict,
         "confidence": d.confidence,
         "effects": effects,

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plm_highway.io.atomic import atomic_path, write_text_atomic
+from plm_highway.io import JSON_MARKER_KEY, file_kind, json_text, write_outputs
 from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE, KinematicBicycleParams
 
 REQUIRED_COLUMNS = ("t", "steer", "speed", "x", "y", "heading")
@@ -265,7 +265,7 @@ def read_sidecar(path: Path) -> tuple[VehicleGeometry, list[str]]:
     if not isinstance(data, dict):
         # Bad input, not a programming error: ValueError is what the CLI reports as "error: ..." (exit 2).
         raise ValueError(f"{path}: expected a JSON object with keys {', '.join(SIDECAR_KEYS)}")
-    unknown = sorted(set(data) - set(SIDECAR_KEYS))
+    unknown = sorted(set(data) - set(SIDECAR_KEYS) - {JSON_MARKER_KEY})
     if unknown:
         warnings.append(f"{path.name}: unknown key(s) {', '.join(unknown)} ignored "
                         f"(known: {', '.join(SIDECAR_KEYS)})")
@@ -561,8 +561,25 @@ def read_sim_log(
 # Writing
 
 
-def write_recording(recording: Recording, path: str | os.PathLike, write_sidecar: bool | None = None) -> Path:
-    """Write the CSV (and the sidecar unless the car is the simulator's), each atomically."""
+def _has_recording_header(path: Path) -> bool:
+    try:
+        with open(path, encoding="utf-8") as handle:
+            first = handle.readline(4096).strip().split(",")
+    except (OSError, UnicodeDecodeError):
+        return False
+    return tuple(first[:len(REQUIRED_COLUMNS)]) == REQUIRED_COLUMNS and set(first[len(REQUIRED_COLUMNS):]) <= set(
+        OPTIONAL_COLUMNS)
+
+
+RECORDING_CSV = file_kind("recording", "a recording CSV", None, _has_recording_header)
+RECORDING_SIDECAR = file_kind("recording-sidecar", "a recording sidecar JSON")
+RECORDING_TRUTH = file_kind("recording-truth", "a recording's concealed-truth JSON")
+
+
+def write_recording(recording: Recording, path: str | os.PathLike, write_sidecar: bool | None = None,
+                    truth: dict | None = None, overwrite: bool = False) -> Path:
+    """Write the CSV, the sidecar (``STEM.json``, unless the car is the simulator's) and, if given, the
+    concealed truth (``STEM.truth.json``), published together."""
     path = Path(path)
     names = list(REQUIRED_COLUMNS)
     arrays = [recording.t_s, recording.steer_rad, recording.speed_mps, recording.x_m, recording.y_m,
@@ -575,10 +592,18 @@ def write_recording(recording: Recording, path: str | os.PathLike, write_sidecar
             arrays.append(values)
             formats.append(fmt)
     table = np.column_stack(arrays)
-    with atomic_path(path) as tmp:
-        np.savetxt(tmp, table, delimiter=",", header=",".join(names), comments="", fmt=formats)
     if write_sidecar is None:
         write_sidecar = recording.vehicle != SIMULATOR_VEHICLE
+    outputs = {"csv": (path, RECORDING_CSV)}
     if write_sidecar:
-        write_text_atomic(path.with_suffix(".json"), json.dumps(recording.vehicle.sidecar(), indent=1) + "\n")
+        outputs["sidecar"] = (path.with_suffix(".json"), RECORDING_SIDECAR)
+    if truth is not None:
+        outputs["truth"] = (path.with_name(path.stem + ".truth.json"), RECORDING_TRUTH)
+    with write_outputs(list(outputs.values()), overwrite=overwrite) as staged:
+        staged = dict(zip(outputs, staged))
+        np.savetxt(staged["csv"], table, delimiter=",", header=",".join(names), comments="", fmt=formats)
+        if write_sidecar:
+            staged["sidecar"].write_text(json_text(recording.vehicle.sidecar(), RECORDING_SIDECAR, indent=1))
+        if truth is not None:
+            staged["truth"].write_text(json_text(truth, RECORDING_TRUTH, indent=1))
     return path

@@ -11,13 +11,12 @@ Every file is written to a temporary name in the same directory and renamed into
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
 import numpy as np
 
-from plm_highway.io.atomic import atomic_path, write_text_atomic
+from plm_highway.io import directory_kind, file_kind, json_text, save_figure_into, write_output, write_outputs
 from plm_highway.sim2real.diagnose import Diagnosis, to_json
 
 NAMED = ("mismatch", "partly explained")
@@ -36,9 +35,11 @@ def _pyplot():
     return plt
 
 
+SIM2REAL_REPORT = directory_kind("sim2real-report", "a plm-highway sim2real report directory")
+
+
 def _save(fig, path: Path) -> None:
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120, bbox_inches="tight")
+    save_figure_into(fig, path, dpi=120, bbox_inches="tight")
 
 
 def _excerpt(d: Diagnosis, length_s: float = 20.0) -> slice:
@@ -169,11 +170,29 @@ def candidates_figure(d: Diagnosis, plt):
     return fig
 
 
-def write_report(d: Diagnosis, directory: str | os.PathLike) -> list[Path]:
-    """Write the figures and summary into ``directory``; returns the paths written."""
+DIAGNOSIS_JSON = file_kind("sim2real-diagnosis", "a sim2real diagnosis JSON file")
+
+
+def write_report(d: Diagnosis, directory: str | os.PathLike, overwrite: bool = False) -> list[Path]:
+    """Write the figures, summary and JSON as one report directory; returns the paths written."""
+    with write_output(directory, SIM2REAL_REPORT, overwrite=overwrite) as staged:
+        names = _write_report_files(d, staged)
+    return [Path(directory) / name for name in names]
+
+
+def publish_diagnosis(d: Diagnosis, data: dict, json_path=None, report_dir=None, overwrite: bool = False) -> None:
+    """The diagnosis JSON and/or the report directory, published together."""
+    targets = [(p, k) for p, k in ((json_path, DIAGNOSIS_JSON), (report_dir, SIM2REAL_REPORT)) if p]
+    with write_outputs(targets, overwrite=overwrite) as staged:
+        for (_, kind), path in zip(targets, staged):
+            if kind is DIAGNOSIS_JSON:
+                path.write_text(json_text(data, DIAGNOSIS_JSON, indent=1), encoding="utf-8")
+            else:
+                _write_report_files(d, path)
+
+
+def _write_report_files(d: Diagnosis, directory: Path) -> list[str]:
     plt = _pyplot()
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
     written = []
     for name, make in zip(FIGURES, (overlay_figure, residuals_figure, conditions_figure, candidates_figure)):
         fig = make(d, plt)
@@ -181,7 +200,7 @@ def write_report(d: Diagnosis, directory: str | os.PathLike) -> list[Path]:
             _save(fig, directory / name)
         finally:
             plt.close(fig)
-        written.append(directory / name)
+        written.append(name)
     data = to_json(d)
     lines = [f"# sim2real diagnosis: {d.recording.name}", "", d.summary, "", "## Numbers (held-out)", "",
              "| quantity | plain | chosen |", "|---|---|---|"]
@@ -210,7 +229,6 @@ def write_report(d: Diagnosis, directory: str | os.PathLike) -> list[Path]:
     for c in d.selection.ranking:
         params = "; ".join(f"{k}={v:.5g}" for e in c.estimates.values() for k, v in e.items())
         lines.append(f"| {c.name} | {c.heldout_rmse:.5f} | {params} |")
-    write_text_atomic(directory / "summary.md", "\n".join(lines) + "\n")
-    write_text_atomic(directory / "diagnosis.json", json.dumps(data, indent=1, allow_nan=False) + "\n")
-    written += [directory / "summary.md", directory / "diagnosis.json"]
-    return written
+    (directory / "summary.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    (directory / "diagnosis.json").write_text(json_text(data, indent=1), encoding="utf-8")
+    return written + ["summary.md", "diagnosis.json"]

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plm_highway.io.atomic import atomic_path
+from plm_highway.io import save_figure_into
 
 # Timestamps are sums of float steps: t + 0.15 may land a few ulps past the episode's last sample.
 TIME_TOLERANCE_S = 1e-6
@@ -98,6 +98,6 @@ def save_balance_figure(
         ax.grid(axis="y", alpha=0.3)
     figure.suptitle(f"Histogram balancing of steering labels ({n_bins} bins)", fontsize=13)
     path = Path(path)
-    with atomic_path(path) as tmp:
-        figure.savefig(tmp, format=path.suffix.lstrip(".") or "png", dpi=120)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_figure_into(figure, path)  # inside the checkpoint directory being staged
     return path

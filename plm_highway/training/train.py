@@ -7,7 +7,15 @@ the factor N does not matter to Adam).
 
 Repeatability: one seed drives numpy (balancing, subsetting, split), a torch.Generator (batch
 order, augmentation) and torch's global RNG (weight init, dropout), with deterministic
-algorithms on; the same seed on the same machine and thread count gives bit-identical weights.
+algorithms on; the same seed on the same machine and thread count gives bit-identical weights
+(and a byte-identical ``model.pt`` and ``model.json``: nothing time-dependent is recorded).
+
+Argument bounds (:class:`TrainConfig`, checked before the dataset is read): ``epochs`` in [1, 1000],
+``batch_size`` in [1, 4096], ``learning_rate`` in [0, 1], ``patience_epochs`` in [1, 1000],
+``val_fraction`` in (0, 0.5], ``seed`` in [0, 2**63 - 1], ``max_samples`` None or in [2, 10**9],
+``balance_max_per_bin`` None or in [1, 10**9], ``grad_clip_value`` None or in (0, 1e6].
+A dataset with no usable row, or whose rows cannot be split into training and validation, is
+refused before anything is written.
 """
 
 from __future__ import annotations
@@ -24,15 +32,18 @@ from torch.nn import functional as F
 from tqdm import tqdm
 
 from plm_highway.data.dataset import Dataset, read_dataset
+from plm_highway.io import check_target, write_output
 from plm_highway.models.base_model import BaseModel, preset_config
 from plm_highway.models.checkpoints import (
+    CHECKPOINT,
     KIND_BASE_MODEL,
     load_base_model,
     read_description,
     save_checkpoint,
     state_fingerprint,
 )
-from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S, TAPM, TAPMConfig
+from plm_highway.models.config_checks import check_int, check_number
+from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S, TAPM, TAPMConfig, validate_delta_grid
 from plm_highway.training.labels import save_balance_figure
 from plm_highway.training.samples import (
     MIN_EPISODES_FOR_EPISODE_SPLIT,
@@ -49,6 +60,10 @@ from plm_highway.training.samples import (
 )
 
 BALANCE_FIGURE_NAME = "steering_balance.png"
+MAX_EPOCHS = 1000
+MAX_BATCH_SIZE = 4096
+MAX_SEED = 2**63 - 1
+MAX_ROWS = 10**9
 
 
 @dataclass(frozen=True)
@@ -65,6 +80,21 @@ class TrainConfig:
     grad_clip_value: float | None = 1.0
     augmentation: Augmentation | None = field(default_factory=Augmentation)
     show_progress: bool = True
+
+    def __post_init__(self) -> None:
+        # Named as the command line spells them: that is where they come from.
+        check_int("--epochs", self.epochs, 1, MAX_EPOCHS)
+        check_int("batch_size", self.batch_size, 1, MAX_BATCH_SIZE)
+        check_number("learning_rate", self.learning_rate, 0.0, 1.0)
+        check_int("patience_epochs", self.patience_epochs, 1, MAX_EPOCHS)
+        check_number("val_fraction", self.val_fraction, 0.0, 0.5, low_open=True)
+        check_int("--seed", self.seed, 0, MAX_SEED)
+        if self.max_samples is not None:
+            check_int("--max-samples", self.max_samples, 2, MAX_ROWS)
+        if self.balance_max_per_bin is not None:
+            check_int("--balance-max-per-bin", self.balance_max_per_bin, 1, MAX_ROWS)
+        if self.grad_clip_value is not None:
+            check_number("grad_clip_value", self.grad_clip_value, 0.0, 1e6, low_open=True)
 
 
 @dataclass
@@ -133,7 +163,7 @@ def fit(
     best_state, best_val_loss, best_epoch = None, math.inf, 0
     for epoch in range(1, config.epochs + 1):
         description = f"{name} {epoch}/{config.epochs}"
-        train_loss = _train_epoch(
+        train_loss = train_epoch(
             model, loss_fn, optimizer, frames, train_rows, config, generator, description
         )
         train_history.append(train_loss)
@@ -162,9 +192,10 @@ def fit(
     )
 
 
-def _train_epoch(
-    model, loss_fn, optimizer, frames, rows, config: TrainConfig, generator, description: str
+def train_epoch(
+    model, loss_fn, optimizer, frames, rows, config: TrainConfig, generator, description: str = ""
 ) -> float:
+    """One pass over ``rows`` in random order (Adam steps, augmentation); returns the mean loss."""
     model.train()
     total_loss, n_samples = 0.0, 0
     batches = iterate_batches(frames, rows, config.batch_size, generator, config.augmentation)
@@ -199,17 +230,32 @@ def evaluate(model, loss_fn, frames: np.ndarray, rows: LabelledRows, batch_size:
     return total_loss / max(n_samples, 1)
 
 
+@dataclass(frozen=True)
+class PreparedRows:
+    train: LabelledRows
+    val: LabelledRows
+    counts: dict  # for the training summary
+    steering_before_balancing: np.ndarray
+    steering_after_balancing: np.ndarray
+
+    def save_balance_figure(self, path: Path) -> Path:
+        return save_balance_figure(self.steering_before_balancing, self.steering_after_balancing, path)
+
+
 def prepare_rows(
-    rows: LabelledRows, config: TrainConfig, rng: np.random.Generator, figure_path: Path | None
-) -> tuple[LabelledRows, LabelledRows, dict]:
-    """Balance, subset and split ``rows``; returns (train, val, counts for the summary)."""
+    rows: LabelledRows, config: TrainConfig, rng: np.random.Generator, source: str = "dataset"
+) -> PreparedRows:
+    """Balance, subset and split ``rows``; ValueError (naming ``source``) if nothing usable is left."""
+    if len(rows) == 0:
+        raise ValueError(f"{source}: no usable rows to train on")
     steering_before = rows.steering
     rows = balanced(rows, config.balance_max_per_bin, rng)
-    if figure_path is not None:
-        save_balance_figure(steering_before, rows.steering, figure_path)
     n_balanced = len(rows)
     rows = at_most(rows, config.max_samples, rng)
-    train_rows, val_rows = split_train_val(rows, config.val_fraction, rng)
+    try:
+        train_rows, val_rows = split_train_val(rows, config.val_fraction, rng)
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from exc
     counts = {
         "rows_labelled": len(steering_before),
         "rows_after_balancing": n_balanced,
@@ -217,7 +263,14 @@ def prepare_rows(
         "rows_train": len(train_rows),
         "rows_val": len(val_rows),
     }
-    return train_rows, val_rows, counts
+    return PreparedRows(train_rows, val_rows, counts, steering_before, rows.steering)
+
+
+def _write_checkpoint_dir(out_dir: Path, model, description: dict, prepared: PreparedRows, overwrite: bool) -> None:
+    """The checkpoint, its description and the balancing figure, published together once training succeeded."""
+    with write_output(out_dir, CHECKPOINT, overwrite=overwrite) as staged:
+        save_checkpoint(staged, model, description)
+        prepared.save_balance_figure(staged / BALANCE_FIGURE_NAME)
 
 
 def train_base_model(
@@ -226,23 +279,25 @@ def train_base_model(
     preset: str = "default",
     config: TrainConfig = TrainConfig(),
     command: str = "",
+    overwrite: bool = False,
 ) -> dict:
     """Train a BM on the dataset at ``data_dir``; writes ``out_dir/model.pt`` + ``model.json``; returns the description."""
     dataset = read_dataset(data_dir)
     model_config = preset_config(preset)
     _check_frame_size(dataset, model_config.image_size_px, f"preset {preset!r}")
+    check_target(out_dir, CHECKPOINT, overwrite=overwrite)
     out_dir = Path(out_dir)
     rng = np.random.default_rng(config.seed)
-    train_rows, val_rows, counts = prepare_rows(bm_rows(dataset), config, rng, out_dir / BALANCE_FIGURE_NAME)
+    prepared = prepare_rows(bm_rows(dataset), config, rng, f"dataset {data_dir}")
     with deterministic(config.seed):
         bm = BaseModel(model_config)
-        result = fit(bm, bm_loss(bm), dataset.frames, train_rows, val_rows, config, "BM")
+        result = fit(bm, bm_loss(bm), dataset.frames, prepared.train, prepared.val, config, "BM")
     description = {
         "preset": preset,
         "image_size_px": list(model_config.image_size_px),
-        "training": _training_summary(data_dir, dataset, config, result, counts, command),
+        "training": _training_summary(data_dir, dataset, config, result, prepared.counts, command),
     }
-    save_checkpoint(out_dir, bm, description)
+    _write_checkpoint_dir(out_dir, bm, description, prepared, overwrite)
     return description
 
 
@@ -253,28 +308,31 @@ def train_tapm(
     config: TrainConfig = TrainConfig(),
     delta_grid_s: tuple[float, ...] = DEFAULT_DELTA_GRID_S,
     command: str = "",
+    overwrite: bool = False,
 ) -> dict:
     """Train a TAPM on the frozen BM at ``bm_path``; writes ``out_dir/model.pt`` + ``model.json``."""
     bm = freeze(load_base_model(bm_path))
     bm_description = read_description(bm_path, KIND_BASE_MODEL)
     dataset = read_dataset(data_dir)
     _check_frame_size(dataset, bm.config.image_size_px, f"the BM at {bm_path}")
+    check_target(out_dir, CHECKPOINT, overwrite=overwrite)
     tapm_config = TAPMConfig(image_feature_dim=bm.image_feature_dim, delta_grid_s=delta_grid_s)
     rng = np.random.default_rng(config.seed)
     rows = tapm_rows(dataset, tapm_config.delta_grid_s)
-    train_rows, val_rows, counts = prepare_rows(rows, config, rng, Path(out_dir) / BALANCE_FIGURE_NAME)
+    source = f"dataset {data_dir} (rows with a future label {tapm_config.delta_grid_s[-1]:g} s ahead)"
+    prepared = prepare_rows(rows, config, rng, source)
     with deterministic(config.seed):
         tapm = TAPM(tapm_config)
-        result = fit(tapm, tapm_loss(tapm, bm), dataset.frames, train_rows, val_rows, config, "TAPM")
+        result = fit(tapm, tapm_loss(tapm, bm), dataset.frames, prepared.train, prepared.val, config, "TAPM")
     description = {
         "preset": bm_description.get("preset"),
         "image_size_px": list(bm.config.image_size_px),
         "delta_grid_s": list(tapm_config.delta_grid_s),
         "bm_checkpoint": str(Path(bm_path).resolve()),
         "bm_fingerprint": state_fingerprint(bm),
-        "training": _training_summary(data_dir, dataset, config, result, counts, command),
+        "training": _training_summary(data_dir, dataset, config, result, prepared.counts, command),
     }
-    save_checkpoint(out_dir, tapm, description)
+    _write_checkpoint_dir(Path(out_dir), tapm, description, prepared, overwrite)
     return description
 
 
@@ -305,3 +363,24 @@ def _training_summary(
         "best_val_loss": result.best_val_loss if math.isfinite(result.best_val_loss) else None,
         "threads": torch.get_num_threads(),
     }
+
+
+def parse_delta_grid(text: str) -> tuple[float, ...]:
+    """``--delta-grid`` "0.15,0.2,..." -> latencies in seconds, checked like the TAPM's grid."""
+    parts = [part.strip() for part in text.split(",")]
+    try:
+        grid = [float(part) for part in parts if part]
+    except ValueError as exc:
+        raise ValueError(f"--delta-grid: expected comma-separated seconds, got {text!r}") from exc
+    if not grid:
+        raise ValueError(f"--delta-grid: expected at least one latency in seconds, got {text!r}")
+    return validate_delta_grid(grid, field="--delta-grid")
+
+
+def check_bm_preset(bm_path: str | Path, preset: str | None) -> None:
+    """Refuse a BM trained with another preset than ``preset`` (None: any)."""
+    if preset is None:
+        return
+    bm_preset = read_description(bm_path, KIND_BASE_MODEL).get("preset")
+    if bm_preset != preset:
+        raise ValueError(f"--preset {preset} given, but the BM at {bm_path} was trained with preset {bm_preset!r}")

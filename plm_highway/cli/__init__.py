@@ -1,0 +1,118 @@
+"""The ``plm-highway`` command line: argparse subparsers over thin adapters, one module per group.
+
+Each adapter module in this package lists its commands as :class:`Command` entries (name, help,
+``configure(parser)``, ``run(args) -> int``). Adapters parse options and call library functions,
+whose signatures or config dataclasses hold the defaults. Only the command being run (or asked
+for ``--help``) is configured, so the library behind the other commands is never imported.
+
+Exit codes: 0 success; 1 a command's own "not OK" answer (e.g. ``lessons build --check``) or a bug;
+2 bad input or an environment problem (a missing file, no permission, no space), printed as one
+line without a traceback; 130 interrupted. A bug prints its traceback and asks to be reported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import traceback
+
+from plm_highway.cli._common import Command
+
+EXIT_OK, EXIT_BUG, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+# Adapter modules in the order their commands are listed; a group module lists sub-commands.
+ADAPTERS = ("demo", "collect", "train", "evaluate", "reproduce", "estimate", "bench", "sim2real", "lessons")
+
+
+def _adapter(name: str):
+    return importlib.import_module(f"plm_highway.cli.{name}")
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The full parser tree; only the command named by ``argv``'s leading words gets its options."""
+    argv = list(argv or [])
+    parser = argparse.ArgumentParser(
+        prog="plm-highway",
+        description="Perception latency in vision-based lane keeping: simulate, train PLM-Net, evaluate, "
+                    "reproduce the paper, diagnose sim2real mismatch, build and grade the lessons.",
+        epilog="Run 'plm-highway COMMAND --help' (or 'plm-highway GROUP --help') for a command's options.",
+    )
+    commands = parser.add_subparsers(title="commands", metavar="COMMAND")
+    for name in ADAPTERS:
+        module = _adapter(name)
+        group_help = getattr(module, "GROUP_HELP", None)
+        if group_help is None:  # a single command
+            _add_command(commands, module.COMMANDS[0], (), argv)
+            continue
+        group = commands.add_parser(name, help=group_help, description=group_help)
+        group.set_defaults(_group_parser=group)
+        sub = group.add_subparsers(title=f"{name} commands", metavar="COMMAND")
+        for command in module.COMMANDS:
+            _add_command(sub, command, (name,), argv)
+    return parser
+
+
+def _add_command(subparsers, command: Command, prefix: tuple[str, ...], argv: list[str]) -> None:
+    words = (*prefix, command.name)
+    parser = subparsers.add_parser(command.name, help=command.help, description=command.description or command.help,
+                                   formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.set_defaults(command=" ".join(words), _run=command.run)
+    if tuple(argv[:len(words)]) == words:
+        command.configure(parser)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv)
+    if not argv:
+        parser.print_help()
+        return EXIT_OK
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse: --help (0) or a usage error (2), already printed
+        return int(exc.code or 0)
+    if not hasattr(args, "_run"):  # a group without its sub-command
+        args._group_parser.print_help()
+        return EXIT_BAD_INPUT
+    from plm_highway.io import command_line
+
+    args.command_line = command_line(argv)
+    return run_command(args)
+
+
+def run_command(args: argparse.Namespace) -> int:
+    """Run the parsed command, turning bad input and environment problems into exit code 2."""
+    prefix = f"plm-highway {args.command}: error:"
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        print(f"\nplm-highway {args.command}: interrupted; nothing was published", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # e.g. piped into `head`
+        return EXIT_OK
+    except ValueError as exc:  # BadInput and the library's input validation
+        print(f"{prefix} {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as exc:
+        print(f"{prefix} {describe_os_error(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except MemoryError:
+        print(f"{prefix} ran out of memory; reduce the sizes asked for (see the command's --help)", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception:
+        traceback.print_exc()
+        print(f"plm-highway {args.command}: internal error: this is a bug in plm-highway, not in your input. "
+              "Please report it with the command line and the traceback above.", file=sys.stderr)
+        return EXIT_BUG
+
+
+def describe_os_error(exc: OSError) -> str:
+    """One line naming the path and what went wrong (no traceback)."""
+    where = " -> ".join(repr(str(p)) for p in (exc.filename, exc.filename2) if p is not None)
+    reason = exc.strerror or str(exc)
+    return f"{where}: {reason}" if where else reason
+
+
+if __name__ == "__main__":
+    sys.exit(main())

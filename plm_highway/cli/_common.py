@@ -1,0 +1,71 @@
+"""Pieces every adapter uses: the command entry, bounded number types, the shared options."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Command:
+    name: str
+    help: str
+    configure: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+    description: str | None = None
+
+
+def bounded_int(minimum: int, maximum: int) -> Callable[[str], int]:
+    """An argparse type: an integer in [minimum, maximum], refused by name otherwise."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if not minimum <= value <= maximum:
+            raise argparse.ArgumentTypeError(f"{value} is outside the accepted range [{minimum}, {maximum:,}]")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+def bounded_float(minimum: float, maximum: float, *, open_minimum: bool = False) -> Callable[[str], float]:
+    """An argparse type: a finite number in [minimum, maximum] (or (minimum, maximum] if ``open_minimum``)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        low_ok = value > minimum if open_minimum else value >= minimum
+        if not math.isfinite(value) or not low_ok or value > maximum:
+            bracket = "(" if open_minimum else "["
+            raise argparse.ArgumentTypeError(f"{text} is outside the accepted range {bracket}{minimum:g}, {maximum:g}]")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+SEED = bounded_int(0, 2**32 - 1)
+
+
+def add_overwrite(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an earlier output of the same kind written by plm-highway (never anything else)")
+
+
+def add_seed(parser: argparse.ArgumentParser, default: int = 0) -> None:
+    parser.add_argument("--seed", type=SEED, default=default, help="random seed (0 to 2**32-1)")
+
+
+def defaults_of(function: Callable) -> dict:
+    """The keyword defaults of a library function: the one place a command's defaults are defined."""
+    import inspect
+
+    return {name: p.default for name, p in inspect.signature(function).parameters.items()
+            if p.default is not inspect.Parameter.empty}

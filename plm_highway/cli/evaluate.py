@@ -1,0 +1,48 @@
+"""``plm-highway evaluate``: reference, baseline and mitigated closed-loop runs."""
+
+from __future__ import annotations
+
+import sys
+
+from plm_highway.cli._common import Command, add_overwrite, add_seed, bounded_int
+
+MAX_STEPS = 10_000_000
+
+
+def configure(parser) -> None:
+    from plm_highway.cli._common import defaults_of
+    from plm_highway.evaluation.evaluate import evaluate
+    from plm_highway.evaluation.policies import POLICY_NAMES
+
+    d = defaults_of(evaluate)
+    parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
+    parser.add_argument("--latency", default=d["latency"],
+                        help="latency profile, e.g. const:0.2 or steps:0.0-0.35:1.0")
+    parser.add_argument("--policy", choices=POLICY_NAMES, default=d["policy"],
+                        help="plm: reference + BM baseline + PLM-Net; bm: the first two; expert: the expert twice")
+    parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: shipped)")
+    add_seed(parser, d["seed"])
+    parser.add_argument("--max-steps", type=bounded_int(1, MAX_STEPS), help="stop each run after this many policy steps")
+    parser.add_argument("--json", metavar="OUT.json", help="write the result JSON here")
+    parser.add_argument("--out", metavar="DIR", help="write result.json and per-step CSV logs (one per run, and "
+                                                     "steps.csv with the runs side by side) into this directory")
+    add_overwrite(parser)
+
+
+def run(args) -> int:
+    from plm_highway.evaluation.evaluate import EVALUATION_DIR, EVALUATION_JSON, evaluate, publish_results
+    from plm_highway.evaluation.policies import single_threaded_inference
+    from plm_highway.io import check_target, json_text
+
+    for path, kind in ((args.json, EVALUATION_JSON), (args.out, EVALUATION_DIR)):
+        if path is not None:
+            check_target(path, kind, overwrite=args.overwrite)
+    with single_threaded_inference():
+        result, logs = evaluate(args.track, args.latency, args.policy, args.seed, args.max_steps, args.checkpoints)
+    sys.stdout.write(json_text(result, EVALUATION_JSON))
+    if args.json or args.out:
+        publish_results(result, logs, args.json, args.out, overwrite=args.overwrite)
+    return 0
+
+
+COMMANDS = [Command("evaluate", "closed-loop reference / baseline / mitigated runs", configure, run)]

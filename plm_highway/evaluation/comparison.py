@@ -1,0 +1,31 @@
+"""Comparing the runs of one evaluation: steering of the delayed runs against the reference run.
+
+Runs share the seed and start, so step k of every run is the same instant. Each delayed run is
+compared with the reference over the steps both reached (a run that left the road ended early).
+The reductions are PLM-Net's against the baseline's error, ``100 * (1 - mitigated / baseline)``,
+as the paper reports them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
+
+from plm_highway.metrics.steering import ERROR_NAMES, common_span, reduction_pct, steering_errors
+
+if TYPE_CHECKING:  # the run module pulls in the simulator; the comparison needs only its columns
+    from plm_highway.evaluation.closed_loop import RunLog
+
+__all__ = ["steering_comparison"]
+
+
+def steering_comparison(logs: Mapping[str, RunLog]) -> dict:
+    """Errors of the ``baseline`` and ``mitigated`` runs' steering against the ``reference`` run's,
+    each over the common span of the pair, and the ``{mae,mse,rmse}_reduction_pct`` between them."""
+    reference = logs["reference"].columns["steering"]
+    result: dict = {
+        run: steering_errors(*common_span(reference, logs[run].columns["steering"])) for run in ("baseline", "mitigated")
+    }
+    for name in ERROR_NAMES:
+        result[f"{name}_reduction_pct"] = reduction_pct(result["baseline"][name], result["mitigated"][name])
+    return result

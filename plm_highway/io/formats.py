@@ -1,0 +1,104 @@
+"""Writing the project's file formats: strict JSON, CSV tables, matplotlib figures, the recorded command.
+
+Top-level outputs go through :func:`plm_highway.io.outputs.write_output` (safe, atomic); the
+``*_into`` functions write inside a directory that is already being staged.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import shlex
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+
+from plm_highway.io.outputs import JSON_MARKER_KEY, PNG_SOFTWARE, OutputKind, file_kind, write_output
+
+FIGURE = file_kind("figure", "a figure (PNG)")
+
+
+def json_safe(value):
+    """``value`` with NaN and infinite floats replaced by None: strict JSON has neither."""
+    if isinstance(value, Mapping):
+        return {str(key): json_safe(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(item) for item in value]
+    if hasattr(value, "item") and getattr(value, "ndim", None) == 0:  # numpy scalars
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def json_text(data: Mapping, kind: OutputKind | None = None, indent: int | None = 2) -> str:
+    """Strict JSON of ``data`` (NaN/inf as null), tagged with the output kind when given."""
+    payload = dict(data)
+    if kind is not None:
+        payload = {JSON_MARKER_KEY: kind.name, **payload}
+    return json.dumps(json_safe(payload), indent=indent, allow_nan=False) + "\n"
+
+
+def write_text(path: str | os.PathLike, text: str, kind: OutputKind, *, overwrite: bool = False) -> Path:
+    with write_output(path, kind, overwrite=overwrite) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return Path(path)
+
+
+def write_json(path: str | os.PathLike, data: Mapping, kind: OutputKind, *, overwrite: bool = False) -> Path:
+    return write_text(path, json_text(data, kind), kind, overwrite=overwrite)
+
+
+def write_csv_into(path: Path, header: Sequence[str], rows: Iterable[Sequence]) -> None:
+    with open(path, "w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(header)
+        writer.writerows([format_cell(value) for value in row] for row in rows)
+
+
+def write_csv(path: str | os.PathLike, header: Sequence[str], rows: Iterable[Sequence], kind: OutputKind, *,
+              overwrite: bool = False) -> Path:
+    with write_output(path, kind, overwrite=overwrite) as tmp:
+        write_csv_into(tmp, header, rows)
+    return Path(path)
+
+
+def format_cell(value) -> str:
+    """A CSV cell: floats to 6 significant digits, NaN/inf as an empty cell, the rest as text."""
+    if hasattr(value, "item") and getattr(value, "ndim", None) == 0:
+        value = value.item()
+    if isinstance(value, float):
+        return f"{value:.6g}" if math.isfinite(value) else ""
+    return str(value)
+
+
+def save_figure_into(fig, path: Path, dpi: int = 120, **savefig_options) -> None:
+    """Save a matplotlib figure as PNG, tagged so that plm-highway recognises it later."""
+    fig.savefig(path, format="png", dpi=dpi, metadata={"Software": PNG_SOFTWARE}, **savefig_options)
+
+
+def save_figure(fig, path: str | os.PathLike, *, overwrite: bool = False, dpi: int = 120) -> Path:
+    if Path(path).suffix.lower() != ".png":
+        from plm_highway.errors import BadInput
+
+        raise BadInput(f"figure path {str(path)!r}: figures are written as PNG; give a name ending in .png")
+    with write_output(path, FIGURE, overwrite=overwrite) as tmp:
+        save_figure_into(fig, tmp, dpi=dpi)
+    return Path(path)
+
+
+def pyplot():
+    """matplotlib.pyplot on a non-interactive backend unless one was chosen."""
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def command_line(argv: Sequence[str]) -> str:
+    """The command line that produced an output (``plm-highway`` + its arguments), ready to paste into a shell.
+
+    The router records it once per invocation (``args.command_line``); outputs store that string.
+    """
+    return shlex.join(["plm-highway", *argv])
