@@ -156,3 +156,26 @@ def test_json_is_strict():
 
     json.loads(text, parse_constant=refuse)
     assert math.isfinite(json.loads(text)["fit"]["noise_sigma"])
+
+
+def test_an_effect_that_moves_the_car_the_wrong_way_is_not_taken_as_physics():
+    """The banked-track trap: a steering offset fitted the yaw rate and made the re-anchored position
+    worse (0.42 -> 0.59 m on a real car). Such a fit is "partly explained", with the reason."""
+    from dataclasses import replace
+
+    from plm_highway.sim2real import diagnose as diagnose_module
+
+    recording, _ = make_recording({"transport_delay": 0.15}, rng=np.random.default_rng(4), duration_s=40.0)
+    d = diagnose(recording)
+    assert d.verdict == "mismatch" and not d.data["position_worse"]
+    before = d.fit["position_rmse_before_m"]
+    for after, expected in [(1.05 * before, "mismatch"), (1.4 * before, "partly explained")]:
+        fit = d.fit | {"position_rmse_after_m": after}
+        data = dict(d.data)
+        verdict = diagnose_module._verdict(d.selection, fit, data, d.residual, d.residual, d.noise_sigma, d.signal,
+                                           None)
+        assert verdict == expected
+    worse = replace(d, fit=fit, data=data, verdict=verdict)
+    text = diagnose_module.summary_text(worse)
+    assert "moves the car the wrong way" in text and f"{before:.3f} -> {1.4 * before:.3f} m" in text
+    assert "do not read its parameters as the car's" in text

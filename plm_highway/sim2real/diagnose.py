@@ -91,6 +91,8 @@ PARTLY_EXPLAINED_BELOW = 0.8
 # A held-out error below this fraction of the signal's RMS is the simulator's own replay written
 # with finitely many digits (a 6-digit log leaves ~2e-5): rounding, not physics.
 REPRODUCED_RELATIVE = 1e-4
+# A named effect that makes the re-anchored position error this much worse is not taken as physics.
+POSITION_WORSE = 0.10
 STRUCTURE_EXCESS = 0.2
 WHITENESS_ALPHA = 0.01
 MIN_CORRELATION = 0.1
@@ -527,7 +529,12 @@ def summary_text(d: Diagnosis) -> str:
         lines.append(f"Mixed: the fit improves {', '.join(better)} but worsens {', '.join(worse)}; the recorded signals "
                      "disagree about this physics (a sensor issue, or physics outside the library).")
     lines.append(runner_up_text(sel, unit))
-    if d.verdict == "partly explained":
+    if d.verdict == "partly explained" and d.data.get("position_worse"):
+        lines.append(f"Partly explained: {name} fits the {label} but moves the car the wrong way (re-anchored position "
+                     f"{fit['position_rmse_before_m']:.3f} -> {fit['position_rmse_after_m']:.3f} m): a yaw-plane term "
+                     "standing in for physics it cannot represent (road bank or grade, a sensor mounted askew, "
+                     "something outside the library); do not read its parameters as the car's.")
+    elif d.verdict == "partly explained":
         left = d.residual
         why = (f"only {100 * fit['explained_fraction']:.0f}% of the error above the noise is explained"
                if fit["explained_fraction"] < PARTLY_EXPLAINED_BELOW else
@@ -766,7 +773,10 @@ def _verdict(sel: Selection, fit: dict, data: dict, left: dict, left_plain: dict
     if steering_flat and data["recorded_signal_rms"] <= floor:
         return "unexcited"
     if sel.verdict == "mismatch":
-        if fit["explained_fraction"] < PARTLY_EXPLAINED_BELOW or left["structured"]:
+        # A yaw-plane term can fit the yaw rate while moving the car the wrong way (a steering offset
+        # standing in for a road bank or grade): the re-anchored position must not get worse.
+        data["position_worse"] = bool(fit["position_rmse_after_m"] > (1 + POSITION_WORSE) * fit["position_rmse_before_m"])
+        if fit["explained_fraction"] < PARTLY_EXPLAINED_BELOW or left["structured"] or data["position_worse"]:
             return "partly explained"
         return "mismatch"
     if steering_flat:
