@@ -21,7 +21,10 @@ The steps, top to bottom (:func:`diagnose`):
    ================== ===========================================================================
    match              no candidate helps and the plain model's residual is white noise
    mismatch           an effect (or pair) explains the departure down to the noise
-   partly explained   an effect helps, but structure beyond the noise remains (or < 80% explained)
+   partly explained   an effect helps, but under 80% of the error above the noise is explained, or
+                      a structured leftover (not white, +20% noise variance) holds over 2% of it,
+                      or the fit makes the re-anchored position over 10% worse (a yaw-plane term
+                      standing in for bank, grade or a sensor)
    unexplained        the simulator departs, and nothing in the library helps
    unexcited          the car barely turns: the recording cannot show steering-path physics
    inconclusive       nothing helps, but too little data (or no measured noise) to call it a match
