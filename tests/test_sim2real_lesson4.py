@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
@@ -44,10 +42,8 @@ def _stub(*args, **kwargs):
 
 
 @pytest.mark.parametrize("check", sorted(CORRECT))
-def test_check_passes_on_a_correct_answer_quickly(check, capsys):
-    started = time.perf_counter()
+def test_check_passes_on_a_correct_answer(check, capsys):
     getattr(lesson4, check)(CORRECT[check])
-    assert time.perf_counter() - started < 5.0
     assert f"PASSED {check}" in capsys.readouterr().out
 
 
