@@ -32,7 +32,9 @@ VALUES = {
     "steering_gain": [0.90, 1.10, 0.85],
     "steering_offset": [0.004, -0.006, 0.008],
 }
-CASES = [(name,) for name in EFFECT_NAMES] + list(itertools.combinations(EFFECT_NAMES, 2))
+# The original five effects, alone and in pairs (the extended library: tests/test_sim2real_library.py).
+ORIGINAL_EFFECTS = tuple(VALUES)
+CASES = [(name,) for name in ORIGINAL_EFFECTS] + list(itertools.combinations(ORIGINAL_EFFECTS, 2))
 
 
 def recovered(name: str, key: str, estimate: float, truth: float) -> bool:
@@ -196,11 +198,13 @@ def test_ten_minutes_at_50_hz_are_diagnosed():
 def test_real_recording_beats_the_earlier_quick_analysis():
     recording = read_recording(REAL_DIR / "iac_putnam_run4_2.csv")
     result = to_json(diagnose(recording))
-    assert result["verdict"] == "mismatch"
+    # A race car at the limit on a real track: tire slip and a late gyro explain most of the error,
+    # and what is left is still structured (it correlates with the steering rate).
+    assert result["verdict"] in ("mismatch", "partly explained")
     names = {e["name"] for e in result["effects"]}
     assert "tire_slip" in names
     fit = result["fit"]
-    assert fit["rmse_after"] / fit["rmse_before"] - 1 < -0.65, fit  # the earlier quick analysis: -65%
+    assert fit["rmse_after"] / fit["rmse_before"] - 1 < -0.69, fit  # earlier: -65% (quick analysis), -69% (v1)
     lag = result["checks"]["yaw_rate_lag_behind_heading"]["lag_s"]
     assert 0.2 < lag < 0.5
     assert any("runs" in w and "late against the derivative of the recorded heading" in w for w in result["warnings"])

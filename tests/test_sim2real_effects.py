@@ -11,12 +11,21 @@ from hypothesis import strategies as st
 from scipy import signal as sps
 
 from plm_highway.sim2real.effects import (
+    EFFECTS,
+    GAIN,
+    OFFSET,
+    EffectParams,
+    FitContext,
     _delayed,
+    _jittered,
     _lagged,
-    candidate_statistics,
-    profiled_sse,
+    _servo,
+    coordinates_of,
+    grid_statistics,
+    params_from,
+    profile_linear,
+    simulate,
     simulate_yaw_rate,
-    tire_tables,
 )
 from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE, KinematicBicycleParams, kinematic_bicycle_rates
 
@@ -76,7 +85,7 @@ def test_lag_of_zero_passes_the_command_through():
 
 @pytest.mark.parametrize("tire", [False, True])
 def test_closed_form_gain_and_offset_match_a_direct_fit(tire):
-    """The batch statistics give the same best gain/offset and error as simulating with them."""
+    """The grid statistics give the same best gain/offset and error as simulating with them."""
     _, steer, speed = _inputs()
     a, b, k2 = 1.35, 1.45, 1.5
     cf, cr = (46.0, 50.0) if tire else (0.0, 0.0)
@@ -85,18 +94,15 @@ def test_closed_form_gain_and_offset_match_a_direct_fit(tire):
     y = truth + 0.003 * rng.standard_normal(len(truth))
     weight = np.ones((1, len(y)))
     weight[0, :100] = 0.0
-    if tire:
-        maps, starts, units = tire_tables(speed, DT, np.array([cf]), np.array([cr]), a, b, k2, np.ones(1), 0)
-        index = np.array([0], np.int64)
-    else:
-        maps, starts, units = np.zeros((1, 1, 8)), np.zeros((1, 2)), np.zeros((1, 1))
-        index = np.array([-1], np.int64)
-    stats = candidate_statistics(steer, speed, DT, np.array([0.1]), np.array([0.05]), index, maps, starts, units,
-                                 a, b, np.ones(1), 0, y, weight)
-    sse, gain, offset = profiled_sse(stats[:, 0, :], True, True)
-    assert gain[0] == pytest.approx(0.9, abs=0.01)
-    assert offset[0] == pytest.approx(0.004, abs=2e-4)
-    fitted, _ = simulate_yaw_rate(steer, speed, DT, 0.1, 0.05, gain[0], offset[0], cf, cr, a, b, k2)
+    point = EffectParams(delay_s=0.1, time_constant_s=0.05, cf_per_kg=cf if tire else None,
+                         cr_per_kg=cr if tire else None).slots()[None, :]
+    gram = grid_statistics(steer, speed, DT, point, a, b, k2, 0.5, np.ones(1), 0, y, weight, [GAIN, OFFSET],
+                           [1e-3, 1e-4])
+    sse, solved = profile_linear(gram[:, 0], np.array([0.2, -0.2]), np.array([5.0, 0.2]), point[:, [GAIN, OFFSET]])
+    gain, offset = solved[0]
+    assert gain == pytest.approx(0.9, abs=0.01)
+    assert offset == pytest.approx(0.004, abs=2e-4)
+    fitted, _ = simulate_yaw_rate(steer, speed, DT, 0.1, 0.05, gain, offset, cf, cr, a, b, k2)
     direct = float(np.sum(((y - fitted) ** 2)[100:]))
     assert sse[0] == pytest.approx(direct, rel=1e-6 if tire else 2e-2)
 
@@ -122,3 +128,84 @@ def test_understeer_lowers_the_yaw_gain_with_speed():
         r_kin, _ = kinematic_bicycle_rates(steer, speed, params)
         k = 1.45 / 46.5 / 2.8 - 1.35 / 49.7 / 2.8
         assert r[-1] / r_kin[-1] == pytest.approx(2.8 / (2.8 + k * speed_mps**2), rel=2e-3)
+
+
+# ----------------------------------------------------------------------------------------------
+# The servo (lag + rate limit) and the jittering delay
+
+
+@settings(max_examples=25, deadline=None)
+@given(rate=st.floats(0.01, 2.0), tau=st.sampled_from([0.0, 0.05, 0.2]))
+def test_the_servo_never_turns_faster_than_its_rate_limit(rate, tau):
+    _, steer, _ = _inputs(600, jitter=0.01)
+    out = np.empty_like(steer)
+    _servo(steer * 5, DT, tau, rate, out)
+    assert np.max(np.abs(np.diff(out))) <= rate * DT * (1 + 1e-12)
+
+
+def test_an_infinite_rate_limit_is_the_plain_lag_and_a_slow_command_passes_unlimited():
+    t, steer, _ = _inputs(600)
+    lagged, servo = np.empty_like(steer), np.empty_like(steer)
+    _lagged(steer, DT, 0.1, lagged)
+    _servo(steer, DT, 0.1, math.inf, servo)
+    np.testing.assert_array_equal(servo, lagged)
+    slow = 0.01 * np.sin(2 * math.pi * 0.1 * t)  # at most 0.0063 rad/s
+    _servo(slow, DT, 0.0, 0.05, servo)
+    np.testing.assert_allclose(servo, slow, atol=1e-15)
+
+
+def test_a_jittering_delay_keeps_ramps_and_constants_and_without_jitter_is_the_delay():
+    n = 400
+    ramp = np.linspace(0.0, 1.0, n)
+    out, plain = np.empty(n), np.empty(n)
+    _jittered(ramp, 10.0, 2.5, out)  # a symmetric smoothing leaves a ramp's interior unchanged
+    _delayed(ramp, 10.0, plain)
+    np.testing.assert_allclose(out[40:], plain[40:], atol=1e-12)
+    _jittered(np.full(n, 0.3), 10.0, 2.5, out)
+    np.testing.assert_allclose(out, 0.3, atol=1e-12)
+    _jittered(ramp, 10.0, 0.0, out)
+    np.testing.assert_array_equal(out, plain)
+
+
+# ----------------------------------------------------------------------------------------------
+# The registry
+
+
+CTX = FitContext(a_m=1.35, b_m=1.45, k2_m2=1.5, dt_s=DT, mass_kg=1850.0, inertia_known=True)
+
+
+@pytest.mark.parametrize("name", list(EFFECTS))
+def test_every_registry_entry_is_complete_and_its_coordinates_round_trip(name):
+    effect = EFFECTS[name]
+    assert effect.fingerprint and effect.term and effect.concealed
+    assert set(effect.conceal) == set(effect.synth_defaults) == set(effect.synth_bounds)
+    for key, value in effect.synth_defaults.items():
+        lo, hi = effect.synth_bounds[key]
+        assert lo <= value <= hi or math.isnan(value)  # NaN: the car's own value
+    grid = effect.grid(CTX)
+    nonlinear = [p for p in effect.parameters if not p.linear]
+    assert grid.shape[1] == len(nonlinear) and grid.shape[0] >= 1
+    for p in effect.parameters:
+        lo, hi = p.bounds_for(CTX)
+        assert lo < hi and p.scale > 0
+    # A point inside the bounds maps onto the chain and back unchanged.
+    values = {f"{name}.{p.name}": 0.5 * sum(p.bounds_for(CTX)) for p in effect.parameters}
+    if "tire" in name:
+        values |= {f"{name}.understeer": 0.002, f"{name}.log_cr": math.log(50.0)}
+    params = params_from((name,), values, CTX)
+    back = coordinates_of((name,), params, CTX)
+    for key, value in values.items():
+        assert back[key] == pytest.approx(value, rel=1e-9, abs=1e-12), key
+    assert set(effect.report(params, CTX)) <= set(effect.public_keys)
+
+
+def test_neutral_registry_values_give_the_simulator():
+    _, steer, speed = _inputs()
+    r_plain, vy_plain, _ = simulate(steer, speed, DT, EffectParams(), 2.5, 2.5, 6.25)
+    r_kin, _ = kinematic_bicycle_rates(steer, speed, HIGHWAY_ENV_VEHICLE)
+    np.testing.assert_allclose(r_plain, r_kin, rtol=1e-13, atol=1e-15)
+    neutral = EffectParams(gain=1.0, offset_rad=0.0, delay_s=0.0, time_constant_s=0.0, max_rate_radps=math.inf,
+                           sensor_delay_s=0.0, jitter_s=0.0)
+    r, vy, _ = simulate(steer, speed, DT, neutral, 2.5, 2.5, 6.25)
+    np.testing.assert_array_equal(r, r_plain)
+    np.testing.assert_array_equal(vy, vy_plain)

@@ -171,6 +171,18 @@ def run_models(args) -> int:
     return 0
 
 
+def configure_sim2real(parser) -> None:
+    from plm_highway.cli.sim2real import configure_bench
+
+    configure_bench(parser)
+
+
+def run_sim2real(args) -> int:
+    from plm_highway.cli.sim2real import run_bench
+
+    return run_bench(args)
+
+
 COMMANDS = [
     Command("env", "env + camera + latency steps/s against highway-env's own camera envs", *_delegate("env")),
     Command("models", "parameter counts and inference time of BM and PLM-Net", configure_models, run_models),
@@ -183,4 +195,6 @@ COMMANDS = [
             configure_memory, run_memory),
     Command("lessons", "wall-clock time of each lesson top to bottom (budget 5 minutes on 2 cores)",
             configure_lessons, run_lessons),
+    Command("sim2real", "sim2real diagnosis: seed sweeps (recovery, match rate, outside the library) and the "
+            "10-minute timing beside a baseline tree", configure_sim2real, run_sim2real),
 ]

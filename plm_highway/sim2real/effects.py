@@ -1,41 +1,46 @@
-"""The library of physics a kinematic-bicycle simulator leaves out, each a term added to its model.
+"""The library of physics a kinematic-bicycle simulator leaves out: one registry, one model chain.
 
-The simulator (highway-env's kinematic bicycle) turns the commanded front-wheel angle into a yaw rate
-instantly: ``r = v sin(beta) / lr`` with ``beta = atan(lr / L tan(delta))``. Each candidate effect
-inserts one physical term into that chain:
+The simulator (highway-env's kinematic bicycle) turns the commanded front-wheel angle into a yaw
+rate instantly: ``r = v sin(beta) / lr`` with ``beta = atan(lr / L tan(delta))``. Each candidate
+effect inserts one physical term into a fixed chain,
 
-=================== ======================================= =====================================
-effect              term added                              parameters (fixed names)
-=================== ======================================= =====================================
-steering_gain       delta <- gain * delta                   ``gain``
-steering_offset     delta <- delta + offset                 ``offset_rad``
-transport_delay     delta(t) <- delta(t - delay)            ``delay_s``
-actuator_lag        tau delta' = delta_cmd - delta          ``time_constant_s``
-tire_slip           kinematic bicycle -> dynamic single-    ``understeer_gradient_rad_per_mps2``
-                    track with linear tires                 (+ ``cornering_stiffness_front`` /
-                                                            ``_rear`` [N/rad] when mass and
-                                                            yaw inertia are known)
-=================== ======================================= =====================================
+    command -> calibration (gain, offset) -> transport delay -> servo (first-order lag, rate limit)
+            -> vehicle (kinematic | linear tires | saturating tires; road bank) -> sensors (late gyro)
 
-Order of the chain: gain and offset (the steering system's calibration), then the delay (a pure
-transport delay of the command), then the first-order actuator, then the vehicle. Gain, offset,
-delay and lag are linear, so their order among themselves does not change the output.
+and every effect is one entry of :data:`EFFECTS`: its parameters (units, bounds, the values tried
+before polishing), the slots of the chain it sets, the public parameter names it reports, its
+fingerprint, how ``make-recording`` conceals it, and its sentence in a summary. ``selection``,
+``diagnose`` and ``synth`` read only this table; adding an effect that the chain can already
+express touches one entry (a new kind of physics also adds its term to :func:`simulate_chain`).
 
-All parameters at their neutral values (gain 1, offset 0, delay 0, lag 0, no tire slip) give the
-simulator's model exactly: the plain model is one point of every candidate's family.
+=================== ============================================= ============================================
+effect              term                                          parameters (public names)
+=================== ============================================= ============================================
+transport_delay     delta(t) <- delta(t - delay)                  ``delay_s``
+actuator_lag        tau delta' = delta_cmd - delta                ``time_constant_s``
+tire_slip           kinematic -> single-track, linear tires       ``understeer_gradient_rad_per_mps2`` (+
+                                                                  ``cornering_stiffness_front/_rear`` [N/rad])
+steering_gain       delta <- gain delta                           ``gain``
+steering_offset     delta <- delta + offset                       ``offset_rad``
+steering_rate_limit |delta'| <= max_rate                          ``max_rate_radps``
+tire_saturation     magic-formula tires with a friction peak      ``friction_coefficient`` (+ tire_slip's)
+sensor_delay        recorded yaw_rate(t) <- yaw rate(t - delay)   ``delay_s`` (the gyro only)
+road_bank           vy' += g sin(bank) (with tire slip)           ``bank_rad``
+delay_jitter        delta(t) <- delta(t - delay - jitter(t))      ``delay_s``, ``jitter_s`` (std)
+=================== ============================================= ============================================
 
-The numerical kernels are compiled with numba: :func:`simulate_yaw_rate` runs one parameter set
-over a recording; :func:`candidate_statistics` runs a whole batch of candidate parameter sets in
-parallel and returns, for each, the sums needed to solve gain and offset in closed form (they enter
-the yaw rate linearly: exactly for the tire model, to first order for the kinematic one).
+All parameters at their neutral values give the simulator's model exactly: the plain model is one
+point of every candidate's family. The numerical kernels are compiled with numba and release the
+GIL, so a grid of candidate parameter sets runs on all cores in threads.
 """
 
 from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -45,39 +50,30 @@ from plm_highway.vehicle.single_track import (
     single_track_tustin_map,
     understeer_gradient,
 )
+from plm_highway.vehicle.tires import GRAVITY_MPS2, saturating_single_track_replay
 
-EFFECT_NAMES = ("transport_delay", "actuator_lag", "tire_slip", "steering_gain", "steering_offset")
+# ----------------------------------------------------------------------------------------------
+# The model chain's parameters ("slots"): every effect sets some of them.
 
-# Parameter keys each effect reports (other tools read these names).
-EFFECT_PARAM_KEYS = {
-    "transport_delay": ("delay_s",),
-    "actuator_lag": ("time_constant_s",),
-    "tire_slip": ("understeer_gradient_rad_per_mps2", "cornering_stiffness_front", "cornering_stiffness_rear"),
-    "steering_gain": ("gain",),
-    "steering_offset": ("offset_rad",),
-}
+GAIN, OFFSET, DELAY, TAU, RATE, CF, CR, MU, BANK, SENSOR, JITTER = range(11)
+N_SLOTS = 11
+NEUTRAL_SLOTS = np.array([1.0, 0.0, 0.0, 0.0, math.inf, 0.0, 0.0, math.inf, 0.0, 0.0, 0.0])
 
-# Free parameters each effect adds to the fit (its complexity).
-EFFECT_DOF = {"transport_delay": 1, "actuator_lag": 1, "tire_slip": 2, "steering_gain": 1, "steering_offset": 1}
-
-EFFECT_FINGERPRINTS = {
-    "transport_delay": "phase lag growing linearly with steering frequency, gain 1, independent of speed",
-    "actuator_lag": "gain rolling off above 1/(2 pi tau), phase lag at most 90 deg",
-    "tire_slip": "yaw gain u/(L + K u^2) falling with speed and lateral acceleration, speed-dependent lag",
-    "steering_gain": "constant ratio between observed and expected yaw rate",
-    "steering_offset": "constant yaw-rate error proportional to speed",
-}
-
-# Below this speed the tire model's axle slip angles divide by ~0; hold it there.
+# Default speed below which the tire models hold the speed (their slip angles divide by it); a
+# recording's own floor comes from its speed distribution and wheelbase (recording.speed_floor_mps).
 TIRE_MIN_SPEED_MPS = 0.5
+# Axle cornering stiffness per unit mass [N/rad/kg]: road cars ~30-80, race cars a few hundred.
+MAX_STIFFNESS_PER_KG = 1000.0
 
 
 @dataclass(frozen=True)
 class EffectParams:
     """The simulator's model plus every effect; the defaults are the plain simulator.
 
-    ``cf_per_kg``/``cr_per_kg`` are axle cornering stiffness per unit vehicle mass [N/rad/kg]; None
-    means no tire slip (the kinematic bicycle).
+    ``cf_per_kg``/``cr_per_kg``: axle cornering stiffness per unit mass [N/rad/kg], None means no
+    tire slip (the kinematic bicycle). ``friction_coefficient`` inf: linear tires. ``jitter_s`` is
+    the standard deviation of a jittering delay: the expected response is the delayed command
+    smoothed by a Gaussian of that width, and the error variance grows with it.
     """
 
     delay_s: float = 0.0
@@ -86,42 +82,435 @@ class EffectParams:
     offset_rad: float = 0.0
     cf_per_kg: float | None = None
     cr_per_kg: float | None = None
+    max_rate_radps: float = math.inf
+    friction_coefficient: float = math.inf
+    bank_accel_mps2: float = 0.0
+    sensor_delay_s: float = 0.0
+    jitter_s: float = 0.0
 
     @property
     def has_tire_slip(self) -> bool:
         return self.cf_per_kg is not None
 
+    def slots(self) -> np.ndarray:
+        return np.array([self.gain, self.offset_rad, self.delay_s, self.time_constant_s, self.max_rate_radps,
+                         0.0 if self.cf_per_kg is None else self.cf_per_kg,
+                         0.0 if self.cr_per_kg is None else self.cr_per_kg,
+                         self.friction_coefficient, self.bank_accel_mps2, self.sensor_delay_s, self.jitter_s], float)
+
     def numba_args(self) -> tuple[float, float, float, float, float, float]:
-        cf = 0.0 if self.cf_per_kg is None else float(self.cf_per_kg)
-        cr = 0.0 if self.cr_per_kg is None else float(self.cr_per_kg)
-        return float(self.delay_s), float(self.time_constant_s), float(self.gain), float(self.offset_rad), cf, cr
+        """(delay, tau, gain, offset, cf, cr): the arguments of :func:`simulate_yaw_rate`."""
+        s = self.slots()
+        return s[DELAY], s[TAU], s[GAIN], s[OFFSET], s[CF], s[CR]
 
 
-def effect_report(name: str, params: EffectParams, a_m: float, b_m: float, mass_kg: float | None,
-                  inertia_known: bool) -> dict[str, float]:
+@dataclass(frozen=True)
+class FitContext:
+    """What a recording tells the library about ranges: its car and how it was driven."""
+
+    a_m: float
+    b_m: float
+    k2_m2: float
+    dt_s: float
+    mass_kg: float | None = None
+    inertia_known: bool = False
+    u_min_mps: float = TIRE_MIN_SPEED_MPS
+    steer_rate_median_radps: float = 0.05  # of the commanded front-wheel angle, moving samples
+    steer_rate_max_radps: float = 0.5  # its 99.5th percentile
+    max_lat_accel_mps2: float = 4.0  # 99.5th percentile of |lateral acceleration|
+
+
+# ----------------------------------------------------------------------------------------------
+# The registry
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A fitted coordinate of an effect. ``linear``: enters the signal linearly (or nearly), solved in
+    closed form at every grid point; otherwise tried on the effect's grid, then polished."""
+
+    name: str
+    unit: str
+    bounds: tuple[float, float] | Callable[[FitContext], tuple[float, float]]
+    scale: float  # typical size: finite-difference steps and the optimiser's variable scaling
+    linear: bool = False
+    grid: tuple[float, ...] | Callable[[FitContext], np.ndarray] = ()
+
+    def bounds_for(self, ctx: FitContext) -> tuple[float, float]:
+        return self.bounds(ctx) if callable(self.bounds) else self.bounds
+
+    def grid_for(self, ctx: FitContext) -> np.ndarray:
+        return np.asarray(self.grid(ctx) if callable(self.grid) else self.grid, float)
+
+
+@dataclass(frozen=True)
+class Effect:
+    name: str
+    term: str  # the term added to the simulator's model
+    parameters: tuple[Parameter, ...]  # fitted coordinates
+    public_keys: tuple[str, ...]  # reported names (fixed: other tools read them)
+    fingerprint: str
+    concealed: str  # how make-recording conceals it
+    synth_defaults: dict[str, float]  # make-recording's parameters (public names, first = NAME=VALUE)
+    synth_bounds: dict[str, tuple[float, float]]
+    conceal: dict[str, str]  # make-recording parameter -> field of synth.ConcealedEffects it sets
+    set_params: Callable[[dict, FitContext], dict]  # fitted coordinates -> EffectParams fields
+    read_params: Callable[[EffectParams, FitContext], dict]  # EffectParams -> fitted coordinates
+    report: Callable[[EffectParams, FitContext], dict]  # EffectParams -> public names
+    sentence: Callable[[dict, dict], str]  # (public estimates, their 95% intervals) -> words
+    group: str | None = None  # at most one effect of a group in a candidate
+    needs_group: str | None = None  # the group must be present; if not, this effect is added
+    needs_channel: str | None = None  # a recorded channel without which the effect is not tried
+    varies_noise: bool = False  # shapes the error variance (scored by likelihood)
+    refines: str | None = None  # an effect this one contains as a special case (its simpler version)
+    separated_from: dict[str, str] = field(default_factory=dict)  # other effect -> the drive that tells them apart
+    joint_grid: Callable[[FitContext], np.ndarray] | None = None  # (G, p) grid when parameters are coupled
+
+    @property
+    def dof(self) -> int:
+        return len(self.parameters)
+
+    @property
+    def primary_synth_key(self) -> str:
+        return next(iter(self.synth_defaults))
+
+    def grid(self, ctx: FitContext) -> np.ndarray:
+        """Grid points of the nonlinear coordinates, shape (G, number of nonlinear parameters)."""
+        if self.joint_grid is not None:
+            return self.joint_grid(ctx)
+        axes = [p.grid_for(ctx) for p in self.parameters if not p.linear]
+        if not axes:
+            return np.zeros((1, 0))
+        mesh = np.meshgrid(*axes, indexing="ij")
+        return np.column_stack([m.ravel() for m in mesh])
+
+
+def _pm(ci: list[float]) -> float:
+    return 0.5 * (ci[1] - ci[0])
+
+
+def front_stiffness_from(understeer: float, cr: float, a: float, b: float) -> float:
+    """Front ``Cf/m`` for understeer gradient K and rear ``Cr/m`` (clipped to a physical range)."""
+    denominator = understeer * (a + b) + a / cr
+    if denominator <= b / MAX_STIFFNESS_PER_KG:
+        return MAX_STIFFNESS_PER_KG
+    return max(b / denominator, 1.0)
+
+
+UNDERSTEER_GRID = (-0.001, 0.0, 0.0005, 0.001, 0.0015, 0.002, 0.003, 0.004, 0.006, 0.009, 0.014, 0.02)
+REAR_STIFFNESS_GRID_PER_KG = (25.0, 70.0, 200.0)
+
+
+def _tire_grid(ctx: FitContext, understeer=UNDERSTEER_GRID, rear=REAR_STIFFNESS_GRID_PER_KG) -> np.ndarray:
+    points = []
+    for k in understeer:
+        for cr in rear:
+            cf = front_stiffness_from(k, cr, ctx.a_m, ctx.b_m)
+            if 1.0 < cf < MAX_STIFFNESS_PER_KG:
+                points.append((k, math.log(cr)))
+    return np.array(points)
+
+
+def _tire_set(v: dict, ctx: FitContext) -> dict:
+    cr = math.exp(v["log_cr"])
+    return {"cf_per_kg": front_stiffness_from(v["understeer"], cr, ctx.a_m, ctx.b_m), "cr_per_kg": cr}
+
+
+def _tire_read(p: EffectParams, ctx: FitContext) -> dict:
+    return {"understeer": understeer_gradient(p.cf_per_kg, p.cr_per_kg, ctx.a_m, ctx.b_m),
+            "log_cr": math.log(p.cr_per_kg)}
+
+
+def _tire_report(p: EffectParams, ctx: FitContext) -> dict:
+    out = {"understeer_gradient_rad_per_mps2": understeer_gradient(p.cf_per_kg, p.cr_per_kg, ctx.a_m, ctx.b_m)}
+    if ctx.inertia_known and ctx.mass_kg is not None:
+        out["cornering_stiffness_front"] = p.cf_per_kg * ctx.mass_kg
+        out["cornering_stiffness_rear"] = p.cr_per_kg * ctx.mass_kg
+    return out
+
+
+def _tire_sentence(params: dict, ci: dict) -> str:
+    k = params["understeer_gradient_rad_per_mps2"]
+    text = (f"the tires slip: understeer gradient {k:.5f} +- {_pm(ci['understeer_gradient_rad_per_mps2']):.5f} "
+            f"rad/(m/s^2) ({math.degrees(k) * GRAVITY_MPS2:.2f} deg/g)")
+    if "cornering_stiffness_front" in params:
+        text += (f", cornering stiffness front {params['cornering_stiffness_front']:,.0f} "
+                 f"+- {_pm(ci['cornering_stiffness_front']):,.0f} N/rad, rear "
+                 f"{params['cornering_stiffness_rear']:,.0f} +- {_pm(ci['cornering_stiffness_rear']):,.0f} N/rad")
+    return text
+
+
+UNDERSTEER = Parameter("understeer", "rad/(m/s^2)", (-0.003, 0.05), 0.001)
+LOG_CR = Parameter("log_cr", "log(N/rad/kg)", (math.log(5.0), math.log(MAX_STIFFNESS_PER_KG)), 1.0)
+DELAY_GRID_S = tuple(np.round(np.arange(0.0, 0.601, 0.02), 3))
+LAG_GRID_S = (0.02, 0.04, 0.06, 0.08, 0.10, 0.13, 0.16, 0.20, 0.25, 0.30, 0.40, 0.50, 0.60)
+
+
+def _rate_grid(ctx: FitContext) -> np.ndarray:
+    """Rate limits between the median and the largest commanded steering rates: a limit above every
+    commanded rate changes nothing, one far below the median is a different car."""
+    lo = max(ctx.steer_rate_median_radps, 1e-4)
+    hi = max(ctx.steer_rate_max_radps, 1.5 * lo)
+    return np.geomspace(lo, hi, 8)
+
+
+def _rate_bounds(ctx: FitContext) -> tuple[float, float]:
+    lo = max(ctx.steer_rate_median_radps, 1e-4)
+    return math.log(0.3 * lo), math.log(3.0 * max(ctx.steer_rate_max_radps, 1.5 * lo))
+
+
+def _friction_floor(ctx: FitContext) -> float:
+    """The car reached this lateral acceleration: its friction coefficient is at least this (in g)."""
+    return max(ctx.max_lat_accel_mps2 / GRAVITY_MPS2, 0.02)
+
+
+def _saturation_grid(ctx: FitContext) -> np.ndarray:
+    tires = _tire_grid(ctx, understeer=(0.0, 0.001, 0.002, 0.004, 0.009), rear=(25.0, 70.0))
+    mus = _friction_floor(ctx) * np.array([1.05, 1.2, 1.45, 1.9, 2.8])
+    return np.array([(k, c, m) for k, c in tires for m in mus])
+
+
+EFFECTS: dict[str, Effect] = {e.name: e for e in (
+    Effect(
+        name="transport_delay", term="delta(t) <- delta(t - delay)",
+        parameters=(Parameter("delay_s", "s", (0.0, 0.8), 0.05, grid=DELAY_GRID_S),),
+        public_keys=("delay_s",),
+        fingerprint="phase lag growing linearly with steering frequency, gain 1, independent of speed; "
+                    "the heading and the position lag as much as the yaw rate",
+        concealed="the steering command is shifted by the delay (fine grid, linear interpolation)",
+        synth_defaults={"delay_s": 0.20}, synth_bounds={"delay_s": (0.0, 1.0)},
+        conceal={"delay_s": "delay_s"},
+        set_params=lambda v, ctx: {"delay_s": v["delay_s"]},
+        read_params=lambda p, ctx: {"delay_s": p.delay_s},
+        report=lambda p, ctx: {"delay_s": p.delay_s},
+        sentence=lambda p, ci: f"the car steers late by {p['delay_s']:.3f} s +- {_pm(ci['delay_s']):.3f} s "
+                               "(transport delay)",
+        group="delay",
+        separated_from={
+            "actuator_lag": "quick steering (above ~1 Hz) separates them: a delay keeps the yaw-rate amplitude, "
+                            "a lag cuts it",
+            "tire_slip": "steady turns at very different speeds separate them: only tire slip changes the steady "
+                         "yaw rate with speed",
+            "sensor_delay": "a recorded heading separates them: a late car turns its heading late too, a late gyro "
+                            "does not",
+        },
+    ),
+    Effect(
+        name="actuator_lag", term="tau delta' = delta_cmd - delta",
+        parameters=(Parameter("time_constant_s", "s", (0.0, 0.8), 0.05, grid=LAG_GRID_S),),
+        public_keys=("time_constant_s",),
+        fingerprint="gain rolling off above 1/(2 pi tau), phase lag at most 90 deg",
+        concealed="a first-order servo between the command and the wheels (exact for a piecewise-linear input)",
+        synth_defaults={"time_constant_s": 0.15}, synth_bounds={"time_constant_s": (0.0, 2.0)},
+        conceal={"time_constant_s": "time_constant_s"},
+        set_params=lambda v, ctx: {"time_constant_s": v["time_constant_s"]},
+        read_params=lambda p, ctx: {"time_constant_s": p.time_constant_s},
+        report=lambda p, ctx: {"time_constant_s": p.time_constant_s},
+        sentence=lambda p, ci: (f"the steering follows the command like a first-order actuator with time constant "
+                                f"{p['time_constant_s']:.3f} s +- {_pm(ci['time_constant_s']):.3f} s"),
+        separated_from={
+            "tire_slip": "steady turns at very different speeds separate them: only tire slip changes the steady "
+                         "yaw rate with speed",
+            "steering_rate_limit": "small quick corrections separate them: a lag slows every change, a rate limit "
+                                   "only the large fast ones",
+        },
+    ),
+    Effect(
+        name="tire_slip", term="kinematic bicycle -> dynamic single-track with linear tires",
+        parameters=(UNDERSTEER, LOG_CR),
+        public_keys=("understeer_gradient_rad_per_mps2", "cornering_stiffness_front", "cornering_stiffness_rear"),
+        fingerprint="steady yaw gain u/(L + K u^2) falling with speed and lateral acceleration, speed-dependent lag",
+        concealed="the car is a dynamic single-track model (RK4 on the fine grid, exact slip angles); the value "
+                  "sets the understeer gradient through the front cornering stiffness (default NaN: the car's "
+                  "own tires)",
+        synth_defaults={"understeer_gradient_rad_per_mps2": math.nan},
+        synth_bounds={"understeer_gradient_rad_per_mps2": (-0.002, 0.02)},
+        conceal={"understeer_gradient_rad_per_mps2": "understeer_rad_per_mps2"},
+        set_params=_tire_set, read_params=_tire_read, report=_tire_report, sentence=_tire_sentence,
+        group="tires", joint_grid=_tire_grid,
+        separated_from={"steering_gain": "the same turn at 10 and at 30 m/s separates them: a gain error is the same "
+                                         "at every speed, understeer grows with speed"},
+    ),
+    Effect(
+        name="steering_gain", term="delta <- gain delta",
+        parameters=(Parameter("gain", "1", (0.2, 5.0), 0.1, linear=True),),
+        public_keys=("gain",),
+        fingerprint="constant ratio between observed and expected yaw rate",
+        concealed="the command is multiplied by the gain before the wheels",
+        synth_defaults={"gain": 0.90}, synth_bounds={"gain": (0.2, 5.0)},
+        conceal={"gain": "gain"},
+        set_params=lambda v, ctx: {"gain": v["gain"]},
+        read_params=lambda p, ctx: {"gain": p.gain},
+        report=lambda p, ctx: {"gain": p.gain},
+        sentence=lambda p, ci: (f"the wheels turn {p['gain']:.3f} +- {_pm(ci['gain']):.3f} times the commanded "
+                                "angle (steering gain)"),
+        separated_from={"steering_offset": "driving straight separates them: only an offset turns the car with the "
+                                           "wheel centred"},
+    ),
+    Effect(
+        name="steering_offset", term="delta <- delta + offset",
+        parameters=(Parameter("offset_rad", "rad", (-0.2, 0.2), 0.005, linear=True),),
+        public_keys=("offset_rad",),
+        fingerprint="constant yaw-rate error proportional to speed",
+        concealed="a constant is added to the command before the wheels",
+        synth_defaults={"offset_rad": 0.006}, synth_bounds={"offset_rad": (-0.2, 0.2)},
+        conceal={"offset_rad": "offset_rad"},
+        set_params=lambda v, ctx: {"offset_rad": v["offset_rad"]},
+        read_params=lambda p, ctx: {"offset_rad": p.offset_rad},
+        report=lambda p, ctx: {"offset_rad": p.offset_rad},
+        sentence=lambda p, ci: (f"the steering is offset by {p['offset_rad']:+.4f} +- {_pm(ci['offset_rad']):.4f} "
+                                f"rad ({math.degrees(p['offset_rad']):+.2f} deg): commanded straight, the car pulls "
+                                f"{'left' if p['offset_rad'] > 0 else 'right'}"),
+        separated_from={"road_bank": "a recorded position separates them: on a bank the car crabs sideways (course "
+                                     "and heading differ), with an offset it does not"},
+    ),
+    Effect(
+        name="steering_rate_limit", term="|delta'| <= max_rate (after the servo)",
+        parameters=(Parameter("log_rate", "log(rad/s)", _rate_bounds, 0.1, grid=lambda ctx: np.log(_rate_grid(ctx))),),
+        public_keys=("max_rate_radps",),
+        fingerprint="the wheels fall behind only when the command changes faster than the limit: the error sits "
+                    "at the peaks of the steering rate and grows with amplitude x frequency; slow or small "
+                    "corrections pass unchanged (a delay or a lag would shift them too)",
+        concealed="the front-wheel angle moves at most max_rate towards the command (fine grid)",
+        synth_defaults={"max_rate_radps": 0.12}, synth_bounds={"max_rate_radps": (1e-3, 50.0)},
+        conceal={"max_rate_radps": "max_rate_radps"},
+        set_params=lambda v, ctx: {"max_rate_radps": math.exp(v["log_rate"])},
+        read_params=lambda p, ctx: {"log_rate": math.log(p.max_rate_radps)},
+        report=lambda p, ctx: {"max_rate_radps": p.max_rate_radps},
+        sentence=lambda p, ci: (f"the wheels cannot turn faster than {p['max_rate_radps']:.3f} rad/s "
+                                f"(95% {ci['max_rate_radps'][0]:.3f}-{ci['max_rate_radps'][1]:.3f}; "
+                                f"{math.degrees(p['max_rate_radps']):.1f} deg/s at the wheels): steering rate limit"),
+        separated_from={"transport_delay": "small quick corrections separate them: a delay shifts every change, a "
+                                           "rate limit only the large fast ones"},
+    ),
+    Effect(
+        name="tire_saturation", term="single-track with magic-formula tires: F = mu Fz sin(1.3 atan(B alpha))",
+        parameters=(UNDERSTEER, LOG_CR,
+                    Parameter("friction_coefficient", "1", lambda ctx: (0.95 * _friction_floor(ctx), 5.0), 0.05)),
+        public_keys=("friction_coefficient", "understeer_gradient_rad_per_mps2", "cornering_stiffness_front",
+                     "cornering_stiffness_rear"),
+        fingerprint="like tire slip at low lateral acceleration, but the yaw gain collapses as |lateral "
+                    "acceleration| nears mu g: the error grows faster than linearly with lateral acceleration, "
+                    "the same on both sides",
+        concealed="the car is a single-track model with magic-formula tires (shape 1.3, static axle loads); "
+                  "the value is the friction coefficient (default 0.4, a wet road: everyday manoeuvres reach "
+                  "the limit), the linear part the car's own tires",
+        synth_defaults={"friction_coefficient": 0.4, "understeer_gradient_rad_per_mps2": math.nan},
+        synth_bounds={"friction_coefficient": (0.05, 3.0), "understeer_gradient_rad_per_mps2": (-0.002, 0.02)},
+        conceal={"friction_coefficient": "friction_coefficient",
+                 "understeer_gradient_rad_per_mps2": "understeer_rad_per_mps2"},
+        set_params=lambda v, ctx: _tire_set(v, ctx) | {"friction_coefficient": v["friction_coefficient"]},
+        read_params=lambda p, ctx: _tire_read(p, ctx) | {"friction_coefficient": p.friction_coefficient},
+        report=lambda p, ctx: {"friction_coefficient": p.friction_coefficient} | _tire_report(p, ctx),
+        sentence=lambda p, ci: (f"the tires saturate: friction coefficient {p['friction_coefficient']:.3f} +- "
+                                f"{_pm(ci['friction_coefficient']):.3f} (peak lateral acceleration "
+                                f"{p['friction_coefficient'] * GRAVITY_MPS2:.1f} m/s^2); "
+                                + _tire_sentence(p, ci).replace("the tires slip: ", "linear part: ")),
+        group="tires", refines="tire_slip",
+        joint_grid=_saturation_grid,
+        separated_from={"tire_slip": "harder cornering separates them: saturation appears near the friction limit"},
+    ),
+    Effect(
+        name="sensor_delay", term="recorded yaw_rate(t) <- yaw rate(t - delay); heading and position on time",
+        parameters=(Parameter("sensor_delay_s", "s", (0.0, 0.8), 0.05, grid=DELAY_GRID_S),),
+        public_keys=("delay_s",),
+        fingerprint="the recorded yaw rate lags the steering, but the recorded heading and position do not: a "
+                    "late or filtered gyro channel, not a late car",
+        concealed="the yaw_rate column is sampled late by the delay; heading and position are on time",
+        synth_defaults={"delay_s": 0.10}, synth_bounds={"delay_s": (0.0, 1.0)},
+        conceal={"delay_s": "sensor_delay_s"},
+        set_params=lambda v, ctx: {"sensor_delay_s": v["sensor_delay_s"]},
+        read_params=lambda p, ctx: {"sensor_delay_s": p.sensor_delay_s},
+        report=lambda p, ctx: {"delay_s": p.sensor_delay_s},
+        sentence=lambda p, ci: (f"the recorded yaw rate is {p['delay_s']:.3f} s +- {_pm(ci['delay_s']):.3f} s late "
+                                "while heading and position are not (a late or filtered gyro channel)"),
+        needs_channel="yaw_rate",
+    ),
+    Effect(
+        name="road_bank", term="vy' += g sin(bank) (needs tires: a kinematic bicycle cannot slip sideways)",
+        parameters=(Parameter("bank_rad", "rad", (-0.3, 0.3), 0.01, linear=True),),
+        public_keys=("bank_rad",),
+        fingerprint="a constant lateral force: the car crabs sideways (course minus heading shifts by a "
+                    "speed-independent angle set by the rear tires) and pulls like a steering offset of "
+                    "K g sin(bank); it needs a recorded position to tell from an offset",
+        concealed="the single-track car drives on a cross slope: g sin(bank) is added to its lateral "
+                  "acceleration (positive: the road falls to the left)",
+        synth_defaults={"bank_rad": 0.05}, synth_bounds={"bank_rad": (-0.3, 0.3)},
+        conceal={"bank_rad": "bank_rad"},
+        set_params=lambda v, ctx: {"bank_accel_mps2": GRAVITY_MPS2 * math.sin(v["bank_rad"])},
+        read_params=lambda p, ctx: {"bank_rad": math.asin(max(-1.0, min(1.0, p.bank_accel_mps2 / GRAVITY_MPS2)))},
+        report=lambda p, ctx: {"bank_rad": math.asin(max(-1.0, min(1.0, p.bank_accel_mps2 / GRAVITY_MPS2)))},
+        sentence=lambda p, ci: (f"the road is banked by {p['bank_rad']:+.4f} +- {_pm(ci['bank_rad']):.4f} rad "
+                                f"({math.degrees(p['bank_rad']):+.2f} deg; it falls to the "
+                                f"{'left' if p['bank_rad'] > 0 else 'right'}): the car crabs downhill"),
+        needs_group="tires",
+    ),
+    Effect(
+        name="delay_jitter", term="delta(t) <- delta(t - delay - jitter(t)), jitter white with std jitter_s",
+        parameters=(Parameter("delay_s", "s", (0.0, 0.8), 0.05, grid=DELAY_GRID_S),
+                    Parameter("jitter_s", "s", (0.0, 0.5), 0.01, linear=True)),
+        public_keys=("delay_s", "jitter_s"),
+        fingerprint="a transport delay whose error variance grows with the square of the steering rate: "
+                    "the mean response is the delay's, the residual scatter is jitter x d(yaw rate)/dt",
+        concealed="each sample's command arrives late by delay + jitter, the jitter drawn white per sample "
+                  "(Gaussian, clipped at zero delay)",
+        synth_defaults={"jitter_s": 0.03, "delay_s": 0.10}, synth_bounds={"jitter_s": (0.0, 0.3), "delay_s": (0.0, 1.0)},
+        conceal={"jitter_s": "jitter_s", "delay_s": "delay_s"},
+        set_params=lambda v, ctx: {"delay_s": v["delay_s"], "jitter_s": v["jitter_s"]},
+        read_params=lambda p, ctx: {"delay_s": p.delay_s, "jitter_s": p.jitter_s},
+        report=lambda p, ctx: {"delay_s": p.delay_s, "jitter_s": p.jitter_s},
+        sentence=lambda p, ci: (f"the car steers late by {p['delay_s']:.3f} s +- {_pm(ci['delay_s']):.3f} s, and the "
+                                f"delay jitters by {p['jitter_s']:.3f} s +- {_pm(ci['jitter_s']):.3f} s (std): the "
+                                "error scatter grows with the steering rate"),
+        group="delay", refines="transport_delay",
+        varies_noise=True,
+        separated_from={"transport_delay": "fast steering separates them: only a jittering delay scatters the yaw "
+                                           "rate in proportion to the steering rate"},
+    ),
+)}
+
+EFFECT_NAMES = tuple(EFFECTS)
+# Parameter keys each effect reports (other tools read these names).
+EFFECT_PARAM_KEYS = {name: e.public_keys for name, e in EFFECTS.items()}
+# Free parameters each effect adds to the fit (its complexity).
+EFFECT_DOF = {name: e.dof for name, e in EFFECTS.items()}
+EFFECT_FINGERPRINTS = {name: e.fingerprint for name, e in EFFECTS.items()}
+
+
+def separating_text(a: str, b: str) -> str:
+    """What drive would tell effect ``a`` from ``b`` ('' when the registry does not say)."""
+    return EFFECTS[a].separated_from.get(b) or EFFECTS[b].separated_from.get(a) or ""
+
+
+def params_from(effects: tuple[str, ...], values: dict[str, float], ctx: FitContext) -> EffectParams:
+    """EffectParams for a candidate from its fitted coordinates (keyed ``effect.parameter``)."""
+    kwargs: dict = {}
+    for name in effects:
+        e = EFFECTS[name]
+        kwargs |= e.set_params({p.name: values[f"{name}.{p.name}"] for p in e.parameters}, ctx)
+    return EffectParams(**kwargs)
+
+
+def coordinates_of(effects: tuple[str, ...], params: EffectParams, ctx: FitContext) -> dict[str, float]:
+    out = {}
+    for name in effects:
+        for key, value in EFFECTS[name].read_params(params, ctx).items():
+            out[f"{name}.{key}"] = float(value)
+    return out
+
+
+def effect_report(name: str, params: EffectParams, ctx: FitContext) -> dict[str, float]:
     """An effect's parameters under their fixed public names."""
-    if name == "transport_delay":
-        return {"delay_s": params.delay_s}
-    if name == "actuator_lag":
-        return {"time_constant_s": params.time_constant_s}
-    if name == "steering_gain":
-        return {"gain": params.gain}
-    if name == "steering_offset":
-        return {"offset_rad": params.offset_rad}
-    if name == "tire_slip":
-        out = {"understeer_gradient_rad_per_mps2": understeer_gradient(params.cf_per_kg, params.cr_per_kg, a_m, b_m)}
-        if inertia_known and mass_kg is not None:
-            out["cornering_stiffness_front"] = params.cf_per_kg * mass_kg
-            out["cornering_stiffness_rear"] = params.cr_per_kg * mass_kg
-        return out
-    raise KeyError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
+    if name not in EFFECTS:
+        raise KeyError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
+    return {k: float(v) for k, v in EFFECTS[name].report(params, ctx).items()}
 
 
 # ----------------------------------------------------------------------------------------------
 # Kernels (numba). Arrays are per sample of the recording, uniformly spaced by dt.
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _delayed(steer, delay_samples, out):
     """``steer`` delayed by a fractional number of samples (Catmull-Rom, C1 in the delay)."""
     n = steer.shape[0]
@@ -139,7 +528,30 @@ def _delayed(steer, delay_samples, out):
         out[k] = p1 + 0.5 * f * (p2 - p0 + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3 + f * (3.0 * (p1 - p2) + p3 - p0)))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
+def _jittered(steer, delay_samples, jitter_samples, out):
+    """The expected command under a delay jittering with std ``jitter_samples`` around
+    ``delay_samples``: the delayed command smoothed by a Gaussian (3 standard deviations)."""
+    if jitter_samples < 0.05:
+        _delayed(steer, delay_samples, out)
+        return
+    n = steer.shape[0]
+    half = int(math.ceil(3.0 * jitter_samples))
+    weights = np.empty(2 * half + 1)
+    for m in range(-half, half + 1):
+        weights[m + half] = math.exp(-0.5 * (m / jitter_samples) ** 2)
+    weights /= weights.sum()
+    shifted = np.empty(n)
+    for k in range(n):
+        out[k] = 0.0
+    for m in range(-half, half + 1):
+        _delayed(steer, max(delay_samples + m, 0.0), shifted)
+        w = weights[m + half]
+        for k in range(n):
+            out[k] += w * shifted[k]
+
+
+@numba.njit(cache=True, nogil=True)
 def _lagged(u, dt, tau, out):
     """First-order actuator, exact for inputs linear between samples; starts settled."""
     n = u.shape[0]
@@ -154,58 +566,79 @@ def _lagged(u, dt, tau, out):
         out[k] = alpha * out[k - 1] + (1.0 - c) * u[k] + (c - alpha) * u[k - 1]
 
 
-@numba.njit(cache=True)
-def _kinematic_response(delta, speed, a_m, b_m, r_out, slip_out, drdd_out, with_slip):
-    """Yaw rate, slip and d(yaw rate)/d(delta) of the kinematic bicycle (the simulator).
+@numba.njit(cache=True, nogil=True)
+def _servo(u, dt, tau, max_rate, out):
+    """The steering servo: first-order lag (time constant ``tau``) whose output moves at most
+    ``max_rate`` [rad/s]; without a finite rate it is :func:`_lagged` exactly."""
+    if not math.isfinite(max_rate):
+        _lagged(u, dt, tau, out)
+        return
+    n = u.shape[0]
+    step = max_rate * dt
+    out[0] = u[0]
+    if tau < 1e-9:
+        for k in range(1, n):
+            out[k] = out[k - 1] + min(max(u[k] - out[k - 1], -step), step)
+        return
+    alpha = math.exp(-dt / tau)
+    c = tau / dt * (1.0 - alpha)
+    for k in range(1, n):
+        target = alpha * out[k - 1] + (1.0 - c) * u[k] + (c - alpha) * u[k - 1]
+        out[k] = out[k - 1] + min(max(target - out[k - 1], -step), step)
+
+
+@numba.njit(cache=True, nogil=True)
+def _kinematic(delta, speed, a_m, b_m, r_out, vy_out, slip_out, need):
+    """Yaw rate, lateral velocity and (``need`` >= 2) slip of the kinematic bicycle (the simulator).
 
     ``r = v sin(beta) / lr`` with ``tan(beta) = lr/L tan(delta)``, written with one tangent and
-    one square root (sin and cos of an arctangent are algebraic); the slip itself only on demand.
+    one square root (sin and cos of an arctangent are algebraic).
     """
     ratio = b_m / (a_m + b_m)
     for k in range(delta.shape[0]):
-        t = math.tan(delta[k])
-        ct = ratio * t
-        inv_norm = 1.0 / math.sqrt(1.0 + ct * ct)  # cos(beta)
-        r_out[k] = speed[k] * ct * inv_norm / b_m
-        if with_slip:
+        ct = ratio * math.tan(delta[k])
+        sin_beta = ct / math.sqrt(1.0 + ct * ct)
+        r_out[k] = speed[k] * sin_beta / b_m
+        vy_out[k] = speed[k] * sin_beta
+        if need >= 2:
             slip_out[k] = math.atan(ct)
-        drdd_out[k] = speed[k] * inv_norm * ratio * (1.0 + t * t) * inv_norm * inv_norm / b_m
 
 
-@numba.njit(cache=True)
-def tire_maps(speed, dt, cf, cr, a_m, b_m, k2):
-    """Per-sample affine maps of the tire model (see ``single_track_tustin_map``) and the settled
-    start per unit steering: (maps [n-1, 8], start [2])."""
+@numba.njit(cache=True, nogil=True)
+def tire_maps(speed, dt, cf, cr, a_m, b_m, k2, u_min=TIRE_MIN_SPEED_MPS):
+    """Per-sample affine maps of the linear tire model (see ``single_track_tustin_map``) and the
+    settled start per unit steering: (maps [n-1, 8], start [2])."""
     n = speed.shape[0]
     maps = np.empty((n - 1, 8))
     for k in range(n - 1):
-        m = single_track_tustin_map(speed[k], speed[k + 1], dt, cf, cr, a_m, b_m, k2, TIRE_MIN_SPEED_MPS)
+        m = single_track_tustin_map(speed[k], speed[k + 1], dt, cf, cr, a_m, b_m, k2, u_min)
         for j in range(8):
             maps[k, j] = m[j]
     start = np.empty(2)
-    start[0], start[1] = single_track_steady_state(max(speed[0], TIRE_MIN_SPEED_MPS), 1.0, cf, cr, a_m, b_m, k2)
+    start[0], start[1] = single_track_steady_state(max(speed[0], u_min), 1.0, cf, cr, a_m, b_m, k2)
     return maps, start
 
 
-@numba.njit(cache=True)
-def _run_tire_maps(maps, start, delta, speed, r_out, slip_out, with_slip):
-    """Yaw rate (and slip) of the tire model driven by ``delta`` through precomputed maps."""
+@numba.njit(cache=True, nogil=True)
+def _run_tire_maps(maps, start, delta, speed, u_min, r_out, vy_out, slip_out, need):
+    """Yaw rate, lateral velocity and (``need`` >= 2) slip of the linear tire model driven by ``delta``."""
     n = delta.shape[0]
     vy = start[0] * delta[0]
     r = start[1] * delta[0]
     r_out[0] = r
-    if with_slip:
-        slip_out[0] = math.atan2(vy, max(speed[0], TIRE_MIN_SPEED_MPS))
+    vy_out[0] = vy
     for k in range(n - 1):
         m = maps[k]
         vy, r = (m[0] * vy + m[1] * r + m[4] * delta[k] + m[6] * delta[k + 1],
                  m[2] * vy + m[3] * r + m[5] * delta[k] + m[7] * delta[k + 1])
         r_out[k + 1] = r
-        if with_slip:
-            slip_out[k + 1] = math.atan2(vy, max(speed[k + 1], TIRE_MIN_SPEED_MPS))
+        vy_out[k + 1] = vy
+    if need >= 2:
+        for k in range(n):
+            slip_out[k] = math.atan2(vy_out[k], max(speed[k], u_min))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def fir_filter(x, taps, lo, out):
     """out[k] = sum_j taps[j] * x[k + lo + j], indices clamped at the ends."""
     n = x.shape[0]
@@ -222,169 +655,254 @@ def fir_filter(x, taps, lo, out):
         out[k] = acc
 
 
-@numba.njit(cache=True)
-def simulate_yaw_rate(steer, speed, dt, delay_s, tau_s, gain, offset_rad, cf, cr, a_m, b_m, k2, with_slip=True):
-    """Yaw rate [rad/s] and slip angle [rad] at each sample for one parameter set (cf = 0: kinematic).
+@numba.njit(cache=True, nogil=True)
+def fir_filter_at(x, taps, lo, index, out):
+    """out[i] = sum_j taps[j] * x[index[i] + lo + j] (indices clamped): a filter read at a few samples."""
+    n = x.shape[0]
+    m = taps.shape[0]
+    for i in range(index.shape[0]):
+        k = index[i]
+        acc = 0.0
+        for j in range(m):
+            acc += taps[j] * x[min(max(k + lo + j, 0), n - 1)]
+        out[i] = acc
 
-    Without ``with_slip`` the slip array is left uninitialised (fits only need the yaw rate).
+
+@numba.njit(cache=True, nogil=True)
+def lateral_fir_at(vy, speed, heading, taps, lo, index, out):
+    """What a lateral velocity taken from positions reads when the car's is ``vy``: the velocities
+    in the filter window, each along the heading it had, projected on the car's lateral axis at the
+    sample, minus the part a plain rotation of ``speed`` gives (the measurement subtracts it too):
+    out[i] = sum_j taps[j] (vy cos(dh) + (sqrt(v^2 - vy^2) - v) sin(dh)) at k + lo + j, dh the turn."""
+    n = vy.shape[0]
+    m = taps.shape[0]
+    for i in range(index.shape[0]):
+        k = index[i]
+        acc = 0.0
+        for j in range(m):
+            s = min(max(k + lo + j, 0), n - 1)
+            dh = heading[s] - heading[k]
+            v = speed[s]
+            along = math.sqrt(max(v * v - vy[s] * vy[s], 0.0))
+            acc += taps[j] * (vy[s] * math.cos(dh) + (along - v) * math.sin(dh))
+        out[i] = acc
+
+
+@numba.njit(cache=True, nogil=True)
+def unit_bank_response(speed, dt, cf, cr, a_m, b_m, k2, u_min, r_out, vy_out):
+    """Yaw rate and lateral velocity of the linear tire model under a unit lateral acceleration."""
+    zero = np.zeros(speed.shape[0])
+    saturating_single_track_replay(zero, speed, dt, cf, cr, a_m, b_m, k2, math.inf, 1.0, u_min, r_out, vy_out)
+
+
+@numba.njit(cache=True, nogil=True)
+def simulate_chain(steer, speed, dt, p, a_m, b_m, k2, u_min, maps, start, bank_r, bank_vy, r, vy, slip, need=2):
+    """The simulator's model plus the effects in slot vector ``p``: yaw rate, lateral velocity and
+    (``need`` >= 2; fits skip it) slip.
+
+    ``maps``/``start`` (linear tires) and ``bank_r``/``bank_vy`` (their unit-bank response) may be
+    precomputed for ``p``'s tires; pass empty arrays to compute them here. The sensor delay is not
+    applied here (it acts on one recorded channel only, see ``replay.Channel``).
     """
     n = steer.shape[0]
-    calibrated = gain * steer + offset_rad
+    calibrated = p[GAIN] * steer + p[OFFSET]
     delayed = np.empty(n)
-    _delayed(calibrated, delay_s / dt, delayed)
+    _jittered(calibrated, p[DELAY] / dt, p[JITTER] / dt, delayed)
     delta = np.empty(n)
-    _lagged(delayed, dt, tau_s, delta)
-    r = np.empty(n)
-    slip = np.empty(n)
-    if cf > 0.0:
-        maps, start = tire_maps(speed, dt, cf, cr, a_m, b_m, k2)
-        _run_tire_maps(maps, start, delta, speed, r, slip, with_slip)
+    _servo(delayed, dt, p[TAU], p[RATE], delta)
+    if p[CF] <= 0.0:
+        _kinematic(delta, speed, a_m, b_m, r, vy, slip, need)
+        return
+    if math.isfinite(p[MU]):
+        saturating_single_track_replay(delta, speed, dt, p[CF], p[CR], a_m, b_m, k2, p[MU], p[BANK], u_min, r, vy)
     else:
-        drdd = np.empty(n)
-        _kinematic_response(delta, speed, a_m, b_m, r, slip, drdd, with_slip)
+        if maps.shape[0] != n - 1:
+            maps, start = tire_maps(speed, dt, p[CF], p[CR], a_m, b_m, k2, u_min)
+        _run_tire_maps(maps, start, delta, speed, u_min, r, vy, slip, 0)
+        if p[BANK] != 0.0:
+            if bank_r.shape[0] != n:
+                bank_r = np.empty(n)
+                bank_vy = np.empty(n)
+                unit_bank_response(speed, dt, p[CF], p[CR], a_m, b_m, k2, u_min, bank_r, bank_vy)
+            for k in range(n):
+                r[k] += p[BANK] * bank_r[k]
+                vy[k] += p[BANK] * bank_vy[k]
+    if need >= 2:
+        for k in range(n):
+            slip[k] = math.atan2(vy[k], max(speed[k], u_min))
+
+
+_EMPTY_MAPS = np.zeros((0, 8))
+_EMPTY = np.zeros(0)
+
+
+def simulate(steer: np.ndarray, speed: np.ndarray, dt: float, params: EffectParams, a_m: float, b_m: float,
+             k2: float, u_min: float = TIRE_MIN_SPEED_MPS, with_slip: bool = True
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(yaw rate [rad/s], lateral velocity [m/s], slip angle [rad]) at each sample for one parameter
+    set (the slip left unset without ``with_slip``)."""
+    steer = np.ascontiguousarray(steer, float)
+    speed = np.ascontiguousarray(speed, float)
+    n = steer.shape[0]
+    r, vy, slip = np.empty(n), np.empty(n), np.empty(n)
+    simulate_chain(steer, speed, float(dt), params.slots(), float(a_m), float(b_m), float(k2), float(u_min),
+                   _EMPTY_MAPS, _EMPTY, _EMPTY, _EMPTY, r, vy, slip, 2 if with_slip else 1)
+    return r, vy, slip
+
+
+def simulate_yaw_rate(steer, speed, dt, delay_s, tau_s, gain, offset_rad, cf, cr, a_m, b_m, k2, with_slip=True):
+    """Yaw rate [rad/s] and slip angle [rad] for the five classic effects (cf = 0: kinematic)."""
+    params = EffectParams(delay_s=delay_s, time_constant_s=tau_s, gain=gain, offset_rad=offset_rad,
+                          cf_per_kg=cf if cf > 0 else None, cr_per_kg=cr if cf > 0 else None)
+    r, _, slip = simulate(steer, speed, dt, params, a_m, b_m, k2)
     return r, slip
 
 
+# ----------------------------------------------------------------------------------------------
+# A grid of parameter sets, with the linear parameters in closed form
+
+
 @numba.njit(cache=True, nogil=True)
-def _tire_tables_into(speed, dt, cfs, crs, a_m, b_m, k2, taps, lo, first, last, maps_all, start_all, unit_all):
-    """Rows ``first:last`` of the tire tables (see :func:`tire_tables`); releases the GIL."""
-    n = speed.shape[0]
-    ones = np.ones(n)
-    for i in range(first, last):
-        maps, start = tire_maps(speed, dt, cfs[i], crs[i], a_m, b_m, k2)
-        maps_all[i] = maps
-        start_all[i] = start
-        r = np.empty(n)
-        slip = np.empty(n)
-        _run_tire_maps(maps, start, ones, speed, r, slip, False)
-        out = np.empty(n)
+def _channel(r, dt, sensor_delay_s, taps, lo, out):
+    """A model's yaw rate as a recorded rotation channel sees it: late by the sensor delay, filtered."""
+    if sensor_delay_s > 0.0:
+        late = np.empty(r.shape[0])
+        _delayed(r, sensor_delay_s / dt, late)
+        fir_filter(late, taps, lo, out)
+    else:
         fir_filter(r, taps, lo, out)
-        unit_all[i] = out
 
 
 @numba.njit(cache=True, nogil=True)
-def _candidate_statistics_into(steer, speed, dt, delays_s, taus_s, tire_index, maps_all, start_all, unit_all,
-                               a_m, b_m, taps, lo, y, weight, first, last, stats):
-    """Rows ``first:last`` of :func:`candidate_statistics`; releases the GIL."""
+def _grid_into(steer, speed, dt, points, tire_index, maps_all, start_all, bank_r_all, bank_vy_all, a_m, b_m, k2,
+               u_min, taps, lo, y, weight, linear_slots, linear_steps, first, last, gram):
+    """Rows ``first:last`` of :func:`grid_statistics`; releases the GIL."""
     n = steer.shape[0]
-    for b in range(first, last):
-        delayed = np.empty(n)
-        _delayed(steer, delays_s[b] / dt, delayed)
-        delta = np.empty(n)
-        _lagged(delayed, dt, taus_s[b], delta)
-        r = np.empty(n)
-        slip = np.empty(n)
-        pa = np.empty(n)
-        pb = np.empty(n)
-        ti = tire_index[b]
+    n_lin = linear_slots.shape[0]
+    r = np.empty(n)
+    vy = np.empty(n)
+    slip = np.empty(n)
+    columns = np.empty((n_lin + 1, n))
+    pred = np.empty(n)
+    for g in range(first, last):
+        p = points[g].copy()
+        ti = tire_index[g]
         if ti >= 0:
-            _run_tire_maps(maps_all[ti], start_all[ti], delta, speed, r, slip, False)
+            maps, start, br, bv = maps_all[ti], start_all[ti], bank_r_all[ti], bank_vy_all[ti]
         else:
-            _kinematic_response(delta, speed, a_m, b_m, r, slip, pb, False)
+            maps, start, br, bv = _EMPTY_MAPS, _EMPTY, _EMPTY, _EMPTY
+        simulate_chain(steer, speed, dt, p, a_m, b_m, k2, u_min, maps, start, br, bv, r, vy, slip, 0)
+        _channel(r, dt, p[SENSOR], taps, lo, pred)
+        for k in range(n):
+            columns[0, k] = y[k] - pred[k]
+        for j in range(n_lin):
+            q = p.copy()
+            q[linear_slots[j]] += linear_steps[j]
+            simulate_chain(steer, speed, dt, q, a_m, b_m, k2, u_min, maps, start, br, bv, r, vy, slip, 0)
+            other = np.empty(n)
+            _channel(r, dt, q[SENSOR], taps, lo, other)
             for k in range(n):
-                pa[k] = delta[k] * pb[k]
-        rf = np.empty(n)
-        fir_filter(r, taps, lo, rf)
-        if ti >= 0:
-            paf = rf
-            pbf = unit_all[ti]
-        else:
-            paf = np.empty(n)
-            pbf = np.empty(n)
-            fir_filter(pa, taps, lo, paf)
-            fir_filter(pb, taps, lo, pbf)
-        # One pass of the simulation serves every fold: a weight row per fold.
+                columns[j + 1, k] = (other[k] - pred[k]) / linear_steps[j]
         for f in range(weight.shape[0]):
-            s0 = 0.0
-            s1 = 0.0
-            s2 = 0.0
-            s3 = 0.0
-            s4 = 0.0
-            s5 = 0.0
-            for k in range(n):
-                w = weight[f, k]
-                if w == 0.0:
-                    continue
-                e = y[k] - rf[k]
-                s0 += w * e * e
-                s1 += w * e * paf[k]
-                s2 += w * e * pbf[k]
-                s3 += w * paf[k] * paf[k]
-                s4 += w * paf[k] * pbf[k]
-                s5 += w * pbf[k] * pbf[k]
-            stats[b, f, 0] = s0
-            stats[b, f, 1] = s1
-            stats[b, f, 2] = s2
-            stats[b, f, 3] = s3
-            stats[b, f, 4] = s4
-            stats[b, f, 5] = s5
+            for i in range(n_lin + 1):
+                for j in range(i, n_lin + 1):
+                    acc = 0.0
+                    for k in range(n):
+                        w = weight[f, k]
+                        if w != 0.0:
+                            acc += w * columns[i, k] * columns[j, k]
+                    gram[g, f, i, j] = acc
+                    gram[g, f, j, i] = acc
 
 
-def _in_threads(fn, n_items: int, *args) -> None:
-    """Run ``fn(*args, first, last, ...)`` over chunks of ``range(n_items)`` on all cores.
+def in_threads(fn, n_items: int, *args) -> None:
+    """Run ``fn(*args[0], first, last, *args[1])`` over chunks of ``range(n_items)`` on all cores.
 
     The kernels release the GIL, so threads run them in parallel without numba's parallel
     compilation (which costs tens of seconds on a cold cache).
     """
     n_threads = max(1, min(os.cpu_count() or 1, n_items))
-    bounds = np.linspace(0, n_items, n_threads + 1).astype(int)
     if n_threads == 1:
         fn(*args[0], 0, n_items, *args[1])
         return
+    # More chunks than threads: grid points differ in cost (sub-stepped tires at low speed).
+    bounds = np.linspace(0, n_items, min(n_items, 4 * n_threads) + 1).astype(int)
     with ThreadPoolExecutor(n_threads) as pool:
-        futures = [pool.submit(fn, *args[0], int(bounds[i]), int(bounds[i + 1]), *args[1]) for i in range(n_threads)]
+        futures = [pool.submit(fn, *args[0], int(bounds[i]), int(bounds[i + 1]), *args[1])
+                   for i in range(len(bounds) - 1)]
         for f in futures:
             f.result()
 
 
-def tire_tables(speed, dt, cfs, crs, a_m, b_m, k2, taps, lo):
-    """Maps, settled starts and filtered unit-steering responses for a set of tire candidates."""
+@numba.njit(cache=True, nogil=True)
+def _tire_tables_into(speed, dt, cfs, crs, a_m, b_m, k2, u_min, with_bank, first, last, maps_all, start_all,
+                      bank_r_all, bank_vy_all):
+    for i in range(first, last):
+        maps, start = tire_maps(speed, dt, cfs[i], crs[i], a_m, b_m, k2, u_min)
+        maps_all[i] = maps
+        start_all[i] = start
+        if with_bank:
+            unit_bank_response(speed, dt, cfs[i], crs[i], a_m, b_m, k2, u_min, bank_r_all[i], bank_vy_all[i])
+
+
+def tire_tables(speed, dt, cfs, crs, a_m, b_m, k2, u_min=TIRE_MIN_SPEED_MPS, with_bank=False):
+    """Maps, settled starts (and unit-bank responses) for a set of linear-tire candidates."""
     n = speed.shape[0]
     n_tire = cfs.shape[0]
     maps_all = np.empty((n_tire, n - 1, 8))
     start_all = np.empty((n_tire, 2))
-    unit_all = np.empty((n_tire, n))
-    _in_threads(_tire_tables_into, n_tire, (speed, dt, cfs, crs, a_m, b_m, k2, taps, lo),
-                (maps_all, start_all, unit_all))
-    return maps_all, start_all, unit_all
+    bank_r_all = np.empty((n_tire, n if with_bank else 0))
+    bank_vy_all = np.empty((n_tire, n if with_bank else 0))
+    in_threads(_tire_tables_into, n_tire, (speed, dt, cfs, crs, a_m, b_m, k2, u_min, with_bank),
+               (maps_all, start_all, bank_r_all, bank_vy_all))
+    return maps_all, start_all, bank_r_all, bank_vy_all
 
 
-def candidate_statistics(steer, speed, dt, delays_s, taus_s, tire_index, maps_all, start_all, unit_all,
-                         a_m, b_m, taps, lo, y, weight):
-    """For each candidate b and weight row f: sums [e.e, e.pa, e.pb, pa.pa, pa.pb, pb.pb] (shape B, F, 6).
+def grid_statistics(steer, speed, dt, points, a_m, b_m, k2, u_min, taps, lo, y, weight, linear_slots, linear_steps):
+    """For each slot vector in ``points`` (G, N_SLOTS) and weight row f: the weighted Gram matrix of
+    [e, s_1, ..., s_L], shape (G, F, L+1, L+1).
 
-    ``e`` is the measured signal minus the model's (gain 1, offset 0), ``pa`` and ``pb`` its
-    sensitivities to the gain (minus one) and to the offset; all after the output filter ``taps``.
-    The best gain/offset of a candidate then follow from a 2x2 solve. ``tire_index[b]`` < 0 means
-    the kinematic bicycle, otherwise a row of the tables from :func:`tire_tables`. ``weight`` has a
-    row per fold (train mask as 0/1), so one simulation serves all folds.
+    ``e`` is the measured channel minus the model's, ``s_j`` the model channel's sensitivity to
+    linear slot ``linear_slots[j]`` (forward difference of ``linear_steps[j]``: exact for a
+    linear model, the local linearisation otherwise). Each weight row is a fold's train mask, so
+    one simulation serves all folds. Linear tires are precomputed once per distinct tire.
     """
-    stats = np.zeros((delays_s.shape[0], weight.shape[0], 6))
-    _in_threads(_candidate_statistics_into, delays_s.shape[0],
-                (steer, speed, dt, delays_s, taus_s, tire_index, maps_all, start_all, unit_all, a_m, b_m, taps, lo,
-                 y, weight), (stats,))
-    return stats
+    points = np.ascontiguousarray(points, float)
+    linear_tires = (points[:, CF] > 0) & ~np.isfinite(points[:, MU])
+    tire_index = np.full(points.shape[0], -1, np.int64)
+    maps_all = np.zeros((1, 0, 8))
+    start_all = np.zeros((1, 0))
+    bank_r_all = np.zeros((1, 0))
+    bank_vy_all = np.zeros((1, 0))
+    if linear_tires.any():
+        tires, inverse = np.unique(points[linear_tires][:, [CF, CR]], axis=0, return_inverse=True)
+        tire_index[linear_tires] = inverse.ravel()
+        with_bank = bool(np.any(points[:, BANK] != 0) or BANK in set(np.asarray(linear_slots).tolist()))
+        maps_all, start_all, bank_r_all, bank_vy_all = tire_tables(
+            speed, dt, np.ascontiguousarray(tires[:, 0]), np.ascontiguousarray(tires[:, 1]), a_m, b_m, k2, u_min,
+            with_bank)
+    n_lin = len(linear_slots)
+    gram = np.zeros((points.shape[0], weight.shape[0], n_lin + 1, n_lin + 1))
+    in_threads(_grid_into, points.shape[0],
+               (steer, speed, dt, points, tire_index, maps_all, start_all, bank_r_all, bank_vy_all, a_m, b_m, k2,
+                u_min, taps, lo, y, weight, np.asarray(linear_slots, np.int64), np.asarray(linear_steps, float)),
+               (gram,))
+    return gram
 
 
-def profiled_sse(stats: np.ndarray, gain_free: bool, offset_free: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Least-squares SSE of each candidate with the gain and/or offset solved; also (gain, offset)."""
-    s0, s1, s2, s3, s4, s5 = (stats[:, i] for i in range(6))
-    n = stats.shape[0]
-    dgain = np.zeros(n)
-    offset = np.zeros(n)
-    tiny = 1e-300
-    if gain_free and offset_free:
-        det = s3 * s5 - s4 * s4
-        ok = np.abs(det) > 1e-12 * np.maximum(s3 * s5, tiny)
-        dgain = np.where(ok, (s5 * s1 - s4 * s2) / np.where(ok, det, 1.0), 0.0)
-        offset = np.where(ok, (s3 * s2 - s4 * s1) / np.where(ok, det, 1.0), 0.0)
-        sse = s0 - dgain * s1 - offset * s2
-    elif gain_free:
-        dgain = s1 / np.maximum(s3, tiny)
-        sse = s0 - dgain * s1
-    elif offset_free:
-        offset = s2 / np.maximum(s5, tiny)
-        sse = s0 - offset * s2
-    else:
-        sse = s0.copy()
-    return np.maximum(sse, 0.0), 1.0 + dgain, offset
+def profile_linear(gram: np.ndarray, lo: np.ndarray, hi: np.ndarray, base: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares SSE of each grid point with its linear parameters solved (clipped to bounds);
+    ``gram`` is (G, L+1, L+1) for one fold. Returns (sse [G], solved values [G, L])."""
+    n_lin = gram.shape[-1] - 1
+    if n_lin == 0:
+        return np.maximum(gram[:, 0, 0], 0.0), np.zeros((gram.shape[0], 0))
+    a = gram[:, 1:, 1:]
+    rhs = gram[:, 1:, 0]
+    scale = np.sqrt(np.maximum(np.einsum("gii->gi", a), 1e-300))
+    a_n = a / scale[:, :, None] / scale[:, None, :] + 1e-12 * np.eye(n_lin)
+    step = np.linalg.solve(a_n, (rhs / scale)[..., None])[..., 0] / scale
+    values = np.clip(base + step, lo, hi)
+    step = values - base
+    sse = gram[:, 0, 0] - 2 * np.einsum("gi,gi->g", step, rhs) + np.einsum("gi,gij,gj->g", step, a, step)
+    return np.maximum(sse, 0.0), values

@@ -20,6 +20,10 @@ Without it the car is the simulator's own (highway-env: 5 m long, reference poin
 lf = lr = 2.5 m). With only ``wheelbase_m`` the reference point is taken in the middle, as in the
 simulator; with the wheelbase and one of ``cg_to_front_m``/``cg_to_rear_m`` the other follows.
 
+Bounds, checked before any work: at most ``MAX_ROWS`` (150,000) data rows, 10 s to 4 h of data, a
+median sampling interval of 1 ms to 0.2 s (1 kHz to 5 Hz), and sidecar values within
+``SIDECAR_RANGES`` (wheelbase 0.05-20 m, mass 0.05-100,000 kg, yaw inertia 0.2-5 x m a b).
+
 Bad input raises ``ValueError`` naming the column and file line (line 1 is the header); data that
 is still usable loads with human-readable ``warnings`` attached to the :class:`Recording`.
 :func:`read_sim_log` maps the simulator's own per-step logs (any CSV with columns for time, pose,
@@ -33,6 +37,7 @@ import json
 import math
 import os
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +50,18 @@ OPTIONAL_COLUMNS = ("yaw_rate", "lat_accel")
 SIDECAR_KEYS = ("wheelbase_m", "cg_to_front_m", "cg_to_rear_m", "mass_kg", "yaw_inertia_kgm2")
 
 MIN_DURATION_S = 10.0
+# Bounds checked before any work (a diagnosis allocates a few arrays of this length per candidate
+# tire; split longer recordings). 150,000 rows is 50 min at 50 Hz.
+MAX_ROWS = 150_000
+MAX_DURATION_S = 4 * 3600.0
+# Median sampling interval: 1 ms (1 kHz) to 0.2 s (5 Hz; slower sampling aliases the steering).
+MIN_INTERVAL_S = 0.001
+MAX_INTERVAL_S = 0.2
+# Sidecar values a car can have (0.05 m: a 1:43 scale model; 20 m: an articulated bus).
+SIDECAR_RANGES = {"wheelbase_m": (0.05, 20.0), "cg_to_front_m": (0.005, 20.0), "cg_to_rear_m": (0.005, 20.0),
+                  "mass_kg": (0.05, 100_000.0), "yaw_inertia_kgm2": (1e-5, 2e6)}
+# Yaw inertia over m a b (radius of gyration over the axle distances): ~1 for real cars.
+INERTIA_RATIO_RANGE = (0.2, 5.0)
 # A front-wheel angle above 1 rad (57 deg) is not a road car's; sustained, it means degrees.
 STEER_DEGREES_THRESHOLD_RAD = 1.0
 STEER_DEGREES_SUSTAINED_S = 0.5
@@ -57,8 +74,14 @@ GAP_INTERVALS = 5.0
 HEADING_JUMP_RAD = 0.2
 MAX_PLAUSIBLE_YAW_RATE_RADPS = 3.0
 JUMP_EXCLUDE_S = 1.0
-# Below this speed the slip models are singular and the kinematics trivial: not scored.
-MIN_SCORED_SPEED_MPS = 2.0
+# The speed floor: below it a sample is not scored (the car barely turns whatever it steers, and
+# the slip models divide by the speed). It scales with the car and with how it was driven:
+#   floor = max(min(0.4 /s x wheelbase, 0.25 x median moving speed), 0.02 /s x wheelbase),
+# "moving" meaning faster than 0.02 wheelbases per second. For highway-env's 5-m car at highway
+# speeds this is 2 m/s (the old fixed floor); for a 0.33-m 1:10 car at ~1.2 m/s it is 0.13 m/s.
+SPEED_FLOOR_WHEELBASES_PER_S = 0.4
+SPEED_FLOOR_MEDIAN_FRACTION = 0.25
+STANDSTILL_WHEELBASES_PER_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -120,6 +143,10 @@ class Recording:
     # False where a sample was interpolated across a gap or the car is too slow to score.
     usable: np.ndarray | None = None
     warnings: tuple[str, ...] = field(default=())
+    # The rows as recorded ("t" and the optional gyro "yaw_rate") when they were resampled onto the
+    # uniform grid: interpolation averages and colours the noise, so the noise and the whiteness of
+    # what a fit leaves are measured on these.
+    raw: dict[str, np.ndarray] | None = field(default=None, compare=False)
 
     @property
     def n(self) -> int:
@@ -133,16 +160,46 @@ class Recording:
     def duration_s(self) -> float:
         return float(self.t_s[-1] - self.t_s[0])
 
+    @cached_property
+    def speed_floor_mps(self) -> float:
+        """Samples slower than this are not scored (see SPEED_FLOOR_WHEELBASES_PER_S)."""
+        wheelbase = self.vehicle.wheelbase_m
+        standstill = STANDSTILL_WHEELBASES_PER_S * wheelbase
+        moving = self.speed_mps[self.speed_mps > standstill]
+        median = float(np.median(moving)) if moving.size else 0.0
+        return max(min(SPEED_FLOOR_WHEELBASES_PER_S * wheelbase, SPEED_FLOOR_MEDIAN_FRACTION * median), standstill)
+
+    @property
+    def tire_min_speed_mps(self) -> float:
+        """The tire models hold the speed at this or above (half the floor, at most 0.5 m/s)."""
+        return min(0.5, 0.5 * self.speed_floor_mps)
+
     @property
     def usable_mask(self) -> np.ndarray:
         mask = np.ones(self.n, bool) if self.usable is None else self.usable.copy()
-        return mask & (self.speed_mps >= MIN_SCORED_SPEED_MPS)
+        return mask & (self.speed_mps > self.speed_floor_mps)
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The signals under their CSV names (optional columns only when recorded)."""
+        out = {"t": self.t_s, "steer": self.steer_rad, "speed": self.speed_mps, "x": self.x_m, "y": self.y_m,
+               "heading": self.heading_rad}
+        if self.yaw_rate_radps is not None:
+            out["yaw_rate"] = self.yaw_rate_radps
+        if self.lat_accel_mps2 is not None:
+            out["lat_accel"] = self.lat_accel_mps2
+        return out
+
+    @property
+    def is_uniform(self) -> bool:
+        """Sampled uniformly, up to the jitter the reader accepts without resampling."""
+        steps = np.diff(self.t_s)
+        return bool(np.all(np.abs(steps - self.dt_s) <= JITTER_TOLERANCE * self.dt_s + 1e-12))
 
     def slice(self, start: int, stop: int) -> Recording:
         """Samples ``start:stop`` (for windows and lessons)."""
         def cut(a):
             return None if a is None else a[start:stop].copy()
-        return replace(self, t_s=cut(self.t_s), steer_rad=cut(self.steer_rad), speed_mps=cut(self.speed_mps),
+        return replace(self, raw=None, t_s=cut(self.t_s), steer_rad=cut(self.steer_rad), speed_mps=cut(self.speed_mps),
                        x_m=cut(self.x_m), y_m=cut(self.y_m), heading_rad=cut(self.heading_rad),
                        yaw_rate_radps=cut(self.yaw_rate_radps), lat_accel_mps2=cut(self.lat_accel_mps2),
                        usable=cut(self.usable))
@@ -153,23 +210,34 @@ class Recording:
 
 
 def _read_columns(path: Path) -> tuple[list[str], dict[str, list[str]]]:
-    with open(path, newline="") as fh:
-        reader = csv.reader(fh)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise ValueError(f"{path}: the file is empty (expected a CSV header)") from None
-        if len(set(header)) != len(header):
-            dupes = sorted({h for h in header if header.count(h) > 1})
-            raise ValueError(f"{path}: duplicate column(s) {', '.join(dupes)} in the header")
-        columns: dict[str, list[str]] = {h: [] for h in header}
-        for line_no, row in enumerate(reader, start=2):
-            if not row or all(not c.strip() for c in row):
-                continue
-            if len(row) != len(header):
-                raise ValueError(f"{path}: line {line_no} has {len(row)} fields, the header has {len(header)}")
-            for h, value in zip(header, row):
-                columns[h].append(value)
+    """Header and raw text columns; a BOM is accepted, at most ``MAX_ROWS`` data rows are read."""
+    line_no = 1
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.reader(fh)
+            try:
+                header = [h.strip() for h in next(reader)]
+            except StopIteration:
+                raise ValueError(f"{path}: the file is empty (expected a CSV header)") from None
+            if len(set(header)) != len(header):
+                dupes = sorted({h for h in header if header.count(h) > 1})
+                raise ValueError(f"{path}: duplicate column(s) {', '.join(dupes)} in the header")
+            columns: dict[str, list[str]] = {h: [] for h in header}
+            rows = 0
+            for line_no, row in enumerate(reader, start=2):
+                if not row or all(not c.strip() for c in row):
+                    continue
+                if len(row) != len(header):
+                    raise ValueError(f"{path}: line {line_no} has {len(row)} fields, the header has {len(header)}")
+                rows += 1
+                if rows > MAX_ROWS:
+                    raise ValueError(f"{path}: more than {MAX_ROWS:,} data rows (the limit; split the recording)")
+                for h, value in zip(header, row):
+                    columns[h].append(value)
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text CSV (bytes that are not UTF-8 near line {line_no + 1})") from None
+    except csv.Error as exc:
+        raise ValueError(f"{path}: line {line_no + 1}: not readable as CSV ({exc})") from None
     return header, columns
 
 
@@ -208,6 +276,9 @@ def read_sidecar(path: Path) -> tuple[VehicleGeometry, list[str]]:
         value = data[key]
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
             raise ValueError(f"{path}: '{key}' must be a positive number, got {value!r}")
+        lo, hi = SIDECAR_RANGES[key]
+        if not lo <= value <= hi:
+            raise ValueError(f"{path}: '{key}' = {value:g} is outside the accepted range {lo:g}-{hi:g}")
         values[key] = float(value)
     wheelbase = values.get("wheelbase_m")
     front = values.get("cg_to_front_m")
@@ -230,8 +301,18 @@ def read_sidecar(path: Path) -> tuple[VehicleGeometry, list[str]]:
     else:
         front, rear = SIMULATOR_VEHICLE.cg_to_front_m, SIMULATOR_VEHICLE.cg_to_rear_m
         warnings.append(f"{path.name}: no geometry given; using the simulator's (lf = lr = 2.5 m)")
-    geometry = VehicleGeometry(cg_to_front_m=front, cg_to_rear_m=rear, mass_kg=values.get("mass_kg"),
-                               yaw_inertia_kgm2=values.get("yaw_inertia_kgm2"), source=str(path))
+    wheelbase_range = SIDECAR_RANGES["wheelbase_m"]
+    if not wheelbase_range[0] <= front + rear <= wheelbase_range[1]:
+        raise ValueError(f"{path}: cg_to_front_m + cg_to_rear_m = {front + rear:g} m is outside the accepted "
+                         f"wheelbase range {wheelbase_range[0]:g}-{wheelbase_range[1]:g} m")
+    mass, inertia = values.get("mass_kg"), values.get("yaw_inertia_kgm2")
+    if mass is not None and inertia is not None:
+        ratio = inertia / (mass * front * rear)
+        if not INERTIA_RATIO_RANGE[0] <= ratio <= INERTIA_RATIO_RANGE[1]:
+            raise ValueError(f"{path}: 'yaw_inertia_kgm2' = {inertia:g} is {ratio:.3g} x mass_kg x cg_to_front_m x "
+                             f"cg_to_rear_m; a car's is {INERTIA_RATIO_RANGE[0]:g}-{INERTIA_RATIO_RANGE[1]:g} x")
+    geometry = VehicleGeometry(cg_to_front_m=front, cg_to_rear_m=rear, mass_kg=mass,
+                               yaw_inertia_kgm2=inertia, source=str(path))
     return geometry, warnings
 
 
@@ -245,6 +326,18 @@ def _check_times(path: Path, t: np.ndarray, line_numbers: np.ndarray) -> None:
     if t[-1] - t[0] < MIN_DURATION_S:
         raise ValueError(f"{path}: only {t[-1] - t[0]:.2f} s of data; at least {MIN_DURATION_S:.0f} s are needed "
                          "to fit and hold out")
+    if t[-1] - t[0] > MAX_DURATION_S:
+        raise ValueError(f"{path}: {t[-1] - t[0]:.6g} s of data; at most {MAX_DURATION_S:.0f} s are accepted "
+                         f"(column 't' from line {line_numbers[0]} to {line_numbers[-1]}; split the recording)")
+    interval = float(np.median(steps))
+    if not MIN_INTERVAL_S <= interval <= MAX_INTERVAL_S:
+        raise ValueError(f"{path}: column 't': median sampling interval {interval:.6g} s ({1 / interval:.4g} Hz); "
+                         f"accepted {MIN_INTERVAL_S:g}-{MAX_INTERVAL_S:g} s ({1 / MAX_INTERVAL_S:g}-"
+                         f"{1 / MIN_INTERVAL_S:g} Hz)")
+    grid_rows = (t[-1] - t[0]) / interval + 1
+    if grid_rows > MAX_ROWS:
+        raise ValueError(f"{path}: resampled at its median interval {interval:.4g} s the recording has "
+                         f"{grid_rows:,.0f} rows; at most {MAX_ROWS:,} are accepted (gaps or a split recording?)")
 
 
 def _check_steer_units(path: Path, t: np.ndarray, steer: np.ndarray, line_numbers: np.ndarray,
@@ -280,8 +373,9 @@ def _uniform_grid(t: np.ndarray, warnings: list[str]) -> tuple[np.ndarray, np.nd
     if np.max(np.abs(steps - dt)) <= JITTER_TOLERANCE * dt:
         return t, None
     n = round((t[-1] - t[0]) / dt) + 1
+    dt = (t[-1] - t[0]) / (n - 1)  # the median interval, adjusted so the grid ends on the last sample
     grid = t[0] + dt * np.arange(n)
-    grid[-1] = min(grid[-1], t[-1])
+    grid[-1] = t[-1]
     gaps = np.flatnonzero(steps > GAP_INTERVALS * dt)
     usable = np.ones(n, bool)
     for g in gaps:
@@ -294,18 +388,26 @@ def _uniform_grid(t: np.ndarray, warnings: list[str]) -> tuple[np.ndarray, np.nd
     return grid, (usable if len(gaps) else None)
 
 
+def _plausible_yaw_rate(steer: np.ndarray, speed: np.ndarray, wheelbase_m: float) -> float:
+    """The fastest yaw rate this car plausibly makes: twice what its steering and speed give
+    kinematically, and at least ``MAX_PLAUSIBLE_YAW_RATE_RADPS`` (a small car turns faster)."""
+    kinematic = np.abs(speed) * np.abs(np.tan(np.clip(steer, -1.2, 1.2))) / wheelbase_m
+    return max(MAX_PLAUSIBLE_YAW_RATE_RADPS, 2.0 * float(np.max(kinematic)))
+
+
 def _heading_jumps(heading: np.ndarray, yaw_rate: np.ndarray | None, t: np.ndarray,
-                   line_numbers: np.ndarray, warnings: list[str]) -> np.ndarray:
+                   line_numbers: np.ndarray, warnings: list[str],
+                   max_yaw_rate: float = MAX_PLAUSIBLE_YAW_RATE_RADPS) -> np.ndarray:
     """Indices of heading steps a car cannot make: not matched by the yaw rate (when recorded),
-    or faster than ``MAX_PLAUSIBLE_YAW_RATE_RADPS``. Localisation glitches, not vehicle motion."""
+    or faster than ``max_yaw_rate``. Localisation glitches, not vehicle motion."""
     dt = np.diff(t)
     step = np.diff(heading)
     if yaw_rate is not None:
         bad = np.flatnonzero(np.abs(step - 0.5 * (yaw_rate[1:] + yaw_rate[:-1]) * dt) > HEADING_JUMP_RAD)
         against = "not matched by yaw_rate"
     else:
-        bad = np.flatnonzero(np.abs(step) > MAX_PLAUSIBLE_YAW_RATE_RADPS * dt + HEADING_JUMP_RAD / 4)
-        against = f"faster than {MAX_PLAUSIBLE_YAW_RATE_RADPS:g} rad/s"
+        bad = np.flatnonzero(np.abs(step) > max_yaw_rate * dt + HEADING_JUMP_RAD / 4)
+        against = f"faster than {max_yaw_rate:.3g} rad/s"
     if len(bad):
         i = bad[0] + 1
         warnings.append(f"heading jumps by {step[bad[0]]:+.2f} rad on line {line_numbers[i]} (t={t[i]:.2f} s), "
@@ -335,6 +437,8 @@ def recording_from_arrays(
         line_numbers = np.arange(2, n + 2)
     if n < 3:
         raise ValueError(f"{path}: only {n} data row(s)")
+    if n > MAX_ROWS:
+        raise ValueError(f"{path}: {n:,} data rows; at most {MAX_ROWS:,} are accepted (split the recording)")
     for name_ in list(data):
         bad = ~np.isfinite(data[name_])
         if bad.any():
@@ -357,7 +461,8 @@ def recording_from_arrays(
         i = _first_bad(data["speed"] < 0)
         warnings.append(f"column 'speed' is negative from line {line_numbers[i]} (reversing); "
                         "such samples are not scored")
-    jumps = _heading_jumps(heading, data.get("yaw_rate"), t, line_numbers, warnings)
+    jumps = _heading_jumps(heading, data.get("yaw_rate"), t, line_numbers, warnings,
+                           _plausible_yaw_rate(data["steer"], data["speed"], vehicle.wheelbase_m))
 
     grid, usable = _uniform_grid(t, warnings)
     if len(jumps):
@@ -383,6 +488,7 @@ def recording_from_arrays(
         name=name,
         usable=usable,
         warnings=tuple(warnings),
+        raw=None if grid is t else {"t": t} | ({"yaw_rate": data["yaw_rate"]} if "yaw_rate" in data else {}),
     )
 
 
@@ -434,6 +540,8 @@ def read_sim_log(
     ``steering_range``. Other columns of the log are ignored.
     """
     path = Path(path)
+    if not (isinstance(steer_scale, (int, float)) and math.isfinite(steer_scale) and steer_scale != 0):
+        raise ValueError(f"steer_scale must be a finite, non-zero number (got {steer_scale!r})")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
     _, raw = _read_columns(path)

@@ -19,6 +19,8 @@ import numpy as np
 from plm_highway.io import directory_kind, file_kind, json_text, save_figure_into, write_output, write_outputs
 from plm_highway.sim2real.diagnose import Diagnosis, to_json
 
+NAMED = ("mismatch", "partly explained")
+
 FIGURES = ("overlay.png", "residuals.png", "conditions.png", "candidates.png")
 
 
@@ -49,7 +51,7 @@ def _excerpt(d: Diagnosis, length_s: float = 20.0) -> slice:
     width = max(2, min(n, round(length_s / d.recording.dt_s)))
     before = np.nan_to_num(d.signal.values - d.before)
     after = np.nan_to_num(d.signal.values - d.after)
-    gain = before**2 - after**2 if d.verdict == "mismatch" else before**2
+    gain = before**2 - after**2 if d.verdict in NAMED else before**2
     csum = np.concatenate([[0.0], np.cumsum(np.where(d.heldout, gain, 0.0))])
     scores = csum[width:] - csum[:-width]
     start = int(np.argmax(scores)) if scores.size else 0
@@ -59,34 +61,34 @@ def _excerpt(d: Diagnosis, length_s: float = 20.0) -> slice:
 def _label(d: Diagnosis) -> tuple[str, str]:
     if d.signal.name == "yaw_rate":
         return "yaw rate [rad/s]", "recorded yaw rate"
-    return "heading rate [rad/s]", "recorded heading rate (smoothed derivative)"
+    return f"heading rate [{d.signal.unit}]", "recorded heading rate (smoothed derivative)"
 
 
 def overlay_figure(d: Diagnosis, plt):
     sl = _excerpt(d)
     t = d.recording.t_s[sl]
     ylabel, rec_label = _label(d)
-    after_name = d.selection.winner.name if d.verdict == "mismatch" else d.selection.best.name
-    after = d.after if d.verdict == "mismatch" else d.best
+    after_name = d.selection.winner.name if d.verdict in NAMED else d.selection.best.name
+    after = d.after if d.verdict in NAMED else d.best
     fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
     ax = axes[0]
     ax.plot(t, d.signal.values[sl], color="0.3", lw=1.0, label=rec_label)
     ax.plot(t, d.before[sl], color="tab:red", lw=1.2, label="simulator (plain kinematic bicycle)")
     ax.plot(t, after[sl], color="tab:blue", lw=1.2, ls="--", label=f"simulator + {after_name}")
     ax.set_ylabel(ylabel)
-    what = "the fitted term matters most" if d.verdict == "mismatch" else "the simulator is worst"
-    ax.set_title(f"{d.recording.name}: held-out excerpt where {what}")
+    what = "the fitted term matters most" if d.verdict in NAMED else "the simulator is worst"
+    ax.set_title(f"{d.recording.name} ({d.verdict}): held-out excerpt where {what}")
     ax.legend(loc="upper right")
     ax = axes[1]
     ax.plot(t, (d.signal.values - d.before)[sl], color="tab:red", lw=1.0, label="residual, plain")
     ax.plot(t, (d.signal.values - after)[sl], color="tab:blue", lw=1.0, label=f"residual, + {after_name}")
     ax.axhspan(-2 * d.noise_sigma, 2 * d.noise_sigma, color="0.85", label="+-2 x noise")
-    ax.set_ylabel("recorded - model [rad/s]")
+    ax.set_ylabel(f"recorded - model [{d.signal.unit}]")
     ax.legend(loc="upper right")
     ax = axes[2]
     ax.plot(t, d.pose_before.heading_error_rad[sl], color="tab:red", lw=1.0, label="plain")
     ax.plot(t, d.pose_after.heading_error_rad[sl], color="tab:blue", lw=1.0,
-            label=f"+ {d.selection.winner.name}" if d.verdict == "mismatch" else "chosen model (plain)")
+            label=f"+ {d.selection.winner.name}" if d.verdict in NAMED else "chosen model (plain)")
     ax.set_ylabel(f"heading error [rad]\n(re-anchored every {d.anchor_s:g} s)")
     ax.set_xlabel("time [s]")
     ax.legend(loc="upper right")
@@ -106,9 +108,9 @@ def residuals_figure(d: Diagnosis, plt):
                    else None)
     ax.plot(t[usable], (d.signal.values - d.before)[usable], color="tab:red", lw=0.6, label="plain")
     ax.plot(t[usable], (d.signal.values - d.after)[usable], color="tab:blue", lw=0.6,
-            label=f"+ {d.selection.winner.name}" if d.verdict == "mismatch" else "chosen model (plain)")
+            label=f"+ {d.selection.winner.name}" if d.verdict in NAMED else "chosen model (plain)")
     ax.set_xlabel("time [s]")
-    ax.set_ylabel("recorded - model [rad/s]")
+    ax.set_ylabel(f"recorded - model [{d.signal.unit}]")
     ax.set_title("Residuals over the whole run")
     ax.legend(loc="upper right")
     ax.grid(alpha=0.3)
@@ -118,7 +120,7 @@ def residuals_figure(d: Diagnosis, plt):
     bins = np.linspace(-lim, lim, 61)
     ax.hist((d.signal.values - d.before)[held], bins=bins, color="tab:red", alpha=0.5, label="plain (held out)")
     ax.hist((d.signal.values - d.after)[held], bins=bins, color="tab:blue", alpha=0.5, label="chosen (held out)")
-    ax.set_xlabel("residual [rad/s]")
+    ax.set_xlabel(f"residual [{d.signal.unit}]")
     ax.set_ylabel("samples")
     ax.legend(loc="upper right")
     fig.tight_layout()
@@ -143,7 +145,7 @@ def conditions_figure(d: Diagnosis, plt):
         ax.set_xticks(x, labels, rotation=30)
         ax.set_xlabel(title)
         ax.grid(alpha=0.3, axis="y")
-    axes[0].set_ylabel("residual RMS [rad/s]")
+    axes[0].set_ylabel(f"residual RMS [{d.signal.unit}]")
     axes[0].legend(loc="upper left")
     fig.suptitle("Where the simulator departs from the recording (all usable samples)")
     fig.tight_layout()
@@ -153,13 +155,14 @@ def conditions_figure(d: Diagnosis, plt):
 def candidates_figure(d: Diagnosis, plt):
     ranking = d.selection.ranking
     fig, ax = plt.subplots(figsize=(8, 0.32 * len(ranking) + 1.5))
-    names = [c.name for c in ranking][::-1]
+    names = [c.name + ("" if c.polished else " (grid)") for c in ranking][::-1]
     values = [c.heldout_rmse for c in ranking][::-1]
     colors = ["tab:blue" if c is d.selection.winner else ("tab:orange" if c is d.selection.runner_up else "0.6")
               for c in ranking][::-1]
     ax.barh(names, values, color=colors)
     ax.axvline(d.noise_sigma, color="0.2", ls=":", label=f"noise {d.noise_sigma:.4f}")
-    ax.set_xlabel("held-out RMSE [rad/s] (chosen: blue, runner-up: orange)")
+    ax.set_xlabel(f"held-out {d.signal.label} RMSE [{d.signal.unit}] (chosen: blue, runner-up: orange; "
+                  "(grid): screened out unpolished)")
     ax.set_title("Candidates, best penalised score at the top")
     ax.legend(loc="lower right")
     ax.grid(alpha=0.3, axis="x")
@@ -202,10 +205,24 @@ def _write_report_files(d: Diagnosis, directory: Path) -> list[str]:
     lines = [f"# sim2real diagnosis: {d.recording.name}", "", d.summary, "", "## Numbers (held-out)", "",
              "| quantity | plain | chosen |", "|---|---|---|"]
     fit = d.fit
-    lines += [f"| {fit['signal']} RMSE [rad/s] | {fit['rmse_before']:.5f} | {fit['rmse_after']:.5f} |",
-              f"| heading RMSE [rad] | {fit['heading_rmse_before_rad']:.5f} | {fit['heading_rmse_after_rad']:.5f} |",
-              f"| position RMSE [m] | {fit['position_rmse_before_m']:.4f} | {fit['position_rmse_after_m']:.4f} |",
-              "", f"Noise level: {fit['noise_sigma']:.5f} rad/s. Verdict: **{d.verdict}** ({d.selection.reason}).", ""]
+    lines += [f"| {name} RMSE [{c['unit']}] | {c['rmse_before']:.5f} | {c['rmse_after']:.5f} |"
+              for name, c in fit["channels"].items()]
+    lines += [f"| re-anchored heading RMSE [rad] | {fit['heading_rmse_before_rad']:.5f} | "
+              f"{fit['heading_rmse_after_rad']:.5f} |",
+              f"| re-anchored position RMSE [m] | {fit['position_rmse_before_m']:.4f} | "
+              f"{fit['position_rmse_after_m']:.4f} |",
+              "", f"Noise level: {fit['noise_sigma']:.5f} {d.signal.unit}. Verdict: **{d.verdict}** "
+              f"(confidence {d.confidence}; {d.selection.reason}).",
+              f"Scored: {d.data['scored_s']:.1f} s of {d.data['duration_s']:.1f} s "
+              f"({100 * d.data['scored_fraction']:.0f}%); speed floor {d.data['speed_floor_mps']:.3g} m/s.", ""]
+    if d.residual:
+        white = d.residual["whiteness"]
+        lines += ["## What is left", "",
+                  f"Residual RMS {d.residual['rmse']:.5f} (excess variance over the noise "
+                  f"{100 * d.residual['excess_variance_ratio']:.0f}%); Ljung-Box over {white['lags']} lags: "
+                  f"p = {white['p_value']:.3g}.", "", "| correlates with | rho | 99% level |", "|---|---|---|"]
+        lines += [f"| {c['with']} | {c['rho']:+.3f} | {c['significance']:.3f} |" for c in d.residual["correlations"]]
+        lines.append("")
     if d.recording.warnings or d.notes:
         lines += ["## Warnings", ""] + [f"- {w}" for w in list(d.recording.warnings) + d.notes] + [""]
     lines += ["## Candidates", "", "| candidate | held-out RMSE | parameters |", "|---|---|---|"]
