@@ -18,8 +18,8 @@ step index: the policy costs nothing and is identical everywhere).
 Times are CPU seconds of this process (``time.process_time``, all threads), so other work on a
 shared machine slows the figures less than wall time would; caches are still shared, so report
 the machine's load with them. Resets count in the time (ours: one per 1,371 steps at the end of
-the test track). The median of the repeats is reported, with min and max. ``--long-run N`` instead drives N policy steps of the env
-with the latency wrapper and reports resident memory (see :func:`long_run`).
+the test track). The median of the repeats is reported, with min and max. Memory over a long run is
+``plm-highway bench memory`` (:mod:`plm_highway.bench.memory`).
 """
 
 from __future__ import annotations
@@ -35,9 +35,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from plm_highway.bench import BENCH_RESULT
 from plm_highway.errors import BadInput
-from plm_highway.io import check_target, write_json
 
 GRAYSCALE_200X66 = {"type": "GrayscaleObservation", "observation_shape": (200, 66), "stack_size": 1,
                     "weights": [0.2989, 0.5870, 0.1140]}
@@ -45,10 +43,6 @@ RATES_20HZ = {"simulation_frequency": 20, "policy_frequency": 20}
 # CPU time of this process (all its threads): on a machine shared with other work, wall time mostly
 # measures the wait for a core.
 CLOCK = time.process_time
-# Resident memory over a long run may grow by at most this much between the end of the warm-up and
-# the end (Python's allocator and the shared ground map settle during the first episodes).
-LONG_RUN_RSS_MARGIN_MIB = 16.0
-LONG_RUN_WARMUP_STEPS = 5_000
 
 
 @dataclass(frozen=True)
@@ -65,29 +59,8 @@ class EnvBenchConfig:
             raise BadInput(f"--repeats {self.repeats}: must be from 1 to 100")
 
 
-def configure(parser) -> None:
-    defaults = EnvBenchConfig()
-    parser.add_argument("--steps", type=int, default=defaults.steps, help="policy steps per repeat and side")
-    parser.add_argument("--repeats", type=int, default=defaults.repeats,
-                        help="repeats per side, stepped in turn; the median is reported")
-    parser.add_argument("--latency", default=defaults.latency, help="latency profile of our wrapped side")
-    parser.add_argument("--long-run", type=int, metavar="STEPS", default=None,
-                        help="instead: drive STEPS policy steps with the latency wrapper and report resident memory")
-    parser.add_argument("--json", help="also write the figures to this JSON file")
 
 
-def run(args) -> int:
-    if args.json:
-        check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
-    if args.long_run is not None:
-        result = long_run(args.long_run, args.latency)
-        print(format_long_run(result))
-    else:
-        result = bench_env(EnvBenchConfig(args.steps, args.repeats, args.latency))
-        print(format_bench(result))
-    if args.json:
-        write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
-    return 0
 
 
 # -- the sides ----------------------------------------------------------------------------------------
@@ -260,7 +233,6 @@ def format_bench(result: dict) -> str:
     return "\n".join(lines)
 
 
-# -- long run ------------------------------------------------------------------------------------------
 
 
 def resident_mib() -> tuple[float, float]:
@@ -276,52 +248,4 @@ def resident_mib() -> tuple[float, float]:
         return math.nan, peak_kib / 1024
 
 
-def long_run(steps: int, latency: str = "const:0.2", track: str = "test", progress: bool = True) -> dict:
-    """Drive ``steps`` policy steps of the env with the latency wrapper (expert policy, resets at each
-    episode end) and report resident memory at the start, after the warm-up, at the end and its peak.
 
-    Flat means: end minus post-warm-up RSS within ``LONG_RUN_RSS_MARGIN_MIB``.
-    """
-    if not LONG_RUN_WARMUP_STEPS < steps <= 100_000_000:
-        raise BadInput(f"--long-run {steps}: must be more than {LONG_RUN_WARMUP_STEPS} (the warm-up) "
-                         "and at most 100,000,000 steps")
-    from tqdm import tqdm
-
-    from plm_highway.expert import ExpertPolicy
-
-    env = ours_side(track, latency)
-    expert = ExpertPolicy()
-    obs, info = env.reset(seed=0)
-    start_mib, _ = resident_mib()
-    warm_mib = math.nan
-    episodes = 1
-    started = time.perf_counter()
-    for step in tqdm(range(steps), desc="long run", unit="step", disable=not progress, file=sys.stderr,
-                     mininterval=2.0):
-        if step == LONG_RUN_WARMUP_STEPS:
-            warm_mib, _ = resident_mib()
-        obs, _, terminated, truncated, info = env.step(np.array([expert(obs, info)], dtype=np.float32))
-        if terminated or truncated:
-            obs, info = env.reset()
-            episodes += 1
-    elapsed_s = time.perf_counter() - started
-    end_mib, peak_mib = resident_mib()
-    env.close()
-    growth_mib = end_mib - warm_mib
-    return {
-        "steps": steps, "episodes": episodes, "latency": latency, "track": track, "elapsed_s": elapsed_s,
-        "rss_start_mib": start_mib, "rss_after_warmup_mib": warm_mib, "rss_end_mib": end_mib,
-        "rss_peak_mib": peak_mib, "warmup_steps": LONG_RUN_WARMUP_STEPS, "growth_after_warmup_mib": growth_mib,
-        "margin_mib": LONG_RUN_RSS_MARGIN_MIB, "flat": bool(growth_mib <= LONG_RUN_RSS_MARGIN_MIB),
-    }
-
-
-def format_long_run(result: dict) -> str:
-    verdict = "flat" if result["flat"] else "NOT flat"
-    return "\n".join([
-        f"{result['steps']:,} policy steps ({result['episodes']} episodes) with LatencyWrapper({result['latency']}) "
-        f"on track {result['track']!r} in {result['elapsed_s']:.0f} s",
-        f"RSS start {result['rss_start_mib']:.1f} MiB, after {result['warmup_steps']:,}-step warm-up "
-        f"{result['rss_after_warmup_mib']:.1f} MiB, end {result['rss_end_mib']:.1f} MiB, peak {result['rss_peak_mib']:.1f} MiB",
-        f"growth after warm-up {result['growth_after_warmup_mib']:+.1f} MiB (margin {result['margin_mib']:.0f} MiB): {verdict}",
-    ])

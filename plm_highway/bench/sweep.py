@@ -25,32 +25,6 @@ import time
 
 import numpy as np
 
-from plm_highway.bench import BENCH_RESULT
-from plm_highway.cli._common import bounded_int
-
-
-def configure(parser) -> None:
-    parser.add_argument("--envs", type=bounded_int(1, 256), default=16, help="runs (seeds 0..N-1) driven each way")
-    parser.add_argument("--steps", type=bounded_int(2, 100_000), default=100, help="policy steps per run")
-    parser.add_argument("--policy", choices=("bm", "plm"), default="plm", help="model policy driving every run")
-    parser.add_argument("--latency", default="steps:0.0-0.35:1.0", help="latency profile of every run")
-    parser.add_argument("--track", default="test", help="track of every run")
-    parser.add_argument("--workers", type=bounded_int(1, 64), default=2, help="processes of the pool side")
-    parser.add_argument("--json", metavar="OUT.json", help="also write the figures to this JSON file")
-
-
-def run(args) -> int:
-    from plm_highway.io import check_target, write_json
-
-    if args.json:
-        check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
-    result = bench_sweep(args.envs, args.steps, args.policy, args.latency, args.track, args.workers)
-    print("\n".join(report_lines(result)))
-    if args.json:
-        write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
-        print(f"wrote {args.json}")
-    return 0
-
 
 def bench_sweep(n_envs: int = 16, steps: int = 100, policy: str = "plm", latency: str = "steps:0.0-0.35:1.0",
                 track: str = "test", workers: int = 2) -> dict:

@@ -2,24 +2,9 @@
 
 from __future__ import annotations
 
-import importlib
-
 from plm_highway.cli._common import Command, add_overwrite, bounded_float, bounded_int, defaults_of
 
 GROUP_HELP = "benchmarks: both sides of a comparison in one run, and their ratio"
-
-
-def _delegate(module_name: str) -> tuple:
-    """configure/run of a benchmark module in plm_highway.bench (imported only when that benchmark runs)."""
-
-    def configure(parser) -> None:
-        importlib.import_module(f"plm_highway.bench.{module_name}").configure(parser)
-        add_overwrite(parser)
-
-    def run(args) -> int:
-        return importlib.import_module(f"plm_highway.bench.{module_name}").run(args)
-
-    return configure, run
 
 
 def configure_estimation(parser) -> None:
@@ -183,11 +168,65 @@ def run_sim2real(args) -> int:
     return run_bench(args)
 
 
+def configure_env(parser) -> None:
+    from plm_highway.bench.env import EnvBenchConfig
+
+    defaults = EnvBenchConfig()
+    parser.add_argument("--steps", type=int, default=defaults.steps, help="policy steps per repeat and side")
+    parser.add_argument("--repeats", type=int, default=defaults.repeats,
+                        help="repeats per side, stepped in turn; the median is reported")
+    parser.add_argument("--latency", default=defaults.latency, help="latency profile of our wrapped side")
+    parser.add_argument("--track", default=defaults.track, help="track of our side")
+    parser.add_argument("--json", metavar="OUT.json", help="also write the figures to this JSON file")
+    add_overwrite(parser)
+
+
+def run_env(args) -> int:
+    from plm_highway.bench import BENCH_RESULT
+    from plm_highway.bench.env import EnvBenchConfig, bench_env, format_bench
+    from plm_highway.io import check_target, write_json
+
+    config = EnvBenchConfig(args.steps, args.repeats, args.latency, args.track)
+    if args.json:
+        check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
+    result = bench_env(config)
+    print(format_bench(result))
+    if args.json:
+        write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
+    return 0
+
+
+def configure_sweep(parser) -> None:
+    parser.add_argument("--envs", type=bounded_int(1, 256), default=16, help="runs (seeds 0..N-1) driven each way")
+    parser.add_argument("--steps", type=bounded_int(2, 100_000), default=100, help="policy steps per run")
+    parser.add_argument("--policy", choices=("bm", "plm"), default="plm", help="model policy driving every run")
+    parser.add_argument("--latency", default="steps:0.0-0.35:1.0", help="latency profile of every run")
+    parser.add_argument("--track", default="test", help="track of every run")
+    parser.add_argument("--workers", type=bounded_int(1, 64), default=2, help="processes of the pool side")
+    parser.add_argument("--json", metavar="OUT.json", help="also write the figures to this JSON file")
+    add_overwrite(parser)
+
+
+def run_sweep(args) -> int:
+    from plm_highway.bench import BENCH_RESULT
+    from plm_highway.bench.sweep import bench_sweep, report_lines
+    from plm_highway.io import check_target, write_json
+
+    if args.json:
+        check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
+    result = bench_sweep(args.envs, args.steps, args.policy, args.latency, args.track, args.workers)
+    print("\n".join(report_lines(result)))
+    if args.json:
+        write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
+        print(f"wrote {args.json}")
+    return 0
+
+
 COMMANDS = [
-    Command("env", "env + camera + latency steps/s against highway-env's own camera envs", *_delegate("env")),
+    Command("env", "env + camera + latency steps/s against highway-env's own camera envs", configure_env, run_env),
     Command("models", "parameter counts and inference time of BM and PLM-Net", configure_models, run_models),
     Command("sweep", "N closed-loop runs one env at a time vs batched (own envs, gymnasium vector API) vs a "
-            "process pool", *_delegate("sweep")),
+            "process pool", configure_sweep, run_sweep),
     Command("metrics", "trajectory metrics against similaritymeasures", configure_metrics, run_metrics),
     Command("estimation", "EKF costs per step with and without delay compensation, camera lane fit accuracy",
             configure_estimation, run_estimation),
