@@ -24,7 +24,6 @@ the test track). The median of the repeats is reported, with min and max. Memory
 
 from __future__ import annotations
 
-import math
 import os
 import statistics
 import sys
@@ -231,21 +230,3 @@ def format_bench(result: dict) -> str:
         f"ours / limit (whole-frame warp)         : {100 * ratios['ours_over_limit_whole_frame']:5.0f}%",
     ]
     return "\n".join(lines)
-
-
-
-
-def resident_mib() -> tuple[float, float]:
-    """(current, peak) resident set size of this process in MiB (Linux /proc; peak from getrusage elsewhere)."""
-    try:
-        with open("/proc/self/status") as status:
-            fields = dict(line.split(":", 1) for line in status if ":" in line)
-        return int(fields["VmRSS"].split()[0]) / 1024, int(fields["VmHWM"].split()[0]) / 1024
-    except (OSError, KeyError, ValueError):
-        import resource
-
-        peak_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        return math.nan, peak_kib / 1024
-
-
-
