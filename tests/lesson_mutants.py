@@ -354,8 +354,12 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("05", ("check_capture_index",), "a tie goes to the earlier step",
            "capture_time_s - times_s[index - 1] < times_s[index] - capture_time_s",
            "capture_time_s - times_s[index - 1] <= times_s[index] - capture_time_s"),
-    Mutant("05", ("check_capture_index",), "no clamp: a capture before the history gives -1",
-           "return max(0, min(int(index), len(times_s) - 1))", "return int(index)"),
+    Mutant("05", ("check_capture_index",), "no re-stamping: always the newest step", "",
+           "def capture_index(times_s, capture_time_s):\n    return len(times_s) - 1"),
+    Mutant("05", ("check_capture_index",), "rounds the age to whole steps of the first interval",
+           "    return int(index)",
+           "    step_s = times_s[1] - times_s[0]\n"
+           "    return max(0, min(len(times_s) - 1, int(round((capture_time_s - times_s[0]) / step_s))))"),
     Mutant("05", ("check_capture_index",), "counts steps back from the newest by a fixed 0.01 s step", "",
            "def capture_index(times_s, capture_time_s):\n"
            "    return max(0, len(times_s) - 1 - int(round((times_s[-1] - capture_time_s) / 0.01)))"),
