@@ -324,7 +324,9 @@ def markdown(data: dict) -> str:
     config = data["config"]
     lines = [
         "# Learned vs model-based latency compensation: PLM-Net beside the delay-compensated EKF", "",
-        f"Command: `{data['command']}`. Track `{config['track']}`, seeds {data['seeds'][0]}..{data['seeds'][-1]} "
+        f"Command: `{data['command']}`. Track `{config['track']}` "
+        f"({'first ' + str(config['max_steps']) + ' policy steps' if config['max_steps'] else 'whole track'}), "
+        f"seeds {data['seeds'][0]}..{data['seeds'][-1]} "
         f"({len(data['seeds'])}); each seed fixes the start pose (offset within +-{config['start_offset_max_m']} m, "
         f"heading within +-{config['start_heading_max_rad']} rad), the time-varying latency's realisation and the "
         "EKF's sensor noise, identically for every policy. Cells: mean over seeds [95 % Student-t interval]. "
