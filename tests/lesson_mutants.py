@@ -343,4 +343,58 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("04", ("check_fit_on_grid",), "mean absolute error instead of RMS",
            "np.sqrt(np.mean((predict(value)[train] - measured[train]) ** 2))",
            "np.mean(np.abs(predict(value)[train] - measured[train]))"),
+    # ---------------- Lesson 5: re-stamping ----------------
+    Mutant("05", ("check_capture_index",), "the step at or before the capture (floor), not the nearest",
+           "    if index == len(times_s) or (index > 0 and capture_time_s - times_s[index - 1] < times_s[index] - "
+           "capture_time_s):\n        index -= 1\n",
+           "    if index == len(times_s) or (index > 0 and times_s[index] > capture_time_s):\n        index -= 1\n"),
+    Mutant("05", ("check_capture_index",), "the step at or after the capture (ceil)",
+           "index == len(times_s) or (index > 0 and capture_time_s - times_s[index - 1] < times_s[index] - capture_time_s)",
+           "index == len(times_s)"),
+    Mutant("05", ("check_capture_index",), "a tie goes to the earlier step",
+           "capture_time_s - times_s[index - 1] < times_s[index] - capture_time_s",
+           "capture_time_s - times_s[index - 1] <= times_s[index] - capture_time_s"),
+    Mutant("05", ("check_capture_index",), "no re-stamping: always the newest step", "",
+           "def capture_index(times_s, capture_time_s):\n    return len(times_s) - 1"),
+    Mutant("05", ("check_capture_index",), "rounds the age to whole steps of the first interval",
+           "    return int(index)",
+           "    step_s = times_s[1] - times_s[0]\n"
+           "    return max(0, min(len(times_s) - 1, int(round((capture_time_s - times_s[0]) / step_s))))"),
+    Mutant("05", ("check_capture_index",), "counts steps back from the newest by a fixed 0.01 s step", "",
+           "def capture_index(times_s, capture_time_s):\n"
+           "    return max(0, len(times_s) - 1 - int(round((times_s[-1] - capture_time_s) / 0.01)))"),
+    Mutant("05", ("check_capture_index",), "delegates to the check's reference", "",
+           "def capture_index(times_s, capture_time_s):\n"
+           "    return lesson5.reference_capture_index(times_s, capture_time_s)", delegation=True),
+    # ---------------- Lesson 5: the re-run ----------------
+    Mutant("05", ("check_reestimate",), "restarts from the estimate leaving the start step (its update applied twice)",
+           "x, p = history[start].x_before, history[start].p_before", "x, p = history[start].x, history[start].p"),
+    Mutant("05", ("check_reestimate",), "re-runs from the step after start (the new measurement is never used)",
+           "for record in history[start:]:", "for record in history[start + 1:]:"),
+    Mutant("05", ("check_reestimate",), "stops one step short of now",
+           "for record in history[start:]:", "for record in history[start:-1]:"),
+    Mutant("05", ("check_reestimate",), "does not store the re-run estimates in the records",
+           "        record.x, record.p = x, p\n", ""),
+    Mutant("05", ("check_reestimate",), "only re-runs the start step and returns it",
+           "    for record in history[start:]:\n", "    for record in history[start:start + 1]:\n"),
+    Mutant("05", ("check_reestimate",), "delegates to the kit", "",
+           "from plm_highway.estimation import ekf as _ekf\n\n\ndef reestimate(history, start, step):\n"
+           "    return _ekf.reestimate(history, start, _ekf.EstimatorConfig())", delegation=True),
+    # ---------------- Lesson 5: one late measurement ----------------
+    Mutant("05", ("check_fuse_late",), "no compensation: filed at the newest step",
+           "    history[index].cameras.append(np.asarray(z, float))\n    return reestimate(history, index, step)",
+           "    history[-1].cameras.append(np.asarray(z, float))\n    return reestimate(history, len(history) - 1, step)"),
+    Mutant("05", ("check_fuse_late",), "filed at the capture step but not re-estimated",
+           "    return reestimate(history, index, step)", "    return history[-1].x, history[-1].p"),
+    Mutant("05", ("check_fuse_late",), "re-estimates from the newest step only",
+           "    return reestimate(history, index, step)", "    return reestimate(history, len(history) - 1, step)"),
+    Mutant("05", ("check_fuse_late",), "re-stamps one step late",
+           "    history[index].cameras.append(np.asarray(z, float))\n    return reestimate(history, index, step)",
+           "    index = min(index + 1, len(history) - 1)\n    history[index].cameras.append(np.asarray(z, float))\n"
+           "    return reestimate(history, index, step)"),
+    Mutant("05", ("check_fuse_late",), "replaces the step's measurements instead of adding one",
+           "history[index].cameras.append(np.asarray(z, float))", "history[index].cameras = [np.asarray(z, float)] * 2"),
+    Mutant("05", ("check_fuse_late",), "delegates to the check's reference", "",
+           "def fuse_late(history, z, capture_time_s, step):\n"
+           "    return lesson5.reference_fuse_late(history, z, capture_time_s, step)", delegation=True),
 )

@@ -29,7 +29,8 @@ def extras():
     from plm_highway.data.collect import collect
 
     _, steps, _ = collect(track="train", episodes=2, episode_seconds=3.0, seed=0, progress=False)
-    return {"01": {}, "02": {"steps": steps}, "03": {"MAX_STEPS": 60, "CHECKPOINTS": None}, "04": {}}
+    return {"01": {}, "02": {"steps": steps}, "03": {"MAX_STEPS": 60, "CHECKPOINTS": None}, "04": {},
+            "05": {}}
 
 
 def _grade_cell_checks(lesson: str) -> list[str]:

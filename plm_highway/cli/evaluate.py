@@ -19,7 +19,8 @@ def configure(parser) -> None:
     parser.add_argument("--latency", default=d["latency"],
                         help="latency profile, e.g. const:0.2 or steps:0.0-0.35:1.0")
     parser.add_argument("--policy", choices=POLICY_NAMES, default=d["policy"],
-                        help="plm: reference + BM baseline + PLM-Net; bm: the first two; expert: the expert twice")
+                        help="plm: reference + BM baseline + PLM-Net; bm: the first two; expert: the expert twice; "
+                             "ekf: the lane EKF policy without latency, without and with delay compensation")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: shipped)")
     add_seed(parser, d["seed"])
     parser.add_argument("--seeds", help="run every run once per seed: a count N (seeds --seed .. --seed+N-1) or a "

@@ -100,6 +100,9 @@ class ScenarioRun:
     camera_errors: np.ndarray  # (frames, 3) measurement minus truth at capture: d, dpsi, kappa
     scored: np.ndarray  # boolean mask of the scored samples
     camera_arrived: np.ndarray  # boolean mask of the samples at which a camera measurement arrived
+    # What the estimators were fed at each sample: the steering-angle sensor [rad] and the IMU [a_y, r].
+    steer_measured_rad: np.ndarray | None = None
+    imu_measured: np.ndarray | None = None
 
     def errors(self, variant: str) -> np.ndarray:
         truth = np.column_stack([self.truth.d_m, self.truth.dpsi_rad, self.truth.vn_mps])
@@ -155,9 +158,11 @@ def run_scenario(scenario: Scenario, seed: int, config: SimulationConfig = Simul
     estimates = {variant: np.full((n, 3), np.nan) for variant in ("camera_held", "ekf", "ekf_dc")}
     held = None
     u = truth.speed_mps
+    steer_log, imu_log = np.zeros(n), np.zeros((n, 2))
     for k in range(n):
         steer = config.steering_sensor.measure(truth.steer_rad[k], steer_rng)
         imu = config.imu.measure(truth.r_radps[k], truth.ay_mps2[k], imu_rng)
+        steer_log[k], imu_log[k] = steer, imu
         for variant, estimator in estimators.items():
             estimator.step(truth.time_s[k], steer, u, imu)
             for capture_s, z in arrivals.get(k, []):
@@ -174,7 +179,7 @@ def run_scenario(scenario: Scenario, seed: int, config: SimulationConfig = Simul
     if np.isnan(estimates["camera_held"][scored]).any():
         raise ValueError(f"scenario {scenario.number}, seed {seed}: no camera measurement before the scored window")
     return ScenarioRun(scenario, seed, truth, estimates, captures, np.array(camera_errors).reshape(-1, 3), scored,
-                       arrived)
+                       arrived, steer_log, imu_log)
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,10 @@
 - ``reference``: the policy without latency;
 - ``baseline``: the same policy fed the delayed observations;
 - ``mitigated`` (``--policy plm``): PLM-Net fed the delayed observations and told their age.
+
+With ``--policy ekf`` the three runs are the model-based policy's own (seed paper 004): the EKF
+policy without latency, the EKF fusing each late frame as if it were current (no delay
+compensation), and the EKF re-stamping it at its measured capture time and re-estimating to now.
 All runs share the track and the seed, so the same latency realisation.
 
 The JSON holds ``track``, ``latency``, ``policy``, ``seed``, ``runs`` (per-run summary),
@@ -17,6 +21,7 @@ run and metric succeeded.
 
 from __future__ import annotations
 
+from plm_highway.errors import BadInput
 from plm_highway.evaluation.closed_loop import LOG_COLUMNS, RunLog, drive, make_env
 from plm_highway.evaluation.policies import make_policy
 from plm_highway.evaluation.trajectory import trajectory_method, trajectory_metrics
@@ -77,11 +82,20 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
     track_spec, latency_spec = check_inputs(track, latency, max_steps)
     max_steps = run_steps(track_spec, max_steps)
     if seeds is not None:
+        if policy == "ekf":  # each seed needs its own sensor-noise stream; compare over seeds with 'estimate compare'
+            raise BadInput("--seeds with --policy ekf: not supported by evaluate; use 'plm-highway estimate compare'")
         return _evaluate_seeds(track, track_spec, latency_spec, policy, _seed_list(seeds, seed), max_steps, checkpoints)
-    base_policy = "expert" if policy == "expert" else "bm"
-    policies = {"reference": make_policy(base_policy, checkpoints), "baseline": make_policy(base_policy, checkpoints)}
-    if policy == "plm":
-        policies["mitigated"] = make_policy("plm", checkpoints)
+    if policy == "ekf":
+        from plm_highway.estimation.policy import ekf_policy
+
+        policies = {"reference": make_policy("ekf", seed=seed), "baseline": ekf_policy(compensate_delay=False, seed=seed),
+                    "mitigated": make_policy("ekf", seed=seed)}
+    else:
+        base_policy = "expert" if policy == "expert" else "bm"
+        policies = {"reference": make_policy(base_policy, checkpoints),
+                    "baseline": make_policy(base_policy, checkpoints)}
+        if policy == "plm":
+            policies["mitigated"] = make_policy("plm", checkpoints)
     logs = {}
     for name, run_policy in policies.items():
         logs[name] = drive(name, run_policy, track_spec, "const:0" if name == "reference" else latency_spec, seed,

@@ -1,4 +1,6 @@
-"""Policies by name, for the command line: ``expert``, ``bm`` (Base Model), ``plm`` (PLM-Net).
+"""Policies by name, for the command line: ``expert``, ``bm`` (Base Model), ``plm`` (PLM-Net), ``ekf``
+(the model-based alternative: :class:`plm_highway.estimation.policy.EkfLaneKeepingPolicy`, the
+delay-compensated lane EKF of seed paper 004 and a controller on its state; no checkpoints).
 
 Model policies load a checkpoint pair (Base Model + TAPM). ``--checkpoints DIR`` accepts the two
 layouts the project writes: ``DIR/bm/`` + ``DIR/tapm/`` (each ``model.pt`` + ``model.json``, as
@@ -16,7 +18,7 @@ from pathlib import Path
 
 from plm_highway.expert import ExpertPolicy
 
-POLICY_NAMES = ("expert", "bm", "plm")
+POLICY_NAMES = ("expert", "bm", "plm", "ekf")
 LATENCY_SOURCES = {"measured": "observation_age_s", "requested": "latency_s"}  # what PLM-Net is told -> info key
 SHIPPED_PRESET = "default"
 
@@ -100,10 +102,18 @@ def checkpoint_pair(checkpoint_dir=None) -> tuple[Path, Path]:
     )
 
 
-def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, latency_source: str = "measured"):
-    """The policy named ``name``; model policies load the shipped checkpoints unless given a dir."""
+def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, latency_source: str = "measured",
+                seed: int = 0):
+    """The policy named ``name``; model policies load the shipped checkpoints unless given a dir.
+
+    ``seed`` seeds the EKF policy's own sensor noise (the others have none).
+    """
     if name == "expert":
         return ExpertPolicy()
+    if name == "ekf":
+        from plm_highway.estimation.policy import ekf_policy
+
+        return ekf_policy(latency_bias_s=latency_bias_s, seed=seed)
     if name not in POLICY_NAMES:
         raise ValueError(f"--policy {name!r}: expected one of {list(POLICY_NAMES)}")
     from plm_highway.models import checkpoints, inference

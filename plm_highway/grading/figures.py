@@ -122,11 +122,30 @@ def lesson4_figure(plt):
     return fig
 
 
+def lesson5_figure(plt):
+    """Section 4's plot for scenario 1 on another seed: the kit's EKF with and without delay compensation."""
+    from plm_highway.estimation.table3 import SCENARIOS, run_scenario
+
+    run = run_scenario(SCENARIOS[0], 0)
+    t_s = run.truth.time_s
+    fig, ax = plt.subplots(figsize=(10, 3.6))
+    ax.plot(t_s, run.truth.d_m, color="black", lw=2, label="ground truth")
+    ax.plot(t_s, run.estimates["ekf"][:, 0], color="tab:blue", lw=1.2, label="EKF, camera fused on arrival")
+    ax.plot(t_s, run.estimates["ekf_dc"][:, 0], color="tab:red", lw=1.2, label="EKF, delay compensated")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("lateral offset d [m]")
+    ax.set_title("Lesson 5 target: scenario 1 (sine weave, 60 km/h, camera 0.25-0.35 s late)")
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    return fig
+
+
 LESSON_FIGURES: dict[str, Callable] = {
     "01_latency_zigzag.png": lesson1_figure,
     "02_teaching_a_car_to_look_ahead.png": lesson2_figure,
     "03_measuring_mitigation.png": lesson3_figure,
     "04_when_the_simulator_lies.png": lesson4_figure,
+    "05_predicting_through_the_delay.png": lesson5_figure,
 }
 
 
