@@ -96,7 +96,10 @@ def diagnose_file(
         recording = read_recording(recording_path, sidecar=sidecar)
     for warning in recording.warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    result = diagnose(recording, block_s=block_s, anchor_s=anchor_s, split=split, signal_name=signal)
+    try:
+        result = diagnose(recording, block_s=block_s, anchor_s=anchor_s, split=split, signal_name=signal)
+    except ValueError as exc:  # input problems found late: name the file the user gave, not only its short name
+        raise BadInput(f"{recording_path}: {exc}") from None
     for note in result.notes:
         print(f"warning: {note}", file=sys.stderr)
     data = to_json(result)
