@@ -80,7 +80,7 @@ REFERENCES: tuple[Reference, ...] = (
     Reference("lesson4.understeer_yaw_rate", "plm_highway.sim2real.effects:simulate_yaw_rate", "tire model"),
     Reference("lesson4.understeer_yaw_rate", "plm_highway.sim2real.replay:model_yaw_rate", "tire model"),
     Reference("lesson4.fit_on_grid", "plm_highway.sim2real.selection:fit_candidates", "effect fit"),
-    Reference("lesson4.fit_on_grid", "plm_highway.sim2real.selection:bounded_least_squares", "effect fit"),
+    Reference("lesson4.fit_on_grid", "plm_highway.sim2real.selection:least_squares", "effect fit"),
     # Lesson 5: re-stamping a late camera measurement, re-estimating from its capture step to now
     Reference("lesson5.capture_index", "plm_highway.estimation.ekf:LaneStateEstimator._index_at", "capture step"),
     Reference("lesson5.capture_index", "plm_highway.grading.lesson5:reference_capture_index", "capture step"),

@@ -53,7 +53,9 @@ def concealed_recording(seed: int, duration_s: float):
     low, high = CONCEALED_EFFECTS[name]
     value = round(float(rng.uniform(low, high)), 4 if name == "tire_slip" else 2)
     recording, truth = make_recording({name: value}, rng=rng, duration_s=duration_s, model="single-track")
-    return recording, SealedAnswer(truth)
+    # The single-track car's own understeer is listed among the truth's effects too; the lesson asks
+    # for the one effect the seed concealed.
+    return recording, SealedAnswer({**truth, "effects": {name: truth["effects"][name]}})
 
 
 def _inputs(seed: int, n: int = 300):
