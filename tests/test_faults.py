@@ -120,7 +120,7 @@ COMMANDS = {
 def inputs(tmp_path_factory) -> Path:
     """A dataset and a recording the commands read (shared, read-only)."""
     root = tmp_path_factory.mktemp("fault_inputs")
-    result = run(root, ["collect", "--track", "test", "--episodes", "1", "--episode-seconds", "2", "--out", "ds"])
+    result = run(root, ["collect", "--track", "test", "--episodes", "2", "--episode-seconds", "2", "--out", "ds"])
     assert result.returncode == 0, result.stderr
     result = run(root, ["sim2real", "make-recording", "--effect", "transport_delay", "--duration-s", "40",
                         "--out", "rec/r.csv"])
