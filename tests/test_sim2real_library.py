@@ -10,21 +10,12 @@ import math
 import numpy as np
 import pytest
 
+from plm_highway.sim2real.benchmark import TOLERANCES
 from plm_highway.sim2real.diagnose import diagnose, to_json
 from plm_highway.sim2real.synth import as_read, make_recording
 
-# Tolerances per parameter: |estimate - truth| <= max(absolute, relative x truth).
-TOLERANCE = {
-    "delay_s": (0.010, 0.10),
-    "time_constant_s": (0.0, 0.20),
-    "gain": (0.0, 0.03),
-    "offset_rad": (0.002, 0.0),
-    "understeer_gradient_rad_per_mps2": (0.0, 0.20),
-    "max_rate_radps": (0.0, 0.15),
-    "friction_coefficient": (0.0, 0.10),
-    "bank_rad": (0.005, 0.15),
-    "jitter_s": (0.005, 0.25),
-}
+# One tolerance table, shared with `plm-highway bench sim2real`: |estimate - truth| <= max(absolute, relative x truth).
+TOLERANCE = TOLERANCES
 
 
 def _diagnosed(effects: dict, seed: int, **options):
