@@ -77,14 +77,27 @@ class RayCluster:
                 options.update(num_cpus=workers, _node_ip_address="127.0.0.1")
             # Workers import plm_highway from where this process does (a source tree on PYTHONPATH).
             env_vars = {k: os.environ[k] for k in ("PYTHONPATH", "SDL_VIDEODRIVER") if k in os.environ}
-            try:
-                ray.init(address=address, runtime_env={"env_vars": env_vars} if env_vars else None, **options)
-            except Exception as exc:  # Ray raises bare Exception when its node does not come up
-                raise ConnectionError(
-                    f"--backend ray: Ray did not start or could not be reached ({exc}). On a heavily loaded machine "
-                    "a new local Ray can fail this way: its raylet gives up when its dashboard agent takes over "
-                    "~15 s to start; the logs are in /tmp/ray/session_latest/logs"
-                ) from None
+            runtime_env = {"env_vars": env_vars} if env_vars else None
+            # A private local Ray gets a second start: on a loaded machine its start-up can lose a race
+            # (see _start_failed) that the next start may win, and a retry costs nothing when the first works.
+            attempts = 2 if address is None else 1
+            for attempt in range(attempts):
+                try:
+                    ray.init(address=address, runtime_env=runtime_env, **options)
+                    break
+                except Exception as exc:  # Ray raises bare Exception when its node does not come up
+                    ray.shutdown()
+                    if attempt + 1 < attempts:
+                        continue
+                    self._start_failed(exc)
+
+    @staticmethod
+    def _start_failed(exc: Exception) -> None:
+        raise ConnectionError(
+            f"--backend ray: Ray did not start or could not be reached ({exc}). On a heavily loaded machine "
+            "a new local Ray can fail this way: its raylet gives up when its dashboard agent takes over "
+            "~15 s to start; the logs are in /tmp/ray/session_latest/logs"
+        ) from None
 
     def map_unordered(self, function: Callable, chunks: Sequence) -> Iterator[tuple[int, object]]:
         remote = self.ray.remote(num_cpus=1)(function)
