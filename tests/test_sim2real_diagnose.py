@@ -66,10 +66,6 @@ def _case(effects: tuple[str, ...], index: int):
 @pytest.mark.parametrize("effects", CASES, ids=lambda c: "+".join(c))
 def test_concealed_effects_are_named_recovered_and_explained(effects, index):
     _, truth, result = _case(effects, index)
-    if (effects, index) == (("steering_gain", "steering_offset"), 2) and result["verdict"] == "partly explained":
-        # Known miss since the stricter verdict rules (issue 12 closing note): this seed's residual is judged
-        # structured. Only this exact outcome is excused; anything else is still asserted below.
-        pytest.xfail("known miss: steering_gain+steering_offset seed 2 is 'partly explained'")
     found = {e["name"]: e for e in result["effects"]}
     assert result["verdict"] == "mismatch"
     assert set(found) == set(effects), f"named {sorted(found)}, concealed {sorted(effects)}: {result['summary']}"

@@ -209,3 +209,42 @@ def test_neutral_registry_values_give_the_simulator():
     r, vy, _ = simulate(steer, speed, DT, neutral, 2.5, 2.5, 6.25)
     np.testing.assert_array_equal(r, r_plain)
     np.testing.assert_array_equal(vy, vy_plain)
+
+
+@pytest.mark.slow
+def test_an_effect_registered_at_run_time_is_concealed_named_and_recovered(monkeypatch):
+    """The registry claim, at run time: an effect the chain can express is one new EFFECTS entry. Here the
+    servo lag is re-registered under another name with its time constant in milliseconds (and the original
+    entry removed, so that the two cannot tie); make-recording conceals it and the diagnosis names it and
+    recovers it, without any other table being touched."""
+    import dataclasses
+
+    from plm_highway.sim2real import effects as effects_module
+    from plm_highway.sim2real.diagnose import diagnose, to_json
+    from plm_highway.sim2real.synth import make_recording
+
+    lag = effects_module.EFFECTS["actuator_lag"]
+    servo_ms = dataclasses.replace(
+        lag, name="servo_lag_ms",
+        parameters=(effects_module.Parameter("time_constant_ms", "ms", (0.0, 800.0), 50.0,
+                                             grid=tuple(1000.0 * np.asarray(effects_module.LAG_GRID_S))),),
+        public_keys=("time_constant_ms",),
+        # make-recording's side keeps the concealed physics' own field (seconds).
+        synth_defaults={"time_constant_s": 0.15}, synth_bounds={"time_constant_s": (0.0, 2.0)},
+        conceal={"time_constant_s": "time_constant_s"},
+        set_params=lambda v, ctx: {"time_constant_s": v["time_constant_ms"] / 1000.0},
+        read_params=lambda p, ctx: {"time_constant_ms": 1000.0 * p.time_constant_s},
+        report=lambda p, ctx: {"time_constant_ms": 1000.0 * p.time_constant_s},
+        sentence=lambda p, ci: f"a servo lag of {p['time_constant_ms']:.0f} ms",
+        separated_from={},
+    )
+    monkeypatch.delitem(effects_module.EFFECTS, "actuator_lag")
+    monkeypatch.setitem(effects_module.EFFECTS, "servo_lag_ms", servo_ms)
+
+    recording, _ = make_recording({"servo_lag_ms": 0.2}, rng=np.random.default_rng(4242), duration_s=120.0)
+    result = to_json(diagnose(recording))
+    named = {effect["name"]: effect for effect in result["effects"]}
+    assert result["verdict"] == "mismatch" and set(named) == {"servo_lag_ms"}, result["summary"]
+    estimate_ms = named["servo_lag_ms"]["params"]["time_constant_ms"]
+    assert abs(estimate_ms - 200.0) <= 0.2 * 200.0, estimate_ms
+    assert "servo lag of" in result["summary"]

@@ -714,6 +714,11 @@ def fit_candidates(problem: FitProblem, candidates: list[tuple[str, ...]] | None
     # Forward selection: the best singles with every helpful single, and the best few among themselves
     # (effects that explain the same thing crowd the top; a second, different effect ranks lower).
     chosen = pairs_of(_leads_first(helpful), lead=LEAD_SINGLES) + pairs_of(helpful[:TOP_SINGLES])
+    if helpful:
+        # Forward selection's second step proper: the best single with every other effect, helpful alone
+        # or not. An effect can hide behind a larger one: a 15% steering gain beside a steering offset does
+        # not beat the plain model on its own, yet the pair explains everything.
+        chosen += pairs_of([helpful[0]] + [c for c in singles(available) if c != helpful[0]], lead=1)
     pairs = [fit_candidate(problem, c, cache, polished=False) for c in dict.fromkeys(chosen)
              if all(f.effects != c for f in fits)]
     fits = _polish_promising(problem, fits + pairs)
