@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plm_highway.evaluation.closed_loop import LOG_COLUMNS, RunLog, make_env
+from plm_highway.evaluation.closed_loop import LOG_COLUMNS, NOISE_STREAM, RunLog, add_image_noise, make_env
 from plm_highway.evaluation.policies import POLICY_NAMES, VisionPolicy, make_policy
 
 DEFAULT_BATCH_SIZE = 32
@@ -59,6 +59,8 @@ class RunCell:
     camera: dict | None = None
     env_config: dict | None = None
     max_steps: int | None = None
+    injection: str = "time"  # LatencyWrapper injection, as for drive()
+    image_noise_std: float = 0.0  # Gaussian pixel noise [grey levels], seeded as drive() seeds it
 
 
 @dataclass
@@ -70,11 +72,17 @@ class _Run:
     policy: object
     obs: np.ndarray
     info: dict
+    noise_rng: np.random.Generator
     rows: dict[str, list] = field(default_factory=lambda: {column: [] for column in LOG_COLUMNS})
     step: int = 0
     clamped_steps: int = 0
     done: bool = False
     terminated: bool = False
+
+    def frame(self) -> np.ndarray:
+        """The observation as the policy sees it (with the run's image noise, drawn as drive() draws it)."""
+        std = self.cell.image_noise_std
+        return add_image_noise(self.obs, std, self.noise_rng) if std > 0 else self.obs
 
     def record(self, steering: float) -> None:
         self.rows["steering"].append(steering)
@@ -159,10 +167,10 @@ def _start(cell: RunCell, models: dict[str, VisionPolicy]) -> _Run:
         policy = VisionPolicy(models[cell.policy].model_policy, latency_bias_s=cell.latency_bias_s)
     else:
         policy = cell.policy
-    env = make_env(cell.track, cell.latency, cell.camera, cell.env_config)
+    env = make_env(cell.track, cell.latency, cell.camera, cell.env_config, cell.injection)
     obs, info = env.reset(seed=cell.seed)
     policy.reset()
-    return _Run(cell, env, policy, obs, info)
+    return _Run(cell, env, policy, obs, info, np.random.default_rng([cell.seed, NOISE_STREAM]))
 
 
 def _steer_and_step(runs: list[_Run], batch_invariant: bool) -> None:
@@ -173,19 +181,23 @@ def _steer_and_step(runs: list[_Run], batch_invariant: bool) -> None:
         if isinstance(run.policy, VisionPolicy):
             by_model.setdefault(id(run.policy.model_policy), []).append(run)
         else:
-            steering[id(run)] = float(run.policy(run.obs, run.info))
+            steering[id(run)] = float(run.policy(run.frame(), run.info))
     for group in by_model.values():
         model = group[0].policy.model_policy
         # The same latency (and float32 rounding) as VisionPolicy.__call__ gives the model per frame.
-        latencies_s = np.asarray([max(0.0, run.info["observation_age_s"] + run.policy.latency_bias_s)
+        latencies_s = np.asarray([max(0.0, run.info[run.policy.info_key] + run.policy.latency_bias_s)
                                   for run in group], dtype=np.float32)
-        frames = np.stack([run.obs for run in group])
-        speeds_mps = [run.info["speed_mps"] for run in group]
-        if batch_invariant:  # also for policy objects the caller passed, without changing them
-            actions = np.concatenate([model.steer_batch(frames[i:i + 1], speeds_mps[i:i + 1], latencies_s[i:i + 1])
-                                      for i in range(len(group))])
+        frames = np.stack([run.frame() for run in group])
+        speeds_mps = np.asarray([run.info["speed_mps"] for run in group])
+        actions = np.empty(len(group))
+        if batch_invariant or model.batch_invariant:
+            from plm_highway.models.batch_invariant import batch_invariant_ops
+
+            with batch_invariant_ops():  # also for policy objects the caller passed, without changing them
+                for rows in _same_segment_rows(model, latencies_s):
+                    actions[rows] = model.steer_batch(frames[rows], speeds_mps[rows], latencies_s[rows])
         else:
-            actions = model.steer_batch(frames, speeds_mps, latencies_s)
+            actions[:] = model.steer_batch(frames, speeds_mps, latencies_s)
         above_grid = latencies_s > np.float32(model.max_latency_s)
         for run, action, clamped in zip(group, actions, above_grid):
             steering[id(run)] = float(action)
@@ -193,3 +205,16 @@ def _steer_and_step(runs: list[_Run], batch_invariant: bool) -> None:
     for run in runs:
         run.record(steering[id(run)])
         run.advance(steering[id(run)])
+
+
+def _same_segment_rows(model, latencies_s: np.ndarray) -> list[np.ndarray]:
+    """Rows to run together so that each gets what it would get alone: all rows for the BM; for
+    PLM-Net the rows whose latency lies in the same segment of its grid (0 apart), because the fused
+    PLM-Net evaluates the heads that the batch's segments need and that product's width changes its sums."""
+    plm_net = getattr(model, "model", None)
+    delta_ref_s = getattr(plm_net, "delta_ref_s", None)
+    if delta_ref_s is None:
+        return [np.arange(len(latencies_s))]
+    grid_s = delta_ref_s.numpy()
+    segment = np.searchsorted(grid_s[1:-1], np.minimum(latencies_s, grid_s[-1])) * 2 + (latencies_s > 0)
+    return [np.flatnonzero(segment == value) for value in np.unique(segment)]

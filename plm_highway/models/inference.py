@@ -10,8 +10,11 @@ Two calls:
   speeds (B,), latencies (B,) -> steering (B,) float64, for B envs stepped together. One forward
   pass. Per sample it equals the batch-1 call up to float rounding, not bit for bit: the BLAS and
   oneDNN kernels pick their summation order by batch size (measured: |difference| below 1e-6
-  on steering with the shipped checkpoints). With ``batch_invariant=True`` the policy runs each sample as its own batch-1 pass
-  instead: bit-identical to the batch-1 call, at batch-1 cost.
+  on steering with the shipped checkpoints). With ``batch_invariant=True`` the policy runs its
+  convolutions and products with :func:`~plm_highway.models.batch_invariant.batch_invariant_ops`
+  (one torch thread): the BM's output for a sample is then bit-identical whatever else is in the
+  batch; PLM-Net's too among samples whose latencies fall in the same grid segment (its fused form
+  evaluates only the heads the batch's segments need, and that product's shape changes the sums).
 
 Inputs are checked: frames uint8 of the model's size, finite speeds, finite latencies >= 0, and
 at most :data:`MAX_BATCH` samples. A non-finite steering output (NaN weights that slipped past the
@@ -21,6 +24,7 @@ naming the sample: a run must stop there rather than drive on NaN.
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import numpy as np
@@ -28,6 +32,7 @@ import torch
 
 from plm_highway.errors import BadInput
 from plm_highway.models.base_model import BaseModel
+from plm_highway.models.batch_invariant import batch_invariant_ops
 from plm_highway.models.plm_net import FusedPLMNet, PLMNet
 
 MAX_BATCH = 4096
@@ -60,14 +65,8 @@ class _Policy:
     def steer_batch(self, frames: np.ndarray, speeds_mps, latencies_s=None) -> np.ndarray:
         """Frames uint8 (B, H, W), speeds (B,) m/s, latencies (B,) s (default 0) -> steering (B,) float64."""
         frames_t, speeds_t, latencies = self._checked_batch(frames, speeds_mps, latencies_s)
-        with torch.inference_mode():
-            if self.batch_invariant and len(frames_t) > 1:
-                steering = torch.cat([
-                    self._forward(frames_t[i : i + 1], speeds_t[i : i + 1], latencies[i : i + 1])
-                    for i in range(len(frames_t))
-                ])
-            else:
-                steering = self._forward(frames_t, speeds_t, latencies)
+        with torch.inference_mode(), (batch_invariant_ops() if self.batch_invariant else contextlib.nullcontext()):
+            steering = self._forward(frames_t, speeds_t, latencies)
         steering_np = steering.numpy().astype(np.float64)
         if not np.all(np.isfinite(steering_np)):
             i = int(np.flatnonzero(~np.isfinite(steering_np))[0])
