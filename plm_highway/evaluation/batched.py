@@ -30,7 +30,9 @@ bit-identical to :func:`drive` (at batch-1 cost). Expert runs are always bit-ide
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -55,7 +57,8 @@ class RunCell:
     track: object = "test"
     latency: str = "const:0"
     seed: int = 0
-    latency_bias_s: float = 0.0  # PLM-Net told measured age + bias (named policies only)
+    latency_bias_s: float = 0.0  # PLM-Net told its latency + bias (named policies only)
+    latency_source: str = "measured"  # what a named PLM-Net is told: "measured" age or "requested" latency
     camera: dict | None = None
     env_config: dict | None = None
     max_steps: int | None = None
@@ -110,15 +113,22 @@ class _Run:
 
 
 def run_cells(cells: Sequence[RunCell], checkpoints=None, batch_size: int = DEFAULT_BATCH_SIZE,
-              batch_invariant: bool = False, on_done: Callable[[int, RunLog], None] | None = None) -> list[RunLog]:
+              batch_invariant: bool = False, on_done: Callable[[int, RunLog], None] | None = None,
+              threads: int = 1) -> list[RunLog]:
     """Drive every cell, ``batch_size`` envs at a time; the logs in the order of ``cells``.
 
     Named model policies load the checkpoint pair once (``checkpoints`` as for
     :func:`~plm_highway.evaluation.policies.make_policy`). ``on_done(index, log)`` is called as each
-    run ends (progress, or saving results as they come).
+    run ends (progress, or saving results as they come). ``threads`` > 1 splits the cells over that
+    many Python threads, each stepping its own batch and sharing the models: the forward passes
+    (which release the GIL) of one batch run while another batch's envs step, which uses a second
+    core without a process or a second copy of the model. With batch-invariant policies (the
+    named ones) the logs do not depend on ``batch_size`` or ``threads``.
     """
     if not 1 <= batch_size <= 4096:
         raise ValueError(f"batch_size {batch_size}: must lie in [1, 4096]")
+    if not 1 <= threads <= 64:
+        raise ValueError(f"threads {threads}: must lie in [1, 64]")
     for i, cell in enumerate(cells):
         if isinstance(cell.policy, str) and cell.policy not in POLICY_NAMES:
             raise ValueError(f"cell {i} ({cell.name!r}): policy {cell.policy!r} is not one of {list(POLICY_NAMES)}")
@@ -127,18 +137,42 @@ def run_cells(cells: Sequence[RunCell], checkpoints=None, batch_size: int = DEFA
     _check_no_shared_callables(cells)
     models = _named_models(cells, checkpoints)
     logs: list[RunLog | None] = [None] * len(cells)
-    pending = list(range(len(cells)))
-    live: dict[int, _Run] = {}
-    while pending or live:
-        while pending and len(live) < batch_size:  # refill the batch as runs end
-            index = pending.pop(0)
-            live[index] = _start(cells[index], models)
-        _steer_and_step(list(live.values()), batch_invariant)
-        for index in [i for i, run in live.items() if run.done]:
-            logs[index] = live.pop(index).log()
-            if on_done is not None:
-                on_done(index, logs[index])
+    parts = [list(range(len(cells)))[k::threads] for k in range(min(threads, len(cells)))]
+    if len(parts) <= 1:
+        _drive_part(parts[0] if parts else [], cells, models, batch_size, batch_invariant, logs, on_done)
+        return logs
+    lock = threading.Lock()
+
+    def done(index: int, log: RunLog) -> None:
+        with lock:
+            on_done(index, log)
+
+    with ThreadPoolExecutor(len(parts)) as pool:
+        futures = [pool.submit(_drive_part, part, cells, models, batch_size, batch_invariant, logs,
+                               None if on_done is None else done) for part in parts]
+        for future in futures:
+            future.result()
     return logs
+
+
+def _drive_part(indices: list[int], cells: Sequence[RunCell], models: dict, batch_size: int, batch_invariant: bool,
+                logs: list, on_done) -> None:
+    """The cells ``indices``, ``batch_size`` envs at a time, refilling the batch as runs end."""
+    pending = list(indices)
+    live: dict[int, _Run] = {}
+    try:
+        while pending or live:
+            while pending and len(live) < batch_size:
+                index = pending.pop(0)
+                live[index] = _start(cells[index], models)
+            _steer_and_step(list(live.values()), batch_invariant)
+            for index in [i for i, run in live.items() if run.done]:
+                logs[index] = live.pop(index).log()
+                if on_done is not None:
+                    on_done(index, logs[index])
+    finally:
+        for run in live.values():  # an error: close what is still open
+            run.env.close()
 
 
 def _check_no_shared_callables(cells: Sequence[RunCell]) -> None:
@@ -164,7 +198,7 @@ def _start(cell: RunCell, models: dict[str, VisionPolicy]) -> _Run:
     if cell.policy == "expert":
         policy = make_policy("expert")
     elif isinstance(cell.policy, str):
-        policy = VisionPolicy(models[cell.policy].model_policy, latency_bias_s=cell.latency_bias_s)
+        policy = VisionPolicy(models[cell.policy].model_policy, cell.latency_bias_s, cell.latency_source)
     else:
         policy = cell.policy
     env = make_env(cell.track, cell.latency, cell.camera, cell.env_config, cell.injection)
