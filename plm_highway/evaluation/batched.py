@@ -19,17 +19,19 @@ loaded 2-core machine (load average 17) the own loop took 16.8 s and SyncVectorE
 vector API's bookkeeping is small but never a gain. ``AsyncVectorEnv`` puts one env per
 subprocess: on 2 cores the sweep's process pool (:mod:`plm_highway.sweep`) already uses both.
 
-Same results as one env at a time: env stepping, resets and latency realisations are per env and
-seeded exactly as :func:`drive` does. The model's batched forward pass equals its batch-1 pass
-up to float rounding (the BLAS kernels sum in an order that depends on the batch size, see
-:mod:`plm_highway.models.inference`); the closed loop amplifies that a little (a nanometre moves a
-rendered pixel sooner or later): batched model runs match the one-env runs to ~1e-7 in steering
-over 30 steps and ~1e-4 over 100 (measured, PLM-Net, 16 seeds); ``batch_invariant=True`` runs each sample as its own batch-1 pass and is then
-bit-identical to :func:`drive` (at batch-1 cost). Expert runs are always bit-identical.
+Same results as one env at a time: env stepping, resets, latency realisations and image noise are
+per env and seeded exactly as :func:`drive` does, and the named model policies run batch-invariantly
+(:mod:`plm_highway.models.batch_invariant`: a sample's output does not depend on the rest of its
+batch), so every logged column equals the one-env run's bit for bit, whatever ``batch_size`` or
+``threads`` (``tests/test_batched.py``). A caller's policy object built without
+``batch_invariant`` runs PyTorch's own kernels: equal up to float rounding (~1e-6 in steering per
+step, amplified by the closed loop to ~1e-4 over 100 steps), or bit-identical with
+``run_cells(..., batch_invariant=True)``. Expert runs are always bit-identical.
 """
 
 from __future__ import annotations
 
+import copy
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -223,15 +225,10 @@ def _steer_and_step(runs: list[_Run], batch_invariant: bool) -> None:
                                   for run in group], dtype=np.float32)
         frames = np.stack([run.frame() for run in group])
         speeds_mps = np.asarray([run.info["speed_mps"] for run in group])
-        actions = np.empty(len(group))
-        if batch_invariant or model.batch_invariant:
-            from plm_highway.models.batch_invariant import batch_invariant_ops
-
-            with batch_invariant_ops():  # also for policy objects the caller passed, without changing them
-                for rows in _same_segment_rows(model, latencies_s):
-                    actions[rows] = model.steer_batch(frames[rows], speeds_mps[rows], latencies_s[rows])
-        else:
-            actions[:] = model.steer_batch(frames, speeds_mps, latencies_s)
+        if batch_invariant and not model.batch_invariant:  # a caller's policy object, left as it was
+            model = copy.copy(model)
+            model.batch_invariant = True
+        actions = model.steer_batch(frames, speeds_mps, latencies_s)
         above_grid = latencies_s > np.float32(model.max_latency_s)
         for run, action, clamped in zip(group, actions, above_grid):
             steering[id(run)] = float(action)
@@ -239,16 +236,3 @@ def _steer_and_step(runs: list[_Run], batch_invariant: bool) -> None:
     for run in runs:
         run.record(steering[id(run)])
         run.advance(steering[id(run)])
-
-
-def _same_segment_rows(model, latencies_s: np.ndarray) -> list[np.ndarray]:
-    """Rows to run together so that each gets what it would get alone: all rows for the BM; for
-    PLM-Net the rows whose latency lies in the same segment of its grid (0 apart), because the fused
-    PLM-Net evaluates the heads that the batch's segments need and that product's width changes its sums."""
-    plm_net = getattr(model, "model", None)
-    delta_ref_s = getattr(plm_net, "delta_ref_s", None)
-    if delta_ref_s is None:
-        return [np.arange(len(latencies_s))]
-    grid_s = delta_ref_s.numpy()
-    segment = np.searchsorted(grid_s[1:-1], np.minimum(latencies_s, grid_s[-1])) * 2 + (latencies_s > 0)
-    return [np.flatnonzero(segment == value) for value in np.unique(segment)]

@@ -9,33 +9,35 @@ choice sums in its own order, so a sample's steering differs by ~1e-6 between ba
 idea of Thinking Machines' "batch-invariant ops" (He et al., 2025, "Defeating Nondeterminism in
 LLM Inference"): give every sample the same reduction order whatever the batch size.
 
-Inside :func:`batch_invariant_ops`:
+Inside :func:`batch_invariant_ops` (one torch thread):
 
 - ``conv2d`` always runs oneDNN's direct convolution (``aten.mkldnn_convolution``), at every
-  batch size: its per-output reduction order is set by the layer's shape, not by the batch size
-  or the thread count;
-- ``linear`` with one output column runs row by row (each row is the batch-1 product); a product
-  of fewer than :data:`MIN_GEMM_ROWS` rows is padded with zero rows to that many, so MKL always
-  takes its matrix-matrix path, whose per-element order does not depend on the number of rows.
+  batch size: its per-output reduction order is set by the layer's shape, not by the batch size;
+- ``linear`` runs row by row, each row as the one-row product a batch of one computes (MKL's
+  matrix-vector path), with the inputs and weights padded by zero columns to a multiple of 16
+  values so that every row starts on a 64-byte boundary (MKL's path depends on alignment too).
 
 Every other operation the models use is element-wise (exact IEEE operations, or ``tanh``, whose
-vector and scalar kernels agree) or a cheap min/max. What makes this hold is MKL's and oneDNN's
-kernel choice, which no documentation promises: ``tests/test_batch_invariant.py`` checks it for
-every layer shape of both presets and both models, at batch sizes 1-70 and one or two threads,
-and the closed-loop tests check whole runs step by step. Cost: the convolutions cost what they
-cost at that batch size with oneDNN; a one-row product costs a 4-row one (both read the weights once).
+vector and scalar kernels agree) or a min/max. What makes this hold is MKL's and oneDNN's kernel
+choice, which no documentation promises: ``tests/test_batch_invariant.py`` checks it for the
+layer shapes of both presets and both model policies at many batch compositions, and
+``tests/test_batched.py`` checks whole closed-loop runs column by column. Cost: measured by
+``plm-highway bench sweep`` (the one-env side with and without these kernels). Row-by-row
+products give up the batched product's reuse of the weights, but the convolutions, ~95% of the
+work, keep their batched speed.
 """
 
 from __future__ import annotations
 
 import contextlib
+import threading
+import weakref
 from collections.abc import Iterator
 
 import torch
 import torch.nn.functional as F
 from torch.overrides import TorchFunctionMode
 
-MIN_GEMM_ROWS = 4  # MKL's sgemm takes another path for 1-3 rows (measured, MKL 2024.2, AVX2)
 ROW_ALIGNMENT = 16  # float32 values: 64 bytes
 
 
@@ -54,15 +56,33 @@ def linear(input, weight, bias=None):
     padded_width = -(-width // ROW_ALIGNMENT) * ROW_ALIGNMENT
     if padded_width != width:  # every row starts on a 64-byte boundary: MKL's path depends on alignment
         rows = F.pad(rows, (0, padded_width - width))
-        weight = F.pad(weight, (0, padded_width - width))
-    if weight.shape[0] == 1:
-        out = torch.cat([F.linear(rows[i : i + 1], weight, bias) for i in range(n_rows)])
-    elif n_rows < MIN_GEMM_ROWS:
-        padded = torch.cat([rows, rows.new_zeros(MIN_GEMM_ROWS - n_rows, rows.shape[1])])
-        out = F.linear(padded, weight, bias)[:n_rows]
-    else:
+        weight = _padded_weight(weight, padded_width)
+    if n_rows == 1:
         out = F.linear(rows, weight, bias)
+    else:  # row by row: the one-row product (MKL's matrix-vector path), as a batch of one computes it
+        out = torch.cat([F.linear(rows[i : i + 1], weight, bias) for i in range(n_rows)])
     return out.reshape(*input.shape[:-1], weight.shape[0])
+
+
+_PADDED_WEIGHTS: dict[int, tuple[weakref.ref, int, torch.Tensor]] = {}
+_PADDED_LOCK = threading.Lock()
+
+
+def _padded_weight(weight: torch.Tensor, padded_width: int) -> torch.Tensor:
+    """``weight`` with zero columns up to ``padded_width``, kept while ``weight`` lives unchanged (a model's
+    layers are padded once, not at every step)."""
+    # Inference tensors (weights a model packs inside inference mode) have no version counter; they
+    # are caches built once, never changed in place.
+    version = -1 if torch.is_inference(weight) else weight._version
+    with _PADDED_LOCK:
+        entry = _PADDED_WEIGHTS.get(id(weight))
+        if entry is not None and entry[0]() is weight and entry[1] == version:
+            return entry[2]
+        padded = F.pad(weight, (0, padded_width - weight.shape[1]))
+        for key in [k for k, (ref, _, _) in _PADDED_WEIGHTS.items() if ref() is None]:
+            del _PADDED_WEIGHTS[key]
+        _PADDED_WEIGHTS[id(weight)] = (weakref.ref(weight), version, padded)
+        return padded
 
 
 def _pair(value) -> list[int]:
