@@ -85,7 +85,7 @@ def test_the_mode_runs_on_one_thread_and_restores_the_thread_count(threads):
 
 
 @pytest.mark.parametrize("width,out", [(1, 144), (10, 1), (50, 1), (50, 10), (100, 2), (144, 100), (250, 5),
-                                       (512, 100), (1296, 612), (17, 3)])
+                                       (512, 100), (700, 1000), (1296, 1012), (17, 3)])
 def test_a_product_row_is_the_same_at_any_row_count_and_position(width, out):
     generator = torch.Generator().manual_seed(width * 1000 + out)
     weight, bias = torch.randn(out, width, generator=generator), torch.randn(out, generator=generator)
@@ -95,7 +95,7 @@ def test_a_product_row_is_the_same_at_any_row_count_and_position(width, out):
         for n in (2, 3, 4, 5, 7, 8, 9, 16, 17, 33):
             for start in (0, 1, 3):
                 assert torch.equal(linear(rows[start : start + n], weight, bias), alone[start : start + n]), (n, start)
-    torch.testing.assert_close(alone, torch.nn.functional.linear(rows, weight, bias))
+    torch.testing.assert_close(alone, torch.nn.functional.linear(rows, weight, bias), rtol=1e-5, atol=1e-4)
 
 
 def test_a_convolution_sample_is_the_same_at_any_batch_size():

@@ -21,11 +21,12 @@ from dataclasses import dataclass
 
 from plm_highway.evaluation.batched import DEFAULT_BATCH_SIZE, RunCell, run_cells
 from plm_highway.evaluation.closed_loop import RunLog
-from plm_highway.evaluation.policies import POLICY_NAMES, VisionPolicy
+from plm_highway.evaluation.policies import VisionPolicy
 from plm_highway.evaluation.run import Cell, Conditions, drive_options, scored_steps
 from plm_highway.road.track import TrackSpec
 
 MAX_WORKERS = 256
+NAMED_POLICIES = ("expert", "bm", "plm")  # what a pool worker can build by name (the EKF is seeded per run)
 
 
 @dataclass(frozen=True)
@@ -96,14 +97,20 @@ def worker_pool(workers: int) -> ProcessPoolExecutor:
 
 def _run_cell(cell: Cell, track_spec: TrackSpec, conditions: Conditions, steps: int | None,
               policies: Mapping | None) -> RunCell:
-    """The batched runner's cell for a reproduction cell: the policy object when it is a model policy
-    this process holds, else its name (loaded by the runner)."""
+    """The batched runner's cell for a reproduction cell: the model policy object this process holds,
+    else the policy's name (loaded, or for the expert made per run, by the runner)."""
+    from plm_highway.expert import ExpertPolicy
+
     policy = policies.get(cell.policy) if policies is not None else None
-    if not isinstance(policy, VisionPolicy):
-        if cell.policy not in POLICY_NAMES:
+    if policy is None or isinstance(policy, ExpertPolicy):
+        if cell.policy not in NAMED_POLICIES:
             raise ValueError(f"cell {cell.name!r}: policy {cell.policy!r} is neither a model policy object nor one "
-                             f"of {list(POLICY_NAMES)}")
-        policy = cell.policy
+                             f"of {list(NAMED_POLICIES)}")
+        policy = "expert" if isinstance(policy, ExpertPolicy) else cell.policy
+    elif not isinstance(policy, VisionPolicy):
+        raise ValueError(f"cell {cell.name!r}: policy {cell.policy!r} is neither a model policy object nor one of "
+                         f"{list(NAMED_POLICIES)} but a {type(policy).__name__}, which runs stepped together would "
+                         "share; drive these cells with plm_highway.evaluation.run.run_cells")
     return RunCell(cell.name, policy, track_spec, cell.latency, cell.seed, latency_source=conditions.latency_source,
                    **drive_options(cell, conditions, steps))
 
