@@ -38,7 +38,7 @@ def plm_net(request):
         while np.max(np.abs(PLMNetPolicy(plm_net).steer_batch(frames, speeds, np.full(8, latency_s)))) > 0.9:
             with torch.no_grad():
                 weight.mul_(0.1)
-        assert np.ptp(PLMNetPolicy(plm_net).steer_batch(frames, speeds, np.full(8, latency_s))) > 0.01
+        assert np.ptp(PLMNetPolicy(plm_net).steer_batch(frames, speeds, np.full(8, latency_s))) > 1e-4  # >1000 float32 steps apart
     return plm_net
 
 

@@ -14,8 +14,8 @@ step (leaving the road, the end of the track), which its autoreset modes handle 
 env (``NEXT_STEP``/``SAME_STEP``) or by leaving a finished env in the batch (``DISABLED``, with
 ``reset_mask``); it also stacks every info dict into arrays each step, which this module would
 only have to undo. ``plm-highway bench sweep`` drives the same 16 runs both ways in one run: on a
-loaded 2-core machine (load average 17) the own loop took 16.8 s and SyncVectorEnv 18.0 s against
-32.5 s one env at a time (1.93x and 1.80x). The forward pass costs 10-20x the env step, so the
+loaded 2-core machine (load average 7-11) the own loop took 17.0 s and SyncVectorEnv 18.6 s (earlier, at load 17,
+16.8 s and 18.0 s against 32.5 s one env at a time). The forward pass costs 10-20x the env step, so the
 vector API's bookkeeping is small but never a gain. ``AsyncVectorEnv`` puts one env per
 subprocess: on 2 cores the sweep's process pool (:mod:`plm_highway.sweep`) already uses both.
 
