@@ -756,8 +756,10 @@ def test_a_batch_invariant_policy_is_bit_identical_to_batch_one_calls(plm_pair, 
     model = plm_net.bm if policy_class is BaseModelPolicy else plm_net
     policy = policy_class(model, batch_invariant=True)
     frames, speeds, latencies = batch_inputs(8, seed=3)
-    one_by_one = [policy_class(model)(frames[i], speeds[i], latencies[i]) for i in range(8)]
+    one_by_one = [policy_class(model, batch_invariant=True)(frames[i], speeds[i], latencies[i]) for i in range(8)]
     assert policy.steer_batch(frames, speeds, latencies).tolist() == one_by_one
+    default_kernels = [policy_class(model)(frames[i], speeds[i], latencies[i]) for i in range(8)]
+    np.testing.assert_allclose(one_by_one, default_kernels, rtol=0, atol=1e-5)
 
 
 def test_batch_counts_clamped_latencies_and_exposes_the_grid_end(plm_pair):

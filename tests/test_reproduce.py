@@ -153,6 +153,7 @@ def test_bad_input_exits_2_before_any_run(tmp_path, capsys, arguments, message, 
     bad_track = tmp_path / "bad.json"
     bad_track.write_text(json.dumps({"name": "bad", "lanes": 9, "segments": [{"type": "straight", "length_m": 50}]}))
     monkeypatch.setattr(reproduce, "drive", _no_drive)
+    monkeypatch.setattr(reproduce, "drive_cells", _no_drive)
     out = tmp_path / "out"
     arguments = [a.format(tmp=tmp_path, bad_track=bad_track) for a in arguments]
     assert cli.main(["reproduce", "--out", str(out), *arguments]) == 2
@@ -170,18 +171,21 @@ def test_a_failing_run_leaves_previous_outputs_untouched(checkpoints, tmp_path, 
     (out / "report.md").write_text("previous report\n")
     previous_results = json.dumps({"command": "plm-highway reproduce --out out"})
     (out / "results.json").write_text(previous_results)
-    real_drive = reproduce.drive
+    from plm_highway.evaluation import batched
+
+    real_make_env = batched.make_env
     calls = []
 
-    def failing_drive(name, *args, **kwargs):
-        calls.append(name)
+    def failing_make_env(*args, **kwargs):  # the batched runner starts each run's env with it
+        calls.append(args)
         if len(calls) == 3:
             raise ValueError("latency spec 'const:0.2': simulated failure in the third run")
-        return real_drive(name, *args, **kwargs)
+        return real_make_env(*args, **kwargs)
 
-    monkeypatch.setattr(reproduce, "drive", failing_drive)
+    monkeypatch.setattr(batched, "make_env", failing_make_env)
     code = cli.main(["reproduce", "--out", str(out), "--checkpoints", str(checkpoints), "--max-steps", "20",
-                     "--seeds", "1", "--settings", "const:0.2", "--generalise", "--no-progress", "--overwrite"])
+                     "--seeds", "1", "--settings", "const:0.2", "--generalise", "--no-progress", "--overwrite",
+                     "--workers", "0"])
     assert code == 2
     assert "simulated failure" in capsys.readouterr().err
     assert [p.name for p in tmp_path.iterdir()] == ["out"]

@@ -1,91 +1,104 @@
-"""``plm-highway bench sweep``: N closed-loop runs one env at a time vs batched vs a process pool.
+"""``plm-highway bench sweep``: N closed-loop runs one env at a time vs batched vs a process pool;
+``plm-highway bench reproduce``: the reproduction's runs serial vs batched vs on a process pool.
 
-The same N runs (seeds 0..N-1 of one latency profile on one track, ``--steps`` policy steps each,
-one model policy) are driven five ways in one invocation, and the wall times printed side by side
-with their ratio to the first:
+``bench sweep`` drives the same N runs (seeds 0..N-1 of one latency profile on one track,
+``--steps`` policy steps each, one model policy) several ways in one invocation and prints the
+wall times side by side with their ratio to the *fastest* one-env side:
 
-1. **one env at a time**: :func:`~plm_highway.evaluation.closed_loop.drive` per seed (batch-1 forward);
-2. **batched, own envs**: :func:`~plm_highway.evaluation.batched.run_cells`, all N envs in one
-   batch, one forward pass per step;
-3. **batched, gymnasium SyncVectorEnv** (``autoreset_mode=DISABLED``): the same envs in gymnasium's
-   vector API, the same batched forward pass; its infos come stacked into arrays;
-4. **batched, batch-invariant**: run_cells with ``batch_invariant=True`` (bit-identical to 1.);
-5. **process pool**: the N runs split over ``--workers`` spawned processes, each batched; the time
-   includes starting the processes and loading the model in each, as a sweep pays it.
+1. **one env at a time, default kernels, 1 thread**: :func:`~plm_highway.evaluation.closed_loop.drive`
+   per seed, the model with PyTorch's own kernel choice (batch 1), one torch thread;
+2. the same on **2 torch threads** (the serial side's other configuration on 2 cores);
+3. **one env at a time, batch-invariant kernels**: ``drive`` with the policy as the closed loop runs
+   it (:mod:`plm_highway.models.batch_invariant`), the reference every other side is compared with;
+4. **batched, own envs**: :func:`~plm_highway.evaluation.batched.run_cells`, all N envs in one
+   batch, one forward pass per step (PLM-Net: per latency segment), one thread;
+5. **batched, 2 threads**: the same split over two Python threads, one batch each (one torch
+   thread each; a forward pass releases the GIL, so one batch's envs step meanwhile);
+6. **batched, gymnasium SyncVectorEnv** (``autoreset_mode=DISABLED``): the envs in gymnasium's
+   vector API, one ``steer_batch`` per step;
+7. **process pool**: the N runs over ``--workers`` spawned processes, each batched; the time
+   includes starting the processes and loading the model in each.
 
-Sides 1-4 share one loaded model and run on one torch thread; the largest steering difference of
-2., 3. and 5. against 1. is printed. The 1-minute load average is printed: on a shared machine the
-absolute times mean little; compare the ratios measured side by side.
+Each side's largest |steering difference| against side 3 is printed (0: identical). The 1-minute
+load average is printed: on a shared machine the absolute times mean little, compare the ratios.
 """
 
 from __future__ import annotations
 
 import os
 import time
+from functools import partial
 
 import numpy as np
 
+SERIAL_SIDES = ("one env at a time, default kernels, 1 thread", "one env at a time, default kernels, 2 threads",
+                "one env at a time, batch-invariant kernels")
+REFERENCE_SIDE = SERIAL_SIDES[2]
+
 
 def bench_sweep(n_envs: int = 16, steps: int = 100, policy: str = "plm", latency: str = "steps:0.0-0.35:1.0",
-                track: str = "test", workers: int = 2) -> dict:
+                track: str = "test", workers: int = 2, two_thread_serial: bool = True) -> dict:
+    """The sides of the module docstring; ``two_thread_serial=False`` leaves out side 2 (on a loaded
+    machine two torch threads at batch size 1 can take 20x longer than one)."""
+    import torch
+
     from plm_highway.evaluation.batched import RunCell, run_cells
     from plm_highway.evaluation.closed_loop import drive
-    from plm_highway.evaluation.policies import make_policy, single_threaded_inference
-    from plm_highway.sweep.backends import LocalPool
+    from plm_highway.evaluation.policies import VisionPolicy, make_policy, single_threaded_inference
 
     load = os.getloadavg()[0]
     vision = make_policy(policy)
+    default_kernels = make_policy(policy)
+    default_kernels.model_policy.batch_invariant = False
     cells = [RunCell(f"seed {seed}", vision, track, latency, seed, max_steps=steps) for seed in range(n_envs)]
     sides: dict[str, dict] = {}
+
+    def timed(name: str, function, threads: int = 1):
+        previous = torch.get_num_threads()
+        torch.set_num_threads(threads)
+        try:
+            start = time.perf_counter()
+            steering = function()
+            sides[name] = {"wall_s": time.perf_counter() - start, "torch_threads": threads}
+        finally:
+            torch.set_num_threads(previous)
+        return steering
+
+    def serial(policy_object: VisionPolicy) -> np.ndarray:
+        return _steering([drive(c.name, policy_object, track, latency, c.seed, max_steps=steps) for c in cells])
+
     with single_threaded_inference():
         drive("warm-up", vision, track, latency, 0, max_steps=3)
-
-        start = time.perf_counter()
-        serial = [drive(c.name, vision, track, latency, c.seed, max_steps=steps) for c in cells]
-        sides["one env at a time"] = {"wall_s": time.perf_counter() - start}
-        steering = np.stack([log.columns["steering"] for log in serial])
-
-        start = time.perf_counter()
-        batched = run_cells(cells, batch_size=n_envs)
-        sides["batched, own envs"] = {"wall_s": time.perf_counter() - start,
-                                      "max_steering_difference": _max_difference(batched, steering)}
-
-        start = time.perf_counter()
-        vector_steering = _vector_env_steering(vision, cells, steps)
-        sides["batched, gymnasium SyncVectorEnv"] = {
-            "wall_s": time.perf_counter() - start,
-            "max_steering_difference": float(np.max(np.abs(vector_steering - steering)))}
-
-        start = time.perf_counter()
-        invariant = run_cells(cells, batch_size=n_envs, batch_invariant=True)
-        sides["batched, batch-invariant"] = {"wall_s": time.perf_counter() - start,
-                                             "max_steering_difference": _max_difference(invariant, steering)}
-    chunks = [(policy, track, latency, tuple(range(n_envs))[w::workers], steps) for w in range(workers)]
-    chunks = [chunk for chunk in chunks if chunk[3]]
-    start = time.perf_counter()
-    pooled = dict(LocalPool(len(chunks)).map_unordered(_pool_chunk, chunks))
-    pool_steering = np.zeros_like(steering)
-    for index, chunk in enumerate(chunks):
-        pool_steering[list(chunk[3])] = pooled[index]
-    sides[f"process pool ({len(chunks)} workers, batched)"] = {
-        "wall_s": time.perf_counter() - start,
-        "max_steering_difference": float(np.max(np.abs(pool_steering - steering)))}
-    baseline = sides["one env at a time"]["wall_s"]
-    for figures in sides.values():
-        figures["speed_up"] = baseline / figures["wall_s"]
+        drive("warm-up", default_kernels, track, latency, 0, max_steps=3)
+        steering = {SERIAL_SIDES[0]: timed(SERIAL_SIDES[0], partial(serial, default_kernels))}
+        if two_thread_serial:
+            steering[SERIAL_SIDES[1]] = timed(SERIAL_SIDES[1], partial(serial, default_kernels), threads=2)
+        steering[REFERENCE_SIDE] = timed(REFERENCE_SIDE, partial(serial, vision))
+        steering["batched, own envs"] = timed(
+            "batched, own envs", lambda: _steering(run_cells(cells, batch_size=n_envs)))
+        steering["batched, 2 threads"] = timed(
+            "batched, 2 threads", lambda: _steering(run_cells(cells, batch_size=n_envs, threads=2)))
+        steering["batched, gymnasium SyncVectorEnv"] = timed(
+            "batched, gymnasium SyncVectorEnv", lambda: _vector_env_steering(vision, cells, steps))
+    pool_side = f"process pool ({workers} workers, batched)"
+    steering[pool_side] = timed(pool_side, lambda: _pool_steering(policy, track, latency, n_envs, steps, workers))
+    reference = steering[REFERENCE_SIDE]
+    best_serial_s = min(sides[name]["wall_s"] for name in SERIAL_SIDES if name in sides)
+    for name, figures in sides.items():
+        figures["speed_up"] = best_serial_s / figures["wall_s"]
         figures["policy_steps_per_s"] = n_envs * steps / figures["wall_s"]
+        figures["max_steering_difference"] = float(np.max(np.abs(steering[name] - reference)))
     return {"envs": n_envs, "steps": steps, "policy": policy, "latency": latency, "track": track,
-            "load_average_1min": load, "cpus": os.cpu_count(), "sides": sides}
+            "load_average_1min": load, "load_average_1min_after": os.getloadavg()[0], "cpus": os.cpu_count(),
+            "reference_side": REFERENCE_SIDE, "speed_up_relative_to": "the fastest one-env side", "sides": sides}
 
 
-def _max_difference(logs, steering: np.ndarray) -> float:
-    return float(np.max(np.abs(np.stack([log.columns["steering"] for log in logs]) - steering)))
+def _steering(logs) -> np.ndarray:
+    return np.stack([log.columns["steering"] for log in logs])
 
 
 def _vector_env_steering(vision, cells, steps: int) -> np.ndarray:
     """The runs through gymnasium's SyncVectorEnv; (N, steps) steering. Assumes no run ends early."""
-    from functools import partial
-
     from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
     from plm_highway.evaluation.closed_loop import make_env
@@ -104,6 +117,18 @@ def _vector_env_steering(vision, cells, steps: int) -> np.ndarray:
     return out
 
 
+def _pool_steering(policy: str, track: str, latency: str, n_envs: int, steps: int, workers: int) -> np.ndarray:
+    from plm_highway.sweep.backends import LocalPool
+
+    chunks = [(policy, track, latency, tuple(range(n_envs))[w::workers], steps) for w in range(workers)]
+    chunks = [chunk for chunk in chunks if chunk[3]]
+    pooled = dict(LocalPool(len(chunks)).map_unordered(_pool_chunk, chunks))
+    out = np.zeros((n_envs, steps))
+    for index, chunk in enumerate(chunks):
+        out[list(chunk[3])] = pooled[index]
+    return out
+
+
 def _pool_chunk(chunk) -> np.ndarray:
     """A pool worker: the chunk's runs batched; (runs, steps) steering."""
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
@@ -113,16 +138,73 @@ def _pool_chunk(chunk) -> np.ndarray:
     policy, track, latency, seeds, steps = chunk
     with single_threaded_inference():
         logs = run_cells([RunCell(f"seed {s}", policy, track, latency, s, max_steps=steps) for s in seeds])
-    return np.stack([log.columns["steering"] for log in logs])
+    return _steering(logs)
+
+
+def bench_reproduce(seeds: int = 5, max_steps: int | None = 100, workers: int = 2, track: str = "test",
+                    conditions: str = "ideal", batch_size: int = 32) -> dict:
+    """``reproduce``'s runs of one track (reference + BM and PLM-Net per default setting, per seed) three ways:
+    serial (:func:`plm_highway.evaluation.run.run_cells`, one env at a time), batched in this process
+    (``--workers 0``), and batched on a pool of ``workers`` processes (started and loaded inside the
+    time, as ``reproduce`` pays it). One torch thread per process. Identity: every logged column compared."""
+    from plm_highway.evaluation.cell_runner import drive_cells
+    from plm_highway.evaluation.closed_loop import LOG_COLUMNS
+    from plm_highway.evaluation.policies import single_threaded_inference
+    from plm_highway.evaluation.reproduce import conditions_named, default_settings, plan_cells
+    from plm_highway.evaluation.run import make_policies, run_cells
+    from plm_highway.road.track import load_track
+
+    load = os.getloadavg()[0]
+    run_conditions = conditions_named(conditions)
+    track_spec = load_track(track)
+    cells = plan_cells(list(default_settings(run_conditions)), list(range(seeds)), track_spec.name)
+    policies = make_policies(None, run_conditions)
+    sides: dict[str, dict] = {}
+    logs = {}
+    with single_threaded_inference():
+        for name, function in (
+                ("serial (one env at a time)", lambda: run_cells(cells, track_spec, run_conditions, policies, max_steps)),
+                ("batched (--workers 0)", lambda: drive_cells(cells, track_spec, run_conditions, policies, None,
+                                                              max_steps, batch_size=batch_size)),
+                (f"parallel ({workers} workers, batched)", lambda: drive_cells(
+                    cells, track_spec, run_conditions, None, None, max_steps, workers=workers,
+                    batch_size=batch_size))):
+            start = time.perf_counter()
+            logs[name] = function()
+            sides[name] = {"wall_s": time.perf_counter() - start}
+    serial_name = next(iter(sides))
+    for name, figures in sides.items():
+        figures["speed_up"] = sides[serial_name]["wall_s"] / figures["wall_s"]
+        figures["identical_to_serial"] = all(
+            np.array_equal(a.columns[c], b.columns[c]) for a, b in zip(logs[name], logs[serial_name])
+            for c in LOG_COLUMNS)
+    return {"runs": len(cells), "seeds": seeds, "max_steps": max_steps, "track": track, "conditions": conditions,
+            "policy_steps": int(sum(log.steps for log in logs[serial_name])), "load_average_1min": load,
+            "load_average_1min_after": os.getloadavg()[0], "cpus": os.cpu_count(), "sides": sides}
 
 
 def report_lines(result: dict) -> list[str]:
     lines = [f"{result['envs']} runs x {result['steps']} steps, {result['policy']} on {result['track']}, latency "
-             f"{result['latency']}; load average {result['load_average_1min']:.2f} on {result['cpus']} CPUs "
+             f"{result['latency']}; load average {result['load_average_1min']:.2f} "
+             f"(after: {result.get('load_average_1min_after', float('nan')):.2f}) on {result['cpus']} CPUs "
              "(a shared, loaded machine: compare the ratios)",
-             f"{'side':44s} {'wall s':>8s} {'steps/s':>8s} {'speed-up':>9s} {'max |dsteer| vs 1':>18s}"]
+             "speed-up: against the fastest one-env side; max |dsteer|: against "
+             f"'{result.get('reference_side', 'one env at a time')}' (0 = identical)",
+             f"{'side':48s} {'wall s':>8s} {'steps/s':>8s} {'speed-up':>9s} {'max |dsteer|':>13s}"]
     for name, figures in result["sides"].items():
         difference = figures.get("max_steering_difference")
-        lines.append(f"{name:44s} {figures['wall_s']:8.2f} {figures['policy_steps_per_s']:8.1f} "
-                     f"{figures['speed_up']:8.2f}x {'' if difference is None else f'{difference:18.2e}'}")
+        lines.append(f"{name:48s} {figures['wall_s']:8.2f} {figures['policy_steps_per_s']:8.1f} "
+                     f"{figures['speed_up']:8.2f}x {'' if difference is None else f'{difference:13.2e}'}")
+    return lines
+
+
+def reproduce_report_lines(result: dict) -> list[str]:
+    lines = [f"reproduce's runs on {result['track']} ({result['conditions']} conditions): {result['runs']} runs, "
+             f"{result['seeds']} seeds, at most {result['max_steps']} steps each ({result['policy_steps']} policy "
+             f"steps); load average {result['load_average_1min']:.2f} (after: {result['load_average_1min_after']:.2f})"
+             f" on {result['cpus']} CPUs (a shared machine: compare the ratios)",
+             f"{'side':36s} {'wall s':>8s} {'speed-up':>9s}  identical to serial"]
+    for name, figures in result["sides"].items():
+        lines.append(f"{name:36s} {figures['wall_s']:8.2f} {figures['speed_up']:8.2f}x  "
+                     f"{'yes' if figures['identical_to_serial'] else 'NO'}")
     return lines

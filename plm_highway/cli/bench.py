@@ -203,6 +203,8 @@ def configure_sweep(parser) -> None:
     parser.add_argument("--latency", default="steps:0.0-0.35:1.0", help="latency profile of every run")
     parser.add_argument("--track", default="test", help="track of every run")
     parser.add_argument("--workers", type=bounded_int(1, 64), default=2, help="processes of the pool side")
+    parser.add_argument("--no-two-thread-serial", action="store_true",
+                        help="leave out the one-env side on two torch threads (very slow on a loaded machine)")
     parser.add_argument("--json", metavar="OUT.json", help="also write the figures to this JSON file")
     add_overwrite(parser)
 
@@ -214,8 +216,38 @@ def run_sweep(args) -> int:
 
     if args.json:
         check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
-    result = bench_sweep(args.envs, args.steps, args.policy, args.latency, args.track, args.workers)
+    result = bench_sweep(args.envs, args.steps, args.policy, args.latency, args.track, args.workers,
+                         not args.no_two_thread_serial)
     print("\n".join(report_lines(result)))
+    if args.json:
+        write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
+        print(f"wrote {args.json}")
+    return 0
+
+
+def configure_reproduce(parser) -> None:
+    from plm_highway.bench.sweep import bench_reproduce
+
+    d = defaults_of(bench_reproduce)
+    parser.add_argument("--seeds", type=bounded_int(1, 1000), default=d["seeds"], help="seeds per setting")
+    parser.add_argument("--max-steps", type=bounded_int(1, 10_000_000), default=d["max_steps"],
+                        help="stop each run after this many policy steps (a full run is ~1,400 on the test track)")
+    parser.add_argument("--workers", type=bounded_int(1, 64), default=d["workers"], help="processes of the parallel side")
+    parser.add_argument("--batch-size", type=bounded_int(1, 4096), default=d["batch_size"],
+                        help="envs stepped together on the batched sides")
+    parser.add_argument("--json", metavar="OUT.json", help="also write the figures to this JSON file")
+    add_overwrite(parser)
+
+
+def run_reproduce(args) -> int:
+    from plm_highway.bench import BENCH_RESULT
+    from plm_highway.bench.sweep import bench_reproduce, reproduce_report_lines
+    from plm_highway.io import check_target, write_json
+
+    if args.json:
+        check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
+    result = bench_reproduce(args.seeds, args.max_steps, args.workers, batch_size=args.batch_size)
+    print("\n".join(reproduce_report_lines(result)))
     if args.json:
         write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
         print(f"wrote {args.json}")
@@ -227,6 +259,8 @@ COMMANDS = [
     Command("models", "parameter counts and inference time of BM and PLM-Net", configure_models, run_models),
     Command("sweep", "N closed-loop runs one env at a time vs batched (own envs, gymnasium vector API) vs a "
             "process pool", configure_sweep, run_sweep),
+    Command("reproduce", "reproduce's runs (default settings, --seeds) serial vs batched vs on a process pool",
+            configure_reproduce, run_reproduce),
     Command("metrics", "trajectory metrics against similaritymeasures", configure_metrics, run_metrics),
     Command("estimation", "EKF costs per step with and without delay compensation, camera lane fit accuracy",
             configure_estimation, run_estimation),

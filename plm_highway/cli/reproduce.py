@@ -34,6 +34,11 @@ def configure(parser) -> None:
     add_seed(parser, d["seed"])
     parser.add_argument("--max-steps", type=bounded_int(1, 10_000_000),
                         help="stop each run after this many policy steps (quick looks)")
+    parser.add_argument("--workers", type=bounded_int(0, 256),
+                        help="local processes driving the runs, each batched (default: one per CPU; 0: batched in "
+                             "this process); the results do not depend on it")
+    parser.add_argument("--batch-size", type=bounded_int(1, 4096), default=d["batch_size"],
+                        help="envs stepped together, one forward pass per model and step")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_overwrite(parser)
 
@@ -46,7 +51,8 @@ def run(args) -> int:
     with single_threaded_inference():
         results = reproduce(args.track, args.settings, args.checkpoints, args.seed, args.max_steps, args.out,
                             args.generalise, args.sweep, args.sweep_max, args.sweep_step, not args.no_progress,
-                            args.command_line, overwrite=args.overwrite, seeds=args.seeds, conditions=args.conditions)
+                            args.command_line, overwrite=args.overwrite, seeds=args.seeds, conditions=args.conditions,
+                            workers=args.workers, batch_size=args.batch_size)
     out = output_dir(args.out, args.track, results["track"], args.conditions)
     for target in results["targets"]:
         print(f"{'met   ' if target['met'] else 'MISSED'} {setting_label(target['setting']):>26}: {target['target']}: "

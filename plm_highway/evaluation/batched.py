@@ -14,28 +14,32 @@ step (leaving the road, the end of the track), which its autoreset modes handle 
 env (``NEXT_STEP``/``SAME_STEP``) or by leaving a finished env in the batch (``DISABLED``, with
 ``reset_mask``); it also stacks every info dict into arrays each step, which this module would
 only have to undo. ``plm-highway bench sweep`` drives the same 16 runs both ways in one run: on a
-loaded 2-core machine (load average 17) the own loop took 16.8 s and SyncVectorEnv 18.0 s against
-32.5 s one env at a time (1.93x and 1.80x). The forward pass costs 10-20x the env step, so the
+loaded 2-core machine (load average 7-11) the own loop took 17.0 s and SyncVectorEnv 18.6 s (earlier, at load 17,
+16.8 s and 18.0 s against 32.5 s one env at a time). The forward pass costs 10-20x the env step, so the
 vector API's bookkeeping is small but never a gain. ``AsyncVectorEnv`` puts one env per
 subprocess: on 2 cores the sweep's process pool (:mod:`plm_highway.sweep`) already uses both.
 
-Same results as one env at a time: env stepping, resets and latency realisations are per env and
-seeded exactly as :func:`drive` does. The model's batched forward pass equals its batch-1 pass
-up to float rounding (the BLAS kernels sum in an order that depends on the batch size, see
-:mod:`plm_highway.models.inference`); the closed loop amplifies that a little (a nanometre moves a
-rendered pixel sooner or later): batched model runs match the one-env runs to ~1e-7 in steering
-over 30 steps and ~1e-4 over 100 (measured, PLM-Net, 16 seeds); ``batch_invariant=True`` runs each sample as its own batch-1 pass and is then
-bit-identical to :func:`drive` (at batch-1 cost). Expert runs are always bit-identical.
+Same results as one env at a time: env stepping, resets, latency realisations and image noise are
+per env and seeded exactly as :func:`drive` does, and the named model policies run batch-invariantly
+(:mod:`plm_highway.models.batch_invariant`: a sample's output does not depend on the rest of its
+batch), so every logged column equals the one-env run's bit for bit, whatever ``batch_size`` or
+``threads`` (``tests/test_batched.py``). A caller's policy object built without
+``batch_invariant`` runs PyTorch's own kernels: equal up to float rounding (~1e-6 in steering per
+step, amplified by the closed loop to ~1e-4 over 100 steps), or bit-identical with
+``run_cells(..., batch_invariant=True)``. Expert runs are always bit-identical.
 """
 
 from __future__ import annotations
 
+import copy
+import threading
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from plm_highway.evaluation.closed_loop import LOG_COLUMNS, RunLog, make_env
+from plm_highway.evaluation.closed_loop import LOG_COLUMNS, NOISE_STREAM, RunLog, add_image_noise, make_env
 from plm_highway.evaluation.policies import POLICY_NAMES, VisionPolicy, make_policy
 
 DEFAULT_BATCH_SIZE = 32
@@ -55,10 +59,13 @@ class RunCell:
     track: object = "test"
     latency: str = "const:0"
     seed: int = 0
-    latency_bias_s: float = 0.0  # PLM-Net told measured age + bias (named policies only)
+    latency_bias_s: float = 0.0  # PLM-Net told its latency + bias (named policies only)
+    latency_source: str = "measured"  # what a named PLM-Net is told: "measured" age or "requested" latency
     camera: dict | None = None
     env_config: dict | None = None
     max_steps: int | None = None
+    injection: str = "time"  # LatencyWrapper injection, as for drive()
+    image_noise_std: float = 0.0  # Gaussian pixel noise [grey levels], seeded as drive() seeds it
 
 
 @dataclass
@@ -70,11 +77,17 @@ class _Run:
     policy: object
     obs: np.ndarray
     info: dict
+    noise_rng: np.random.Generator
     rows: dict[str, list] = field(default_factory=lambda: {column: [] for column in LOG_COLUMNS})
     step: int = 0
     clamped_steps: int = 0
     done: bool = False
     terminated: bool = False
+
+    def frame(self) -> np.ndarray:
+        """The observation as the policy sees it (with the run's image noise, drawn as drive() draws it)."""
+        std = self.cell.image_noise_std
+        return add_image_noise(self.obs, std, self.noise_rng) if std > 0 else self.obs
 
     def record(self, steering: float) -> None:
         self.rows["steering"].append(steering)
@@ -102,15 +115,22 @@ class _Run:
 
 
 def run_cells(cells: Sequence[RunCell], checkpoints=None, batch_size: int = DEFAULT_BATCH_SIZE,
-              batch_invariant: bool = False, on_done: Callable[[int, RunLog], None] | None = None) -> list[RunLog]:
+              batch_invariant: bool = False, on_done: Callable[[int, RunLog], None] | None = None,
+              threads: int = 1) -> list[RunLog]:
     """Drive every cell, ``batch_size`` envs at a time; the logs in the order of ``cells``.
 
     Named model policies load the checkpoint pair once (``checkpoints`` as for
     :func:`~plm_highway.evaluation.policies.make_policy`). ``on_done(index, log)`` is called as each
-    run ends (progress, or saving results as they come).
+    run ends (progress, or saving results as they come). ``threads`` > 1 splits the cells over that
+    many Python threads, each stepping its own batch and sharing the models: the forward passes
+    (which release the GIL) of one batch run while another batch's envs step, which uses a second
+    core without a process or a second copy of the model. With batch-invariant policies (the
+    named ones) the logs do not depend on ``batch_size`` or ``threads``.
     """
     if not 1 <= batch_size <= 4096:
         raise ValueError(f"batch_size {batch_size}: must lie in [1, 4096]")
+    if not 1 <= threads <= 64:
+        raise ValueError(f"threads {threads}: must lie in [1, 64]")
     for i, cell in enumerate(cells):
         if isinstance(cell.policy, str) and cell.policy not in POLICY_NAMES:
             raise ValueError(f"cell {i} ({cell.name!r}): policy {cell.policy!r} is not one of {list(POLICY_NAMES)}")
@@ -119,18 +139,42 @@ def run_cells(cells: Sequence[RunCell], checkpoints=None, batch_size: int = DEFA
     _check_no_shared_callables(cells)
     models = _named_models(cells, checkpoints)
     logs: list[RunLog | None] = [None] * len(cells)
-    pending = list(range(len(cells)))
-    live: dict[int, _Run] = {}
-    while pending or live:
-        while pending and len(live) < batch_size:  # refill the batch as runs end
-            index = pending.pop(0)
-            live[index] = _start(cells[index], models)
-        _steer_and_step(list(live.values()), batch_invariant)
-        for index in [i for i, run in live.items() if run.done]:
-            logs[index] = live.pop(index).log()
-            if on_done is not None:
-                on_done(index, logs[index])
+    parts = [list(range(len(cells)))[k::threads] for k in range(min(threads, len(cells)))]
+    if len(parts) <= 1:
+        _drive_part(parts[0] if parts else [], cells, models, batch_size, batch_invariant, logs, on_done)
+        return logs
+    lock = threading.Lock()
+
+    def done(index: int, log: RunLog) -> None:
+        with lock:
+            on_done(index, log)
+
+    with ThreadPoolExecutor(len(parts)) as pool:
+        futures = [pool.submit(_drive_part, part, cells, models, batch_size, batch_invariant, logs,
+                               None if on_done is None else done) for part in parts]
+        for future in futures:
+            future.result()
     return logs
+
+
+def _drive_part(indices: list[int], cells: Sequence[RunCell], models: dict, batch_size: int, batch_invariant: bool,
+                logs: list, on_done) -> None:
+    """The cells ``indices``, ``batch_size`` envs at a time, refilling the batch as runs end."""
+    pending = list(indices)
+    live: dict[int, _Run] = {}
+    try:
+        while pending or live:
+            while pending and len(live) < batch_size:
+                index = pending.pop(0)
+                live[index] = _start(cells[index], models)
+            _steer_and_step(list(live.values()), batch_invariant)
+            for index in [i for i, run in live.items() if run.done]:
+                logs[index] = live.pop(index).log()
+                if on_done is not None:
+                    on_done(index, logs[index])
+    finally:
+        for run in live.values():  # an error: close what is still open
+            run.env.close()
 
 
 def _check_no_shared_callables(cells: Sequence[RunCell]) -> None:
@@ -156,13 +200,13 @@ def _start(cell: RunCell, models: dict[str, VisionPolicy]) -> _Run:
     if cell.policy == "expert":
         policy = make_policy("expert")
     elif isinstance(cell.policy, str):
-        policy = VisionPolicy(models[cell.policy].model_policy, latency_bias_s=cell.latency_bias_s)
+        policy = VisionPolicy(models[cell.policy].model_policy, cell.latency_bias_s, cell.latency_source)
     else:
         policy = cell.policy
-    env = make_env(cell.track, cell.latency, cell.camera, cell.env_config)
+    env = make_env(cell.track, cell.latency, cell.camera, cell.env_config, cell.injection)
     obs, info = env.reset(seed=cell.seed)
     policy.reset()
-    return _Run(cell, env, policy, obs, info)
+    return _Run(cell, env, policy, obs, info, np.random.default_rng([cell.seed, NOISE_STREAM]))
 
 
 def _steer_and_step(runs: list[_Run], batch_invariant: bool) -> None:
@@ -173,19 +217,18 @@ def _steer_and_step(runs: list[_Run], batch_invariant: bool) -> None:
         if isinstance(run.policy, VisionPolicy):
             by_model.setdefault(id(run.policy.model_policy), []).append(run)
         else:
-            steering[id(run)] = float(run.policy(run.obs, run.info))
+            steering[id(run)] = float(run.policy(run.frame(), run.info))
     for group in by_model.values():
         model = group[0].policy.model_policy
         # The same latency (and float32 rounding) as VisionPolicy.__call__ gives the model per frame.
-        latencies_s = np.asarray([max(0.0, run.info["observation_age_s"] + run.policy.latency_bias_s)
+        latencies_s = np.asarray([max(0.0, run.info[run.policy.info_key] + run.policy.latency_bias_s)
                                   for run in group], dtype=np.float32)
-        frames = np.stack([run.obs for run in group])
-        speeds_mps = [run.info["speed_mps"] for run in group]
-        if batch_invariant:  # also for policy objects the caller passed, without changing them
-            actions = np.concatenate([model.steer_batch(frames[i:i + 1], speeds_mps[i:i + 1], latencies_s[i:i + 1])
-                                      for i in range(len(group))])
-        else:
-            actions = model.steer_batch(frames, speeds_mps, latencies_s)
+        frames = np.stack([run.frame() for run in group])
+        speeds_mps = np.asarray([run.info["speed_mps"] for run in group])
+        if batch_invariant and not model.batch_invariant:  # a caller's policy object, left as it was
+            model = copy.copy(model)
+            model.batch_invariant = True
+        actions = model.steer_batch(frames, speeds_mps, latencies_s)
         above_grid = latencies_s > np.float32(model.max_latency_s)
         for run, action, clamped in zip(group, actions, above_grid):
             steering[id(run)] = float(action)

@@ -114,7 +114,8 @@ def _seed_list(seeds, first_seed: int) -> list[int]:
 def _evaluate_seeds(track, track_spec: TrackSpec, latency_spec: str, policy: str, seeds: list[int],
                     max_steps: int | None, checkpoints) -> tuple[dict, dict]:
     from plm_highway.evaluation import protocol
-    from plm_highway.evaluation.run import CONDITIONS, Cell, run_cells
+    from plm_highway.evaluation.cell_runner import drive_cells
+    from plm_highway.evaluation.run import CONDITIONS, Cell
 
     base_policy = "expert" if policy == "expert" else "bm"
     policies = {base_policy: make_policy(base_policy, checkpoints)}
@@ -124,7 +125,8 @@ def _evaluate_seeds(track, track_spec: TrackSpec, latency_spec: str, policy: str
         roles["mitigated"] = "plm"
     cells = [Cell(role, who, "const:0" if role == "reference" else latency_spec, seed)
              for seed in seeds for role, who in roles.items()]
-    logs = run_cells(cells, track_spec, CONDITIONS["ideal"], policies, max_steps, drive_fn=_drive)
+    # Batched (one forward pass per model and step); batch-invariant models: each run is its one-env run.
+    logs = drive_cells(cells, track_spec, CONDITIONS["ideal"], policies, checkpoints, max_steps)
     per_seed_logs = [dict(zip(roles, logs[k:k + len(roles)])) for k in range(0, len(logs), len(roles))]
     first = compare_runs(per_seed_logs[0], track, latency_spec, policy, seeds[0], track_spec)
     first["seeds"] = seeds
@@ -135,10 +137,6 @@ def _evaluate_seeds(track, track_spec: TrackSpec, latency_spec: str, policy: str
         first["over_seeds"] = {"steering": protocol.estimates_as_dict(
             protocol.aggregate_steering([entry["steering"] for entry in first["per_seed"]]))}
     return first, per_seed_logs[0]
-
-
-def _drive(*args, **kwargs):
-    return drive(*args, **kwargs)  # looked up at call time, so tests can replace this module's ``drive``
 
 
 def combined_rows(logs: dict[str, RunLog]) -> tuple[list[str], list[list]]:

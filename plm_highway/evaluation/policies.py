@@ -104,7 +104,8 @@ def checkpoint_pair(checkpoint_dir=None) -> tuple[Path, Path]:
 
 def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, latency_source: str = "measured",
                 seed: int = 0):
-    """The policy named ``name``; model policies load the shipped checkpoints unless given a dir.
+    """The policy named ``name``; model policies load the shipped checkpoints unless given a dir and run
+    batch-invariantly (:mod:`plm_highway.models.batch_invariant`).
 
     ``seed`` seeds the EKF policy's own sensor noise (the others have none).
     """
@@ -119,7 +120,9 @@ def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, lat
     from plm_highway.models import checkpoints, inference
 
     bm_path, tapm_path = checkpoint_pair(checkpoint_dir)
+    # Batch-invariant kernels: a run's result does not depend on which runs shared its batch (or on
+    # running alone), so batched, pooled and one-env runs of one seed give the same numbers.
     if name == "bm":
-        return VisionPolicy(inference.BaseModelPolicy(checkpoints.load_base_model(bm_path)))
-    return VisionPolicy(inference.PLMNetPolicy(checkpoints.load_plm_net(bm_path, tapm_path)), latency_bias_s,
-                        latency_source)
+        return VisionPolicy(inference.BaseModelPolicy(checkpoints.load_base_model(bm_path), batch_invariant=True))
+    return VisionPolicy(inference.PLMNetPolicy(checkpoints.load_plm_net(bm_path, tapm_path), batch_invariant=True),
+                        latency_bias_s, latency_source)

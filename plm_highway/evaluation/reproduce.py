@@ -25,6 +25,8 @@ from pathlib import Path
 
 from plm_highway.errors import BadInput
 from plm_highway.evaluation import protocol
+from plm_highway.evaluation.batched import DEFAULT_BATCH_SIZE
+from plm_highway.evaluation.cell_runner import MAX_WORKERS, drive_cells, worker_pool
 from plm_highway.evaluation.closed_loop import drive
 from plm_highway.evaluation.evaluate import compare_runs
 from plm_highway.evaluation.policies import checkpoint_pair
@@ -44,6 +46,7 @@ DEFAULT_SETTINGS = ("const:0.15", "const:0.2", "const:0.25", "const:0.3", "steps
 DEFAULT_OUT = Path("figures/reproduce")
 DEFAULT_GENERALISATION = {"test": ("unseen",)}  # main track -> tracks of the generalisation section
 DEFAULT_SEEDS = 5
+MAX_BATCH_SIZE = 4096
 RUNS = ("reference", "baseline", "mitigated")
 
 __all__ = ["DEFAULT_OUT", "DEFAULT_SETTINGS", "REPRODUCE_REPORT", "default_settings", "output_dir", "reproduce",
@@ -89,7 +92,7 @@ def plan_cells(specs: list[str], seeds: list[int], track_name: str) -> list[Cell
 
 
 def measure_track(track_spec: TrackSpec, specs: list[str], seeds: list[int], conditions: Conditions, policies: dict,
-                  max_steps: int | None, bar, drive_fn=None) -> dict:
+                  max_steps: int | None, bar, drive_fn=None, runner=None) -> dict:
     """Drive every cell of one track; ``{"track_spec", "references": [per seed], "settings": {spec: entry}}``.
 
     An entry holds ``per_seed`` (each seed's ``evaluate``-style result, steering over the common span of
@@ -97,7 +100,10 @@ def measure_track(track_spec: TrackSpec, specs: list[str], seeds: list[int], con
     ``trajectory`` (mean over seeds) and ``logs`` (seed ``seeds[0]``'s runs, for the figures).
     """
     cells = plan_cells(specs, seeds, track_spec.name)
-    logs = run_cells(cells, track_spec, conditions, policies, max_steps, bar, drive_fn)
+    if runner is not None:  # batched / pooled: runner(cells, track_spec, conditions, max_steps, bar)
+        logs = runner(cells, track_spec, conditions, max_steps, bar)
+    else:
+        logs = run_cells(cells, track_spec, conditions, policies, max_steps, bar, drive_fn)
     by_cell = dict(zip(((c.role, c.latency, c.seed) for c in cells), logs))
     references = [by_cell[("reference", "const:0", seed)] for seed in seeds]
     settings = {}
@@ -137,12 +143,23 @@ def run_track(track, specs: list[str], policies: dict, seed: int, max_steps: int
 
 def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=None, out=None, generalise=None,
               sweep=False, sweep_max=0.5, sweep_step=0.05, progress=True, command="", overwrite=False,
-              seeds=DEFAULT_SEEDS, conditions="ideal") -> dict:
+              seeds=DEFAULT_SEEDS, conditions="ideal", workers=None, batch_size=DEFAULT_BATCH_SIZE) -> dict:
     """Validate everything, drive every cell, then write the report; returns the results dict (JSON-ready).
 
     ``seeds``: a count N (seeds ``seed .. seed+N-1``) or a list; ``settings`` None: :func:`default_settings`.
+    The runs of each track are driven batched (``batch_size`` envs per forward pass) on a local pool
+    of ``workers`` processes (None: one per CPU; 0: batched in this process); the results do not
+    depend on either (batch-invariant models, :mod:`~plm_highway.evaluation.cell_runner`).
+    The ``--sweep`` runs are driven one at a time.
     """
     from plm_highway.evaluation import sweep as sweep_module
+    from plm_highway.sweep.backends import default_workers
+
+    workers = default_workers() if workers is None else workers
+    if not 0 <= workers <= MAX_WORKERS:
+        raise BadInput(f"--workers {workers}: must lie in [0, {MAX_WORKERS}]")
+    if not 1 <= batch_size <= MAX_BATCH_SIZE:
+        raise BadInput(f"--batch-size {batch_size}: must lie in [1, {MAX_BATCH_SIZE}]")
 
     conditions = conditions_named(conditions)
     seed_list = _seed_list(seeds, seed)
@@ -167,9 +184,16 @@ def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=N
     if sweep:
         n_runs += len(sweep_module.planned_runs(latencies, sweep_module.LATENCY_BIASES_S, grid_max_s))
     bar = progress_bar(n_runs, progress)
+
+    pool = worker_pool(workers) if workers else None  # one pool for every track: workers load the models once
+
+    def runner(cells, track_spec, run_conditions, run_max_steps, run_bar):
+        return drive_cells(cells, track_spec, run_conditions, policies, checkpoints, run_max_steps, run_bar, workers,
+                           batch_size, pool=pool)
+
     try:
-        main = measure_track(main_spec, specs, seed_list, conditions, policies, max_steps, bar, _drive)
-        others = {s.name: measure_track(s, specs, seed_list, conditions, policies, max_steps, bar, _drive)
+        main = measure_track(main_spec, specs, seed_list, conditions, policies, max_steps, bar, runner=runner)
+        others = {s.name: measure_track(s, specs, seed_list, conditions, policies, max_steps, bar, runner=runner)
                   for s in other_specs}
         sweep_result = None
         if sweep:
@@ -179,6 +203,8 @@ def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=N
                                                                                   seed_list[0], bar))
     finally:
         bar.close()
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
     if progress:
         print(f"reproduce: all {n_runs} runs done; writing the tables, figures and report to {out}", file=sys.stderr)
     result = Reproduction.build(command or "plm-highway reproduce", conditions, seed_list, max_steps, main, others,

@@ -183,14 +183,19 @@ def run_cells(cells: Sequence[Cell], track_spec: TrackSpec, conditions: Conditio
     for cell in cells:
         if progress is not None:
             progress.set_postfix_str(cell.label or f"{cell.role} {cell.latency} seed {cell.seed}", refresh=True)
-        offset_m, heading_rad = start_perturbation(cell.seed, conditions)
         logs.append(drive_fn(cell.name, policies[cell.policy], track_spec, cell.latency, cell.seed,
-                             camera=conditions.camera or None, env_config=conditions.env_config(offset_m, heading_rad),
-                             max_steps=steps, injection=conditions.injection,
-                             image_noise_std=conditions.image_noise_std))
+                             **drive_options(cell, conditions, steps)))
         if progress is not None:
             progress.update(1)
     return logs
+
+
+def drive_options(cell: Cell, conditions: Conditions, steps: int | None) -> dict:
+    """The keyword arguments of :func:`drive` (and fields of the batched runner's ``RunCell``) that
+    ``conditions`` set for ``cell``: one place, so serial and batched runs are set up alike."""
+    offset_m, heading_rad = start_perturbation(cell.seed, conditions)
+    return {"camera": conditions.camera or None, "env_config": conditions.env_config(offset_m, heading_rad),
+            "max_steps": steps, "injection": conditions.injection, "image_noise_std": conditions.image_noise_std}
 
 
 def progress_bar(total: int, enabled: bool, desc: str = "reproduce") -> tqdm:
@@ -205,5 +210,5 @@ def make_policies(checkpoints, conditions: Conditions) -> dict[str, Policy]:
             "plm": make_policy("plm", checkpoints, latency_source=conditions.latency_source)}
 
 
-__all__ = ["CONDITIONS", "CONDITION_NAMES", "Cell", "Conditions", "ROLES", "run_cells",
+__all__ = ["CONDITIONS", "CONDITION_NAMES", "Cell", "Conditions", "ROLES", "drive_options", "run_cells",
            "scored_steps", "sight_m", "start_perturbation"]

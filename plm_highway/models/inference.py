@@ -10,8 +10,10 @@ Two calls:
   speeds (B,), latencies (B,) -> steering (B,) float64, for B envs stepped together. One forward
   pass. Per sample it equals the batch-1 call up to float rounding, not bit for bit: the BLAS and
   oneDNN kernels pick their summation order by batch size (measured: |difference| below 1e-6
-  on steering with the shipped checkpoints). With ``batch_invariant=True`` the policy runs each sample as its own batch-1 pass
-  instead: bit-identical to the batch-1 call, at batch-1 cost.
+  on steering with the shipped checkpoints). With ``batch_invariant=True`` the policy runs its
+  convolutions and products with :func:`~plm_highway.models.batch_invariant.batch_invariant_ops`
+  (one torch thread): the BM's output for a sample is then bit-identical whatever else is in the
+  batch (PLM-Net runs one pass per latency segment of its grid, :meth:`PLMNetPolicy.rows_run_together`).
 
 Inputs are checked: frames uint8 of the model's size, finite speeds, finite latencies >= 0, and
 at most :data:`MAX_BATCH` samples. A non-finite steering output (NaN weights that slipped past the
@@ -21,6 +23,7 @@ naming the sample: a run must stop there rather than drive on NaN.
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import numpy as np
@@ -28,6 +31,7 @@ import torch
 
 from plm_highway.errors import BadInput
 from plm_highway.models.base_model import BaseModel
+from plm_highway.models.batch_invariant import batch_invariant_ops
 from plm_highway.models.plm_net import FusedPLMNet, PLMNet
 
 MAX_BATCH = 4096
@@ -60,14 +64,14 @@ class _Policy:
     def steer_batch(self, frames: np.ndarray, speeds_mps, latencies_s=None) -> np.ndarray:
         """Frames uint8 (B, H, W), speeds (B,) m/s, latencies (B,) s (default 0) -> steering (B,) float64."""
         frames_t, speeds_t, latencies = self._checked_batch(frames, speeds_mps, latencies_s)
-        with torch.inference_mode():
-            if self.batch_invariant and len(frames_t) > 1:
-                steering = torch.cat([
-                    self._forward(frames_t[i : i + 1], speeds_t[i : i + 1], latencies[i : i + 1])
-                    for i in range(len(frames_t))
-                ])
-            else:
+        with torch.inference_mode(), (batch_invariant_ops() if self.batch_invariant else contextlib.nullcontext()):
+            groups = self.rows_run_together(latencies) if self.batch_invariant else [slice(None)]
+            if len(groups) == 1:
                 steering = self._forward(frames_t, speeds_t, latencies)
+            else:
+                steering = torch.empty(len(frames_t))
+                for rows in groups:
+                    steering[rows] = self._forward(frames_t[rows], speeds_t[rows], latencies[rows])
         steering_np = steering.numpy().astype(np.float64)
         if not np.all(np.isfinite(steering_np)):
             i = int(np.flatnonzero(~np.isfinite(steering_np))[0])
@@ -79,6 +83,10 @@ class _Policy:
 
     def _forward(self, frames: torch.Tensor, speeds_mps: torch.Tensor, latencies_s: np.ndarray) -> torch.Tensor:
         raise NotImplementedError
+
+    def rows_run_together(self, latencies_s: np.ndarray) -> list:
+        """Batch-invariant mode: the groups of rows that share one forward pass (all of them here)."""
+        return [slice(None)]
 
     def _checked_batch(self, frames, speeds_mps, latencies_s) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
         frames = np.asarray(frames)
@@ -136,6 +144,15 @@ class PLMNetPolicy(_Policy):
         self.model = plm_net.eval()
         self.fused = FusedPLMNet(plm_net) if fused else None
         self.max_latency_s = plm_net.last_grid_s
+
+    def rows_run_together(self, latencies_s: np.ndarray) -> list:
+        """Rows whose latencies lie in one segment of the grid (0 apart): the fused form evaluates the heads
+        that the batch's segments need, and that product's width changes its sums; per segment, a
+        sample gets the heads it gets alone."""
+        grid_s = self.model.delta_ref_s.numpy()
+        segment = np.searchsorted(grid_s[1:-1], np.minimum(latencies_s, grid_s[-1])) * 2 + (latencies_s > 0)
+        values = np.unique(segment)
+        return [slice(None)] if len(values) == 1 else [np.flatnonzero(segment == value) for value in values]
 
     def _forward(self, frames, speeds_mps, latencies_s):
         if self.fused is None:

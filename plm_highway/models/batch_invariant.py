@@ -1,0 +1,118 @@
+"""Batch-invariant kernels: a sample's outputs do not depend on the other samples in its batch.
+
+PyTorch's CPU kernels pick their algorithm by shape, and the batch size is part of the shape:
+at batch size 1 the two 3x3 convolutions run PyTorch's own im2col + GEMM, at larger batches
+oneDNN (or NNPACK from 16 samples on); MKL's GEMM takes a matrix-vector path for 1-3 rows and
+for a single output column a path whose summation order changes with the number of rows. Each
+choice sums in its own order, so a sample's steering differs by ~1e-6 between batch size 1 and
+16, which a closed loop amplifies (a rendered pixel moves a step sooner or later). This is the
+idea of Thinking Machines' "batch-invariant ops" (He et al., 2025, "Defeating Nondeterminism in
+LLM Inference"): give every sample the same reduction order whatever the batch size.
+
+Inside :func:`batch_invariant_ops` (one torch thread):
+
+- ``conv2d`` always runs oneDNN's direct convolution (``aten.mkldnn_convolution``), at every
+  batch size: its per-output reduction order is set by the layer's shape, not by the batch size;
+- ``linear`` runs row by row, each row as the one-row product a batch of one computes (MKL's
+  matrix-vector path), with the inputs and weights padded by zero columns to a multiple of 16
+  values so that every row starts on a 64-byte boundary (MKL's path depends on alignment too).
+
+Every other operation the models use is element-wise (exact IEEE operations, or ``tanh``, whose
+vector and scalar kernels agree) or a min/max. What makes this hold is MKL's and oneDNN's kernel
+choice, which no documentation promises: ``tests/test_batch_invariant.py`` checks it for the
+layer shapes of both presets and both model policies at many batch compositions, and
+``tests/test_batched.py`` checks whole closed-loop runs column by column. Cost: measured by
+``plm-highway bench sweep`` (the one-env side with and without these kernels). Row-by-row
+products give up the batched product's reuse of the weights, but the convolutions, ~95% of the
+work, keep their batched speed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import weakref
+from collections.abc import Iterator
+
+import torch
+import torch.nn.functional as F
+from torch.overrides import TorchFunctionMode
+
+ROW_ALIGNMENT = 16  # float32 values: 64 bytes
+
+
+def conv2d(input, weight, bias=None, stride=1, padding=0, dilation=1, groups=1):
+    """``F.conv2d`` through oneDNN's direct convolution whatever the batch size (float32, numeric padding)."""
+    if isinstance(padding, str) or input.dtype != torch.float32 or input.device.type != "cpu" or input.dim() != 4:
+        return F.conv2d(input, weight, bias, stride, padding, dilation, groups)
+    return torch.ops.aten.mkldnn_convolution(input.contiguous(), weight.contiguous(), bias, _pair(padding),
+                                             _pair(stride), _pair(dilation), groups)
+
+
+def linear(input, weight, bias=None):
+    """``F.linear`` whose rows do not depend on how many rows are computed together, nor where."""
+    rows = input.reshape(-1, input.shape[-1])
+    n_rows, width = rows.shape
+    padded_width = -(-width // ROW_ALIGNMENT) * ROW_ALIGNMENT
+    if padded_width != width:  # every row starts on a 64-byte boundary: MKL's path depends on alignment
+        rows = F.pad(rows, (0, padded_width - width))
+        weight = _padded_weight(weight, padded_width)
+    if n_rows == 1:
+        out = F.linear(rows, weight, bias)
+    else:  # row by row: the one-row product (MKL's matrix-vector path), as a batch of one computes it
+        out = torch.cat([F.linear(rows[i : i + 1], weight, bias) for i in range(n_rows)])
+    return out.reshape(*input.shape[:-1], weight.shape[0])
+
+
+_PADDED_WEIGHTS: dict[int, tuple[weakref.ref, int, torch.Tensor]] = {}
+_PADDED_LOCK = threading.Lock()
+
+
+def _padded_weight(weight: torch.Tensor, padded_width: int) -> torch.Tensor:
+    """``weight`` with zero columns up to ``padded_width``, kept while ``weight`` lives unchanged (a model's
+    layers are padded once, not at every step)."""
+    # Inference tensors (weights a model packs inside inference mode) have no version counter; they
+    # are caches built once, never changed in place.
+    version = -1 if torch.is_inference(weight) else weight._version
+    with _PADDED_LOCK:
+        entry = _PADDED_WEIGHTS.get(id(weight))
+        if entry is not None and entry[0]() is weight and entry[1] == version:
+            return entry[2]
+        padded = F.pad(weight, (0, padded_width - weight.shape[1]))
+        for key in [k for k, (ref, _, _) in _PADDED_WEIGHTS.items() if ref() is None]:
+            del _PADDED_WEIGHTS[key]
+        _PADDED_WEIGHTS[id(weight)] = (weakref.ref(weight), version, padded)
+        return padded
+
+
+def _pair(value) -> list[int]:
+    return [int(value), int(value)] if isinstance(value, int) else [int(v) for v in value]
+
+
+class _BatchInvariantMode(TorchFunctionMode):
+    def __torch_function__(self, func, types, args=(), kwargs=None):
+        kwargs = kwargs or {}
+        if func is F.conv2d:
+            return conv2d(*args, **kwargs)
+        if func is F.linear:
+            return linear(*args, **kwargs)
+        return func(*args, **kwargs)
+
+
+@contextlib.contextmanager
+def batch_invariant_ops() -> Iterator[None]:
+    """Run ``conv2d`` and ``linear`` batch-invariantly inside the block, on one torch thread.
+
+    One thread because MKL splits a product over two threads differently for different row
+    counts; to use more cores, run batches side by side (threads or processes), each on one.
+    The mode is per Python thread; the torch thread count is the process's, restored after.
+    """
+    previous = torch.get_num_threads()
+    if previous != 1:
+        torch.set_num_threads(1)
+    try:
+        with _BatchInvariantMode():
+            yield
+    finally:
+        if previous != 1:
+            torch.set_num_threads(previous)
