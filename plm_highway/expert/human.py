@@ -38,15 +38,15 @@ from plm_highway.expert.controller import ExpertParams, expert_steering
 
 @dataclass(frozen=True)
 class HumanParams:
-    reaction_delay_s: float = 0.2
-    hand_time_constant_s: float = 0.12
+    reaction_delay_s: float = 0.18
+    hand_time_constant_s: float = 0.08
     max_steering_rate_radps: float = 0.6  # front-wheel angle rate
-    natural_frequency_radps: float = 2.0
+    natural_frequency_radps: float = 1.5
     damping_ratio: float = 0.8
-    offset_noise_m: float = 0.25  # stationary std of the wander in the lateral position the driver steers by
+    offset_noise_m: float = 0.2  # stationary std of the wander in the lateral position the driver steers by
     heading_noise_rad: float = 0.02  # stationary std of the heading-error misjudgement
     wander_time_constant_s: float = 2.0  # correlation time of both
-    motor_noise: float = 0.2  # std of the per-step command noise [normalised steering]
+    motor_noise: float = 0.15  # std of the per-step command noise [normalised steering]
     max_steering_rad: float = 0.2  # the env's full scale (front wheels)
 
 
@@ -56,7 +56,7 @@ HUMAN_PARAM_SOURCES = {
     "hand_time_constant_s": "neuromuscular lag of the arms on a wheel, about 0.1-0.2 s (McRuer crossover model T_N)",
     "max_steering_rate_radps": "0.6 rad/s at the front wheels = 410 deg/s at a 12:1 hand wheel, the middle of the "
                                "300-700 deg/s hand-wheel rates measured for ordinary and evasive driving",
-    "natural_frequency_radps": "looser than the expert's 3 rad/s (2.5 with these delays already limit-cycles): a person following a lane centre on a racing-"
+    "natural_frequency_radps": "looser than the expert's 3 rad/s (2.0 already limit-cycles with the paper conditions' 0.1 s actuator: a driver adapts to the car): a person following a lane centre on a racing-"
                                "wheel simulator corrects offsets over seconds (paper Sec. 4.1: centre line followed)",
     "damping_ratio": "slightly less damped than the expert's 0.9",
     "offset_noise_m": "calibrated: with the motor noise, makes the labels' std approach the paper's Table 1 "
