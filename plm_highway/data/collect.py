@@ -5,6 +5,12 @@ once its own errors accumulate. Most episodes therefore start displaced (lateral
 heading error drawn at random) and record the expert bringing the car back; each frame is
 labelled with the expert's action for that frame's true state, and the car executes that same
 action. Every displacement starts a new episode, so future-action labels never span a jump.
+
+Who drives and how the car is set up follow ``conditions`` (``--conditions``): ``ideal`` records the
+noise-free expert at 20 Hz with the default camera; ``paper`` records the human-like demonstrator
+(:mod:`plm_highway.expert.human`) at the paper's 30 Hz loop, with its steering actuator and the original
+camera. ``--camera`` and ``--demonstrator`` override either choice. The label is what the driver's hand
+did at that frame, and the car executes it.
 """
 
 from __future__ import annotations
