@@ -54,7 +54,7 @@ def test_paper_bm_steers_into_a_curve_seen_by_the_paper_camera(paper_net):
         if segment.kind == "arc":
             obs, info = env.reset(options={"start_arc_length_m": arc_m + 0.5 * length_m})
             with torch.no_grad():
-                steering = float(paper_net.bm(torch.from_numpy(np.asarray(obs)[None]), torch.tensor([16.7]))[0])
+                steering = float(paper_net.bm(torch.from_numpy(np.array(obs)[None]), torch.tensor([16.7]))[0])
             signs.append(np.sign(steering) == np.sign(info["curvature_1pm"]))
         arc_m += length_m
     assert len(signs) >= 2 and all(signs)
