@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from plm_highway.camera.pinhole import PAPER_CAMERA
 from plm_highway.errors import BadInput
 from plm_highway.evaluation import protocol
 from plm_highway.evaluation.closed_loop import RunLog
@@ -208,6 +209,13 @@ def test_paper_conditions_preset():
                                         "frames:9-21:60@30", "frames:9-21:60@60")
     assert default_settings(ideal) == ("const:0.15", "const:0.2", "const:0.25", "const:0.3", "steps:0.0-0.35:1.0")
     assert protocol.setting_label("frames:9-21:60@30").startswith("time-varying, 9-21 frames at 30 Hz (0.30-0.70 s")
+    # The original pipeline (issue 9): its camera, 1-2 frames of processing, a first-order actuator, its checkpoints.
+    assert paper.camera == PAPER_CAMERA and ideal.camera == {}
+    assert 1 <= paper.processing_delay_steps <= 2 and ideal.processing_delay_steps == 0
+    assert paper.steering_time_constant_s > 0 and ideal.steering_time_constant_s == 0
+    assert paper.env_config()["processing_delay_steps"] == paper.processing_delay_steps
+    assert (paper.checkpoint_preset, paper.demonstrator) == ("paper", "human")
+    assert (ideal.checkpoint_preset, ideal.demonstrator) == ("default", "expert")
 
 
 def test_start_perturbation_is_seeded_and_bounded():

@@ -3,6 +3,12 @@
 The ground is flat, so the map from image pixels to points on the ground is a homography that
 depends only on the camera's mounting (fixed per camera). Per frame only the car's pose changes:
 ``frame = warpPerspective(ground_map, world_to_pixel @ pose @ image_to_ground)``.
+
+A camera may also stand for a larger sensor image that is cropped to a band of rows and resized
+(the original PLM-Net: an 800x800 image, rows 380-520, resized to 160x160): the crop and the
+resize are one more affine map from frame pixels to sensor pixels, folded into the same homography,
+so such a frame costs no more than any other of its size. The resize samples each frame pixel at its
+centre (bilinear from the ground map), not an area average of the sensor pixels.
 """
 
 from __future__ import annotations
@@ -24,7 +30,9 @@ WARP_FLAGS = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
 CAMERA_RANGES = {
     "height_px": (8, 1024), "width_px": (8, 1024), "fov_deg": (10.0, 150.0), "mount_height_m": (0.1, 10.0),
     "pitch_deg": (-30.0, 80.0), "forward_offset_m": (-10.0, 10.0), "max_range_m": (1.0, 1000.0),
+    "sensor_width_px": (0, 4096), "sensor_height_px": (0, 4096), "crop_top_px": (0, 4096), "crop_rows_px": (0, 4096),
 }
+SENSOR_FIELDS = ("sensor_width_px", "sensor_height_px", "crop_top_px", "crop_rows_px")
 
 
 @dataclass(frozen=True)
@@ -36,6 +44,12 @@ class CameraConfig:
     pitch_deg: float = 6.0  # downwards
     forward_offset_m: float = 1.0  # camera ahead of the car's reference point
     max_range_m: float = 60.0  # ground farther than this is drawn as haze
+    # A larger sensor image cropped to rows [crop_top_px, crop_top_px + crop_rows_px) and resized to the
+    # frame size; 0 everywhere (the default) = the frame is the whole sensor image. fov_deg is the sensor's.
+    sensor_width_px: int = 0
+    sensor_height_px: int = 0
+    crop_top_px: int = 0
+    crop_rows_px: int = 0
 
     @classmethod
     def from_dict(cls, values: dict) -> CameraConfig:
@@ -48,20 +62,52 @@ class CameraConfig:
             raise BadInput(f"camera config: unknown keys {unknown}; allowed {sorted(cls.__dataclass_fields__)}")
         for name, value in values.items():
             low, high = CAMERA_RANGES[name]
-            is_int_field = name in ("height_px", "width_px")
+            is_int_field = name in ("height_px", "width_px", *SENSOR_FIELDS)
             number_type_ok = isinstance(value, int) if is_int_field else isinstance(value, (int, float))
             if isinstance(value, bool) or not number_type_ok or not (low <= value <= high):
                 kind = "an integer" if is_int_field else "a number"
                 raise BadInput(f"camera config: {name} = {value!r} must be {kind} in [{low:g}, {high:g}]")
         config = cls(**values)
+        sensor = [getattr(config, name) for name in SENSOR_FIELDS]
+        if any(sensor) and not (config.sensor_width_px and config.sensor_height_px and config.crop_rows_px
+                                and config.crop_top_px + config.crop_rows_px <= config.sensor_height_px):
+            raise BadInput(f"camera config: a cropped sensor needs sensor_width_px, sensor_height_px and crop_rows_px "
+                           f"> 0 and crop_top_px + crop_rows_px <= sensor_height_px; got "
+                           f"{dict(zip(SENSOR_FIELDS, sensor, strict=True))}")
         if ground_rows(config).sum() == 0:
             raise BadInput(f"camera config: pitch_deg={config.pitch_deg} with fov_deg={config.fov_deg} sees no "
                              f"ground within max_range_m={config.max_range_m}")
         return config
 
     @property
+    def cropped(self) -> bool:
+        return self.sensor_width_px > 0
+
+    @property
     def focal_px(self) -> float:
-        return (self.width_px / 2.0) / math.tan(math.radians(self.fov_deg) / 2.0)
+        """Focal length in pixels of the sensor image (the frame itself unless cropped)."""
+        width_px = self.sensor_width_px if self.cropped else self.width_px
+        return (width_px / 2.0) / math.tan(math.radians(self.fov_deg) / 2.0)
+
+
+# The original PLM-Net camera (notes on the original code; paper Sec. 4.1, OSCAR's Ford Fusion): an 800x800
+# image with an 80 deg field of view from 1.83 m, cropped to rows 380-520 (the road strip) and resized to
+# 160x160. Its pitch is "small" in the notes; 2.3 deg puts the horizon at the strip's top row
+# (atan(19.5 px / 476.7 px focal)), so the whole strip is road, as the original crop was chosen to be.
+PAPER_CAMERA = {"height_px": 160, "width_px": 160, "fov_deg": 80.0, "mount_height_m": 1.83, "pitch_deg": 2.3,
+                "sensor_width_px": 800, "sensor_height_px": 800, "crop_top_px": 380, "crop_rows_px": 140}
+
+
+def frame_to_sensor(config: CameraConfig) -> np.ndarray:
+    """3x3 affine from frame pixel (u, v, 1) to sensor pixel: the crop and resize undone, pixel centres
+    matched (the identity for an uncropped camera)."""
+    if not config.cropped:
+        return np.eye(3)
+    scale_u = config.sensor_width_px / config.width_px
+    scale_v = config.crop_rows_px / config.height_px
+    return np.array([[scale_u, 0.0, 0.5 * scale_u - 0.5],
+                     [0.0, scale_v, config.crop_top_px + 0.5 * scale_v - 0.5],
+                     [0.0, 0.0, 1.0]])
 
 
 def image_to_ground(config: CameraConfig) -> np.ndarray:
@@ -70,9 +116,12 @@ def image_to_ground(config: CameraConfig) -> np.ndarray:
     A pixel's ray is (a, b, 1) in camera axes (right, down, forward) with a = (u-cx)/f,
     b = (v-cy)/f; pitching the camera down by theta and intersecting with the ground gives
     forward = h (cos th - b sin th) / D + offset, left = -h a / D, D = b cos th + sin th.
+    For a cropped camera (u, v) are first taken to sensor pixels by :func:`frame_to_sensor`.
     """
     f = config.focal_px
-    cx, cy = (config.width_px - 1) / 2.0, (config.height_px - 1) / 2.0
+    width_px, height_px = ((config.sensor_width_px, config.sensor_height_px) if config.cropped
+                           else (config.width_px, config.height_px))
+    cx, cy = (width_px - 1) / 2.0, (height_px - 1) / 2.0
     h = config.mount_height_m
     th = math.radians(config.pitch_deg)
     c, s = math.cos(th), math.sin(th)
@@ -80,7 +129,9 @@ def image_to_ground(config: CameraConfig) -> np.ndarray:
     denominator = np.array([0.0, c / f, s - cy * c / f])
     forward = np.array([0.0, -h * s / f, h * c + h * s * cy / f]) + off * denominator
     left = np.array([-h / f, 0.0, h * cx / f])
-    return np.stack([forward, left, denominator])
+    sensor_to_ground = np.stack([forward, left, denominator])
+    # Uncropped cameras keep exactly the matrix they always had (no product with the identity).
+    return sensor_to_ground @ frame_to_sensor(config) if config.cropped else sensor_to_ground
 
 
 def ground_rows(config: CameraConfig) -> np.ndarray:

@@ -18,7 +18,8 @@ FIELD_HELP = {
 
 
 def configure(parser) -> None:
-    from plm_highway.data.collect import CAMERAS, CollectConfig
+    from plm_highway.data.collect import CAMERAS, DEMONSTRATORS, CollectConfig
+    from plm_highway.evaluation.run import CONDITION_NAMES
 
     defaults = CollectConfig()
     parser.add_argument("--track", default="train", help="train, test, unseen or a track JSON path")
@@ -27,8 +28,14 @@ def configure(parser) -> None:
     for name, help_text in FIELD_HELP.items():
         default = getattr(defaults, name)
         parser.add_argument(f"--{name.replace('_', '-')}", type=type(default), default=default, help=help_text)
+    parser.add_argument("--conditions", choices=CONDITION_NAMES, default=defaults.conditions,
+                        help="loop rate, steering actuator, camera and demonstrator of these conditions (ideal: 20 Hz, "
+                             "default camera, expert; paper: 30 Hz, 0.1 s actuator, original camera, human-like driver)")
     parser.add_argument("--camera", choices=CAMERAS, default=defaults.camera,
-                        help="paper: 160x160 frames like the original PLM-Net input")
+                        help="override the conditions' camera; paper: the original's road strip resized to 160x160")
+    parser.add_argument("--demonstrator", choices=DEMONSTRATORS, default=defaults.demonstrator,
+                        help="override the conditions' driver: expert (noise-free lane-centre tracker) or human "
+                             "(reaction delay, slow hand, lane wander, motor noise)")
     add_overwrite(parser)
 
 
@@ -37,7 +44,8 @@ def run(args) -> int:
     from plm_highway.data.dataset import DATASET, write_dataset
     from plm_highway.io import check_target
 
-    config = CollectConfig(camera=args.camera, **{name: getattr(args, name) for name in FIELD_HELP})
+    config = CollectConfig(camera=args.camera, conditions=args.conditions, demonstrator=args.demonstrator,
+                           **{name: getattr(args, name) for name in FIELD_HELP})
     check_target(args.out, DATASET, overwrite=args.overwrite)
     frames, steps, manifest = collect(args.track, config=config)
     manifest["command"] = args.command_line

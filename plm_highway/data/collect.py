@@ -5,24 +5,32 @@ once its own errors accumulate. Most episodes therefore start displaced (lateral
 heading error drawn at random) and record the expert bringing the car back; each frame is
 labelled with the expert's action for that frame's true state, and the car executes that same
 action. Every displacement starts a new episode, so future-action labels never span a jump.
+
+Who drives and how the car is set up follow ``conditions`` (``--conditions``): ``ideal`` records the
+noise-free expert at 20 Hz with the default camera; ``paper`` records the human-like demonstrator
+(:mod:`plm_highway.expert.human`) at the paper's 30 Hz loop, with its steering actuator and the original
+camera. ``--camera`` and ``--demonstrator`` override either choice. The label is what the driver's hand
+did at that frame, and the car executes it.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 
 import gymnasium
 import numpy as np
 from tqdm import tqdm
 
 import plm_highway  # noqa: F401  (registers the env)
+from plm_highway.camera.pinhole import PAPER_CAMERA
 from plm_highway.data.dataset import STEP_COLUMNS
-from plm_highway.envs.lane_keeping import PAPER_CAMERA
 from plm_highway.errors import BadInput
-from plm_highway.expert import ExpertPolicy
+from plm_highway.evaluation.run import CONDITIONS
+from plm_highway.expert import ExpertPolicy, HumanDemonstrator
 from plm_highway.models.config_checks import check_choice, check_int, check_number
 
+DEMONSTRATOR_STREAM = 13  # the human demonstrator draws from np.random.default_rng([seed, DEMONSTRATOR_STREAM])
 RECOVERY_WINDOW_S = 2.0  # frames this soon after a displaced start are flagged `perturbed`
 MAX_EPISODES = 100_000
 MAX_EPISODE_S = 3600.0
@@ -50,7 +58,9 @@ class CollectConfig:
     max_offset_m: float = 1.5
     max_heading_error_deg: float = 6.0
     speed_mps: float = 16.7
-    camera: str = "default"
+    conditions: str = "ideal"
+    camera: str | None = None  # None: the conditions' camera (ideal: default, paper: the original's)
+    demonstrator: str | None = None  # None: the conditions' demonstrator (ideal: expert, paper: human)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -60,11 +70,33 @@ class CollectConfig:
         check_number("--max-offset-m", self.max_offset_m, 0.0, math.inf, high_open=True)
         check_number("--max-heading-error-deg", self.max_heading_error_deg, 0.0, MAX_HEADING_ERROR_DEG)
         check_number("--speed-mps", self.speed_mps, 0.0, MAX_SPEED_MPS, low_open=True)
-        check_choice("--camera", self.camera, CAMERAS)
+        check_choice("--conditions", self.conditions, tuple(CONDITIONS))
+        if self.camera is not None:
+            check_choice("--camera", self.camera, CAMERAS)
+        if self.demonstrator is not None:
+            check_choice("--demonstrator", self.demonstrator, DEMONSTRATORS)
         check_int("--seed", self.seed, 0, MAX_SEED)
 
 
 CAMERAS = ("default", "paper")
+DEMONSTRATORS = ("expert", "human")
+
+
+def recording_setup(config: CollectConfig) -> tuple[dict, str]:
+    """(env config, demonstrator name) that ``config`` records with: the loop rates and steering actuator of
+    its conditions, its camera and demonstrator unless overridden. The processing delay of the conditions is
+    left out: it belongs to the trained model's pipeline, not to the driver at the wheel."""
+    conditions = CONDITIONS[config.conditions]
+    camera_name = config.camera or ("paper" if conditions.camera else "default")
+    env_config = {"speed_mps": config.speed_mps, "camera": dict(PAPER_CAMERA) if camera_name == "paper" else {},
+                  "policy_frequency": conditions.policy_frequency_hz,
+                  "simulation_frequency": conditions.simulation_frequency_hz,
+                  "steering_time_constant_s": conditions.steering_time_constant_s}
+    return env_config, config.demonstrator or conditions.demonstrator
+
+
+def make_demonstrator(name: str, policy_frequency_hz: float, rng: np.random.Generator):
+    return HumanDemonstrator(policy_frequency_hz, rng=rng) if name == "human" else ExpertPolicy()
 
 
 def collect(track: str = "train", progress: bool = True, config: CollectConfig | None = None,
@@ -72,13 +104,14 @@ def collect(track: str = "train", progress: bool = True, config: CollectConfig |
     """Drive the expert episodes of ``config`` (its fields may be given as keywords); return
     (frames, step columns, manifest). Every argument is checked before the first episode."""
     config = replace(config or CollectConfig(), **fields)
-    env_config = {"track": track, "speed_mps": config.speed_mps,
-                  "camera": PAPER_CAMERA if config.camera == "paper" else {}}
-    env = gymnasium.make("plm_highway/LaneKeeping-v0", config=env_config)
+    env_config, demonstrator_name = recording_setup(config)
+    env = gymnasium.make("plm_highway/LaneKeeping-v0", config={"track": track, **env_config})
     unwrapped = env.unwrapped
     env.reset(seed=config.seed)
     rng = np.random.default_rng(config.seed)
-    expert = ExpertPolicy()
+    # Its own stream: the episode starts drawn from `rng` stay those of an expert recording with this seed.
+    expert = make_demonstrator(demonstrator_name, unwrapped.config["policy_frequency"],
+                               np.random.default_rng([config.seed, DEMONSTRATOR_STREAM]))
     track_spec = unwrapped.track
     steps_per_episode = int(round(config.episode_seconds * unwrapped.config["policy_frequency"]))
     frame_shape = env.observation_space.shape
@@ -105,6 +138,7 @@ def collect(track: str = "train", progress: bool = True, config: CollectConfig |
                 rng.uniform(-config.max_heading_error_deg, config.max_heading_error_deg))) if displaced else 0.0,
         }
         obs, info = env.reset(options=options)
+        expert.reset()
         for _ in range(steps_per_episode):
             label = expert(obs, info)
             frames[n_rows] = obs
@@ -119,9 +153,11 @@ def collect(track: str = "train", progress: bool = True, config: CollectConfig |
         "policy_frequency": unwrapped.config["policy_frequency"],
         "max_steering_rad": unwrapped.config["max_steering_rad"],
         "seed": config.seed, "camera": dict(vars(unwrapped.camera_config)),
+        "conditions": config.conditions, "demonstrator": demonstrator_name,
+        "steering_time_constant_s": unwrapped.config["steering_time_constant_s"],
         "collector": {"episodes": config.episodes, "episode_seconds": config.episode_seconds,
                       "displaced_fraction": config.displaced_fraction, "max_offset_m": config.max_offset_m,
-                      "max_heading_error_deg": config.max_heading_error_deg, "expert": vars(expert.params)},
+                      "max_heading_error_deg": config.max_heading_error_deg, "expert": asdict(expert.params)},
     }
     steps = {name: np.asarray(values, dtype=STEP_COLUMNS[name]) for name, values in columns.items()}
     return frames[:n_rows], steps, manifest

@@ -8,6 +8,7 @@ with a :class:`~plm_highway.errors.BadInput` naming the key, the value and the r
 ``speed_mps``                    (0, 70] m/s, or a schedule (see :mod:`plm_highway.envs.speed`)
 ``max_steering_rad``             (0, 1] rad at the front wheels
 ``steering_time_constant_s``     [0, 5] s
+``processing_delay_steps``       integer 0..10 policy steps
 ``simulation_frequency``         integer 1..1000 Hz, a multiple of ``policy_frequency``
 ``policy_frequency``             integer 1..1000 Hz
 ``map_px_per_m``                 [1, 40] px/m (and the map's pixel bound, ``camera/ground_map.py``)
@@ -61,6 +62,7 @@ def check_env_config(config: dict) -> None:
     """Every scalar setting that does not need the track (those are checked by :func:`check_start`)."""
     number_in(config, "max_steering_rad", 0.0, 1.0, open_low=True)
     number_in(config, "steering_time_constant_s", 0.0, 5.0)
+    integer_in(config, "processing_delay_steps", 0, 10)
     policy_hz = integer_in(config, "policy_frequency", 1, MAX_FREQUENCY_HZ)
     sim_hz = integer_in(config, "simulation_frequency", 1, MAX_FREQUENCY_HZ)
     if sim_hz % policy_hz:

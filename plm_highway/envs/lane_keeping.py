@@ -28,6 +28,7 @@ dicts are made only when read, and track look-ups are built once per track.
 from __future__ import annotations
 
 import math
+from collections import deque
 from typing import NamedTuple
 
 import numpy as np
@@ -39,7 +40,7 @@ from highway_env.envs.common.observation import ObservationType
 from highway_env.road.road import Road
 
 from plm_highway.camera.ground_map import DEFAULT_MAP_PX_PER_M, ground_map
-from plm_highway.camera.pinhole import CameraConfig, PinholeCamera
+from plm_highway.camera.pinhole import PAPER_CAMERA, CameraConfig, PinholeCamera  # noqa: F401 (PAPER_CAMERA re-exported)
 from plm_highway.camera.topdown import TopDownView
 from plm_highway.envs.config import check_env_config, check_start, check_unknown_keys
 from plm_highway.envs.ego_vehicle import TrackVehicle
@@ -50,7 +51,6 @@ from plm_highway.road.geometry import SegmentLookup, reference_pose_at
 from plm_highway.road.track import TrackSpec, load_track, parse_track
 from plm_highway.vehicle.models import checked_params, vehicle_model
 
-PAPER_CAMERA = {"height_px": 160, "width_px": 160}  # the original PLM-Net input size
 ACTION_RANGE = (-1, 1)  # normalised steering
 START_KEYS = ("start_arc_length_m", "start_offset_m", "start_heading_error_rad")  # per-episode reset options
 
@@ -192,6 +192,9 @@ class LaneKeepingCameraEnv(AbstractEnv):
             "speed_mps": 16.7,  # about 60 km/h, the paper's test speed; or [[time_s, speed_mps], ...]
             "max_steering_rad": 0.2,  # front-wheel angle at action +-1
             "steering_time_constant_s": 0.0,  # first-order steering actuator; 0 = the wheels follow at once
+            # Policy steps between an action and the actuator receiving it (the original pipeline's 1-2 frames of
+            # processing); the car holds the previous command meanwhile. 0 = the action is applied at once.
+            "processing_delay_steps": 0,
             "vehicle_model": "kinematic",  # a name in plm_highway.vehicle.models.VEHICLE_MODELS
             "vehicle_params": {},  # overrides of the model's default parameters, e.g. {"mass_kg": 1600}
             "simulation_frequency": 20,  # [Hz]
@@ -255,6 +258,7 @@ class LaneKeepingCameraEnv(AbstractEnv):
         self._half_lane_m = self.track.lane_width_m / 2
         self._max_steering_rad = float(self.config["max_steering_rad"])
         self._steering_range_rad = [-self._max_steering_rad, self._max_steering_rad]
+        self._pending_commands_rad = deque([0.0] * self.config["processing_delay_steps"])
         self._episode = EpisodeContext(self)
         self.new_snapshots: list[Snapshot] = []
         self._record_snapshot()
@@ -320,6 +324,9 @@ class LaneKeepingCameraEnv(AbstractEnv):
     def step(self, action):
         """One policy step: map the action to a steering angle, simulate, observe the newest frame."""
         steering_rad = self._steering_command_rad(action)
+        if self._pending_commands_rad:
+            self._pending_commands_rad.append(steering_rad)
+            steering_rad = self._pending_commands_rad.popleft()
         self.time += self._policy_dt_s
         self._simulate(steering_rad)
         snapshot = self.latest_snapshot

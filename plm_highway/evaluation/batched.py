@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from plm_highway.evaluation.closed_loop import LOG_COLUMNS, NOISE_STREAM, RunLog, add_image_noise, make_env
-from plm_highway.evaluation.policies import POLICY_NAMES, VisionPolicy, make_policy
+from plm_highway.evaluation.policies import POLICY_NAMES, SHIPPED_PRESET, VisionPolicy, make_policy
 
 DEFAULT_BATCH_SIZE = 32
 
@@ -116,10 +116,10 @@ class _Run:
 
 def run_cells(cells: Sequence[RunCell], checkpoints=None, batch_size: int = DEFAULT_BATCH_SIZE,
               batch_invariant: bool = False, on_done: Callable[[int, RunLog], None] | None = None,
-              threads: int = 1) -> list[RunLog]:
+              threads: int = 1, preset: str = SHIPPED_PRESET) -> list[RunLog]:
     """Drive every cell, ``batch_size`` envs at a time; the logs in the order of ``cells``.
 
-    Named model policies load the checkpoint pair once (``checkpoints`` as for
+    Named model policies load the checkpoint pair once (``checkpoints`` and ``preset`` as for
     :func:`~plm_highway.evaluation.policies.make_policy`). ``on_done(index, log)`` is called as each
     run ends (progress, or saving results as they come). ``threads`` > 1 splits the cells over that
     many Python threads, each stepping its own batch and sharing the models: the forward passes
@@ -137,7 +137,7 @@ def run_cells(cells: Sequence[RunCell], checkpoints=None, batch_size: int = DEFA
         if cell.max_steps is not None and cell.max_steps < 1:
             raise ValueError(f"cell {i} ({cell.name!r}): max_steps {cell.max_steps} must be at least 1")
     _check_no_shared_callables(cells)
-    models = _named_models(cells, checkpoints)
+    models = _named_models(cells, checkpoints, preset)
     logs: list[RunLog | None] = [None] * len(cells)
     parts = [list(range(len(cells)))[k::threads] for k in range(min(threads, len(cells)))]
     if len(parts) <= 1:
@@ -188,11 +188,11 @@ def _check_no_shared_callables(cells: Sequence[RunCell]) -> None:
         seen[id(cell.policy)] = i
 
 
-def _named_models(cells: Sequence[RunCell], checkpoints) -> dict[str, VisionPolicy]:
+def _named_models(cells: Sequence[RunCell], checkpoints, preset: str) -> dict[str, VisionPolicy]:
     """One policy per model name the cells use (loaded once, shared by the batch)."""
     models = {}
     for name in sorted({cell.policy for cell in cells if isinstance(cell.policy, str) and cell.policy != "expert"}):
-        models[name] = make_policy(name, checkpoints)
+        models[name] = make_policy(name, checkpoints, preset=preset)
     return models
 
 

@@ -35,6 +35,7 @@ class _Chunk:
 
     cells: tuple[RunCell, ...]
     checkpoints: str | None
+    preset: str  # the shipped checkpoint pair the conditions are meant for (when checkpoints is None)
     batch_size: int
 
 
@@ -65,11 +66,13 @@ def drive_cells(cells: Sequence[Cell], track_spec: TrackSpec, conditions: Condit
             if progress is not None:
                 progress.update(1)
 
-        return run_cells(run_cells_list, checkpoints, batch_size=batch_size, on_done=tick, threads=threads)
+        return run_cells(run_cells_list, checkpoints, batch_size=batch_size, on_done=tick, threads=threads,
+                         preset=conditions.checkpoint_preset)
     named = [_run_cell(cell, track_spec, conditions, steps, None) for cell in cells]
     # At least one chunk per worker, at most batch_size runs per chunk (the bar moves as chunks end).
     n_chunks = max(min(workers, len(named)), math.ceil(len(named) / batch_size))
-    chunks = [_Chunk(tuple(named[k::n_chunks]), checkpoints, batch_size) for k in range(n_chunks)]
+    chunks = [_Chunk(tuple(named[k::n_chunks]), checkpoints, conditions.checkpoint_preset, batch_size)
+              for k in range(n_chunks)]
     logs: list[RunLog | None] = [None] * len(cells)
     if progress is not None:
         progress.set_postfix_str(f"{track_spec.name}: {len(cells)} runs on {workers} workers", refresh=True)
@@ -120,14 +123,15 @@ def _drive_chunk(chunk: _Chunk) -> list[RunLog]:
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     from plm_highway.evaluation.policies import single_threaded_inference
 
-    cells = [RunCell(**{**cell.__dict__, "policy": _worker_policy(cell.policy, chunk.checkpoints, cell.latency_source)})
+    cells = [RunCell(**{**cell.__dict__,
+                        "policy": _worker_policy(cell.policy, chunk.checkpoints, chunk.preset, cell.latency_source)})
              if cell.policy in ("bm", "plm") else cell for cell in chunk.cells]
     with single_threaded_inference():
-        return run_cells(cells, chunk.checkpoints, batch_size=chunk.batch_size)
+        return run_cells(cells, chunk.checkpoints, batch_size=chunk.batch_size, preset=chunk.preset)
 
 
 @functools.lru_cache(maxsize=8)
-def _worker_policy(name: str, checkpoints: str | None, latency_source: str) -> VisionPolicy:
+def _worker_policy(name: str, checkpoints: str | None, preset: str, latency_source: str) -> VisionPolicy:
     from plm_highway.evaluation.policies import make_policy
 
-    return make_policy(name, checkpoints, latency_source=latency_source)
+    return make_policy(name, checkpoints, latency_source=latency_source, preset=preset)

@@ -72,7 +72,7 @@ def single_threaded_inference() -> Iterator[None]:
         torch.set_num_threads(previous)
 
 
-def checkpoint_pair(checkpoint_dir=None) -> tuple[Path, Path]:
+def checkpoint_pair(checkpoint_dir=None, preset: str = SHIPPED_PRESET) -> tuple[Path, Path]:
     """(BM, TAPM) checkpoint paths in ``checkpoint_dir`` (see the module docstring), or the shipped pair.
 
     Raises FileNotFoundError naming what is missing and how to get it.
@@ -80,7 +80,7 @@ def checkpoint_pair(checkpoint_dir=None) -> tuple[Path, Path]:
     if checkpoint_dir is None:
         from plm_highway.models.shipped import shipped_checkpoint_dir, shipped_checkpoint_paths
 
-        bm_path, tapm_path = shipped_checkpoint_paths(SHIPPED_PRESET)
+        bm_path, tapm_path = shipped_checkpoint_paths(preset)
         missing = [f.name for w in (bm_path, tapm_path) for f in (w, w.with_suffix(".json")) if not f.is_file()]
         if missing:
             raise FileNotFoundError(
@@ -92,20 +92,20 @@ def checkpoint_pair(checkpoint_dir=None) -> tuple[Path, Path]:
     if not directory.is_dir():
         raise FileNotFoundError(f"--checkpoints {str(directory)!r}: no such directory")
     layouts = ((directory / "bm", directory / "tapm"),
-               (directory / f"bm_{SHIPPED_PRESET}.pt", directory / f"tapm_{SHIPPED_PRESET}.pt"))
+               (directory / f"bm_{preset}.pt", directory / f"tapm_{preset}.pt"))
     for bm_path, tapm_path in layouts:
         if (bm_path / "model.pt").is_file() or (bm_path.suffix == ".pt" and bm_path.is_file()):
             return bm_path, tapm_path
     raise FileNotFoundError(
         f"--checkpoints {str(directory)!r}: expected bm/model.pt and tapm/model.pt (from 'plm-highway train') "
-        f"or bm_{SHIPPED_PRESET}.pt and tapm_{SHIPPED_PRESET}.pt (the shipped layout)"
+        f"or bm_{preset}.pt and tapm_{preset}.pt (the shipped layout)"
     )
 
 
 def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, latency_source: str = "measured",
-                seed: int = 0):
-    """The policy named ``name``; model policies load the shipped checkpoints unless given a dir and run
-    batch-invariantly (:mod:`plm_highway.models.batch_invariant`).
+                seed: int = 0, preset: str = SHIPPED_PRESET):
+    """The policy named ``name``; model policies load the shipped ``preset`` checkpoints unless given a dir
+    and run batch-invariantly (:mod:`plm_highway.models.batch_invariant`).
 
     ``seed`` seeds the EKF policy's own sensor noise (the others have none).
     """
@@ -119,7 +119,7 @@ def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, lat
         raise ValueError(f"--policy {name!r}: expected one of {list(POLICY_NAMES)}")
     from plm_highway.models import checkpoints, inference
 
-    bm_path, tapm_path = checkpoint_pair(checkpoint_dir)
+    bm_path, tapm_path = checkpoint_pair(checkpoint_dir, preset)
     # Batch-invariant kernels: a run's result does not depend on which runs shared its batch (or on
     # running alone), so batched, pooled and one-env runs of one seed give the same numbers.
     if name == "bm":

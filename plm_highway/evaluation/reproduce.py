@@ -174,7 +174,7 @@ def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=N
         for spec in specs:
             check_env(track_spec, spec, conditions)
     latencies = sweep_module.sweep_latencies(sweep_max, sweep_step) if sweep else []
-    bm_path, tapm_path = checkpoint_pair(checkpoints)
+    bm_path, tapm_path = checkpoint_pair(checkpoints, conditions.checkpoint_preset)
     policies = make_policies(checkpoints, conditions)
     grid_max_s = round(float(policies["plm"].model_policy.model.delta_ref_s[-1]), 6)  # the TAPM's last latency
     out = output_dir(out, track, main_spec.name, conditions.name)

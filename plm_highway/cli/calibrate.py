@@ -1,0 +1,46 @@
+"""``plm-highway calibrate``: the BM's degradation with latency under the paper's conditions, beside the paper's."""
+
+from __future__ import annotations
+
+from plm_highway.cli._common import Command, add_overwrite, bounded_int, defaults_of
+
+
+def configure(parser) -> None:
+    from plm_highway.evaluation.calibration import DEFAULT_OUT, bm_calibration
+    from plm_highway.evaluation.run import CONDITION_NAMES
+
+    d = defaults_of(bm_calibration)
+    parser.add_argument("--out", default=str(DEFAULT_OUT),
+                        help="figure to write (PNG); its numbers go beside it with the suffix .json")
+    parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],
+                        help="paper: the paper's loop, pipeline, camera and the `paper` checkpoints")
+    parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
+    parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: the conditions' "
+                                              "shipped pair)")
+    parser.add_argument("--seeds", default=str(d["seeds"]),
+                        help="seeds: a count N (seeds 0..N-1) or a list a,b,c; at least two (the noise floor)")
+    parser.add_argument("--max-steps", type=bounded_int(1, 10_000_000),
+                        help="stop each run after this many policy steps (quick looks)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_overwrite(parser)
+
+
+def run(args) -> int:
+    from plm_highway.evaluation.calibration import bm_calibration, summary_lines, write_calibration
+    from plm_highway.evaluation.policies import single_threaded_inference
+    from plm_highway.io import FIGURE, check_target
+
+    check_target(args.out, FIGURE, overwrite=args.overwrite)
+    with single_threaded_inference():
+        result = bm_calibration(args.track, args.seeds, args.conditions, args.checkpoints, args.max_steps,
+                                not args.no_progress)
+    result["command"] = args.command_line
+    figure_path, json_path = write_calibration(result, args.out, overwrite=args.overwrite)
+    for line in summary_lines(result):
+        print(line)
+    print(f"figure: {figure_path}\nnumbers: {json_path}")
+    return 0
+
+
+COMMANDS = [Command("calibrate", "the BM's steering MAE vs latency under the paper's conditions beside the paper's "
+                               "(issue 9's calibration figure and rules)", configure, run)]

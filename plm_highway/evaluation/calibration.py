@@ -1,0 +1,184 @@
+"""The Base Model's degradation under the paper's conditions, beside the paper's (issue 9's calibration rule).
+
+The BM (the conditions' shipped checkpoints) drives the track once per seed without latency (the
+reference) and once per seed and latency with it; each latency's steering MAE is taken against the
+same seed's reference over their common span (:mod:`plm_highway.evaluation.protocol`), in front-wheel
+radians. The noise floor is the reference against itself under the next seed. The paper's BM numbers
+(Tables 3, A1, A3, A5: MAE against its BM without latency, in units of 450 deg of steering wheel) are
+converted to front-wheel radians through :data:`~plm_highway.evaluation.protocol.PAPER_STEERING_RATIO`.
+
+The two rules (issue 9):
+
+- **rises clearly**: the BM's mean MAE at 0.15 s is at least :data:`RISE_FACTOR` times the mean noise floor;
+- **like the paper**: at 0.15, 0.20, 0.25 and 0.30 s the mean MAE is within a factor :data:`PAPER_FACTOR`
+  of the paper's (``paper / 2 <= ours <= 2 paper``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from plm_highway.evaluation import paper_results as paper
+from plm_highway.evaluation.policies import make_policy
+from plm_highway.evaluation.protocol import (
+    MAX_STEERING_RAD,
+    PAPER_FULL_SCALE_DEG,
+    PAPER_STEERING_RATIO,
+    PAPER_TRACK,
+    mean_ci,
+    noise_floor,
+    parse_seeds,
+)
+from plm_highway.evaluation.run import CONDITIONS, Cell, progress_bar, run_cells
+from plm_highway.io import FIGURE, file_kind, json_text, pyplot, save_figure_into, write_outputs
+from plm_highway.metrics.steering import common_span, steering_errors
+
+LATENCIES_S = (0.0, 0.15, 0.20, 0.25, 0.30)
+RISE_FACTOR = 5.0
+PAPER_FACTOR = 2.0
+CALIBRATION_JSON = file_kind("bm-calibration", "a plm-highway BM calibration result JSON file")
+DEFAULT_OUT = Path("figures") / "bm-calibration.png"
+
+
+def paper_unit_to_front_wheel_rad(value: float) -> float:
+    """The paper's steering unit (1 = 450 deg of steering wheel) in front-wheel radians."""
+    return value * math.radians(PAPER_FULL_SCALE_DEG) / PAPER_STEERING_RATIO
+
+
+def paper_bm_mae_rad(latency_s: float) -> float | None:
+    """The paper's BM steering MAE at this constant latency, in front-wheel radians (None if not reported)."""
+    numbers = paper.steering(f"const:{latency_s:g}", "baseline")
+    return None if numbers is None else paper_unit_to_front_wheel_rad(numbers["mae"])
+
+
+def judge(per_latency: dict[float, dict], floor: dict) -> dict:
+    """The two rules on measured means; ``per_latency[latency_s]["mae_rad"]`` and ``floor["mae_rad"]`` are
+    :class:`~plm_highway.evaluation.protocol.Estimate` dicts."""
+    rise = per_latency[0.15]["mae_rad"]["mean"] / floor["mae_rad"]["mean"] if floor["mae_rad"]["mean"] > 0 \
+        else math.inf
+    ratios = {f"{latency_s:.2f}": per_latency[latency_s]["mae_rad"]["mean"] / per_latency[latency_s]["paper_rad"]
+              for latency_s in per_latency if per_latency[latency_s].get("paper_rad")}
+    return {
+        "rise": {"rule": f"BM MAE at 0.15 s >= {RISE_FACTOR:g}x its noise floor at 0 s", "factor": rise,
+                 "met": rise >= RISE_FACTOR},
+        "paper": {"rule": f"BM MAE at 0.15/0.20/0.25/0.30 s within a factor {PAPER_FACTOR:g} of the paper's",
+                  "ours_over_paper": ratios,
+                  "met": all(1.0 / PAPER_FACTOR <= ratio <= PAPER_FACTOR for ratio in ratios.values())},
+    }
+
+
+def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: str = "paper",
+                   checkpoints=None, max_steps: int | None = None, progress: bool = True) -> dict:
+    """Drive the BM at :data:`LATENCIES_S` under ``seeds``; return the per-seed MAEs, their means with 95% CIs
+    (front-wheel radians), the noise floor, the paper's numbers and the two rules judged."""
+    from plm_highway.road.track import load_track
+
+    seed_list = parse_seeds(seeds)
+    if len(seed_list) < 2:
+        from plm_highway.errors import BadInput
+
+        raise BadInput(f"--seeds {seeds!r}: the noise floor needs at least two seeds")
+    spec = load_track(track)
+    chosen = CONDITIONS[conditions]
+    policies = {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset)}
+    cells = [Cell("reference" if latency_s == 0 else "baseline", "bm", f"const:{latency_s:g}", seed,
+                  f"BM {latency_s:.2f} s seed {seed}") for seed in seed_list for latency_s in LATENCIES_S]
+    bar = progress_bar(len(cells), progress, desc="calibration")
+    try:
+        logs = run_cells(cells, spec, chosen, policies, max_steps, bar)
+    finally:
+        bar.close()
+    by_cell = {(cell.seed, cell.latency): log for cell, log in zip(cells, logs)}
+    references = [by_cell[(seed, "const:0")] for seed in seed_list]
+    per_latency: dict[float, dict] = {}
+    for latency_s in LATENCIES_S[1:]:
+        maes = []
+        for seed, reference in zip(seed_list, references):
+            delayed = by_cell[(seed, f"const:{latency_s:g}")]
+            maes.append(steering_errors(*common_span(reference.columns["steering"],
+                                                     delayed.columns["steering"]))["mae"] * MAX_STEERING_RAD)
+        per_latency[latency_s] = {"mae_rad_per_seed": maes, "mae_rad": mean_ci(maes).as_dict(),
+                                  "left_road": [by_cell[(s, f"const:{latency_s:g}")].left_road for s in seed_list],
+                                  "paper_rad": paper_bm_mae_rad(latency_s)}
+    floor_values = [value * MAX_STEERING_RAD for value in noise_floor(references)]
+    floor = {"mae_rad_per_pair": floor_values, "mae_rad": mean_ci(floor_values).as_dict()}
+    return {"track": spec.name, "conditions": conditions, "seeds": seed_list, "latencies_s": list(LATENCIES_S),
+            "steps": [log.steps for log in references], "reference_left_road": [r.left_road for r in references],
+            "steering_ratio": PAPER_STEERING_RATIO, "max_steering_rad": MAX_STEERING_RAD,
+            "noise_floor": floor, "per_latency": {f"{k:.2f}": v for k, v in per_latency.items()},
+            "rules": judge(per_latency, floor)}
+
+
+def calibration_figure(result: dict):
+    """BM MAE vs latency (ours: mean and 95% CI over seeds, per-seed dots; the paper's; the noise floor)."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
+    latencies = [float(k) for k in result["per_latency"]]
+    rows = list(result["per_latency"].values())
+    means = [row["mae_rad"]["mean"] for row in rows]
+    lows = [row["mae_rad"]["mean"] - (row["mae_rad"]["low"] if row["mae_rad"]["low"] is not None
+                                      else row["mae_rad"]["mean"]) for row in rows]
+    highs = [(row["mae_rad"]["high"] if row["mae_rad"]["high"] is not None else row["mae_rad"]["mean"])
+             - row["mae_rad"]["mean"] for row in rows]
+    floor = result["noise_floor"]["mae_rad"]
+    all_x = [0.0, *latencies]
+    ax.errorbar(all_x, [floor["mean"], *means], yerr=[[floor["mean"] - (floor["low"] or floor["mean"]), *lows],
+                                                      [(floor["high"] or floor["mean"]) - floor["mean"], *highs]],
+                fmt="o-", color="tab:blue", capsize=4,
+                label=f"ours: BM, mean and 95% CI over {len(result['seeds'])} seeds (0 s: noise floor)")
+    for latency_s, row in zip(latencies, rows):
+        ax.plot([latency_s] * len(row["mae_rad_per_seed"]), row["mae_rad_per_seed"], ".", color="tab:blue",
+                alpha=0.4)
+    paper_x = [x for x, row in zip(latencies, rows) if row["paper_rad"]]
+    paper_y = [row["paper_rad"] for row in rows if row["paper_rad"]]
+    ax.plot(paper_x, paper_y, "s--", color="tab:red", label=f"paper: BM (Tables 3, A1, A3, A5), at "
+                                                            f"{result['steering_ratio']:g}:1 steering ratio")
+    ax.fill_between(paper_x, [y / PAPER_FACTOR for y in paper_y], [y * PAPER_FACTOR for y in paper_y],
+                    color="tab:red", alpha=0.12, label=f"within a factor {PAPER_FACTOR:g} of the paper")
+    ax.axhline(RISE_FACTOR * floor["mean"], color="0.4", ls=":", lw=1,
+               label=f"{RISE_FACTOR:g}x our noise floor (the 0.15 s rule)")
+    ax.set_yscale("log", nonpositive="clip")  # a CI reaching below 0 is drawn to the bottom edge
+    ax.set_xlabel("constant perception latency [s]")
+    ax.set_ylabel("BM steering MAE vs. the BM without latency\n[rad at the front wheels]")
+    rules = result["rules"]
+    ax.set_title(f"BM degradation, {result['conditions']} conditions, {result['track']} track: rise rule "
+                 f"{'met' if rules['rise']['met'] else 'missed'}, paper rule "
+                 f"{'met' if rules['paper']['met'] else 'missed'}", fontsize=10)
+    ax.set_xticks(all_x)
+    ax.legend(fontsize=8, loc="upper left", framealpha=0.9)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def write_calibration(result: dict, out=DEFAULT_OUT, overwrite: bool = False) -> tuple[Path, Path]:
+    """The figure (``out``, PNG) and its numbers (same name, ``.json``), published together."""
+    figure_path = Path(out)
+    json_path = figure_path.with_suffix(".json")
+    fig = calibration_figure(result)
+    try:
+        with write_outputs([(figure_path, FIGURE), (json_path, CALIBRATION_JSON)], overwrite=overwrite) as staged:
+            save_figure_into(fig, staged[0], dpi=120)
+            staged[1].write_text(json_text(result, CALIBRATION_JSON), encoding="utf-8")
+    finally:
+        pyplot().close(fig)
+    return figure_path, json_path
+
+
+def summary_lines(result: dict) -> Sequence[str]:
+    floor = result["noise_floor"]["mae_rad"]
+    lines = [f"noise floor (BM at 0 s, seed vs next seed): {floor['mean']:.4f} rad"]
+    for key, row in result["per_latency"].items():
+        est = row["mae_rad"]
+        ci = f" [{est['low']:.4f}, {est['high']:.4f}]" if est["low"] is not None else ""
+        paper_text = f", paper {row['paper_rad']:.4f} rad (x{est['mean'] / row['paper_rad']:.2f})" \
+            if row["paper_rad"] else ""
+        lines.append(f"{key} s: BM MAE {est['mean']:.4f} rad{ci}{paper_text}; left the road in "
+                     f"{int(np.sum(row['left_road']))}/{len(row['left_road'])} seeds")
+    for rule in result["rules"].values():
+        lines.append(f"{'met   ' if rule['met'] else 'MISSED'} {rule['rule']}")
+    return lines

@@ -1,0 +1,86 @@
+"""``plm-highway calibrate``: the BM's MAE vs latency beside the paper's, and the two rules of issue 9."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from plm_highway import cli
+from plm_highway.errors import BadInput
+from plm_highway.evaluation.calibration import (
+    bm_calibration,
+    judge,
+    paper_bm_mae_rad,
+    paper_unit_to_front_wheel_rad,
+)
+
+
+def test_paper_units_convert_at_the_protocols_steering_ratio():
+    # 450 deg of hand wheel at 12:1 is 37.5 deg at the front wheels: 0.1714 of it is 0.1122 rad (issue 9: "about 0.11").
+    assert paper_unit_to_front_wheel_rad(1.0) == pytest.approx(math.radians(37.5))
+    assert paper_unit_to_front_wheel_rad(0.1714) == pytest.approx(0.1122, abs=1e-4)
+    # The paper's BM rows (Tables A1, 3, A3, A5), transcribed: 0.171355, 0.1915, 0.334727, 0.226148.
+    for latency_s, paper_mae in ((0.15, 0.171355), (0.20, 0.1915), (0.25, 0.334727), (0.30, 0.226148)):
+        assert paper_bm_mae_rad(latency_s) == pytest.approx(paper_mae * math.radians(37.5), rel=1e-9)
+    assert paper_bm_mae_rad(0.1) is None
+
+
+def estimate(mean: float) -> dict:
+    return {"mean": mean, "low": None, "high": None, "n": 1}
+
+
+def rows(ours_over_paper: dict[float, float]) -> dict:
+    return {latency_s: {"mae_rad": estimate(ratio * paper_bm_mae_rad(latency_s)), "paper_rad": paper_bm_mae_rad(latency_s)}
+            for latency_s, ratio in ours_over_paper.items()}
+
+
+@pytest.mark.parametrize(("rise", "met"), [(5.01, True), (4.99, False), (1.0, False), (math.inf, True)])
+def test_rise_rule_is_five_times_the_noise_floor(rise, met):
+    per_latency = rows({0.15: 1.0, 0.20: 1.0, 0.25: 1.0, 0.30: 1.0})
+    floor = per_latency[0.15]["mae_rad"]["mean"] / rise  # 0 for an infinite rise
+    verdict = judge(per_latency, {"mae_rad": estimate(floor)})
+    assert verdict["rise"]["met"] is met
+
+
+@pytest.mark.parametrize(("ratios", "met"), [
+    ({0.15: 1.0, 0.20: 1.0, 0.25: 1.0, 0.30: 1.0}, True),
+    ({0.15: 0.5, 0.20: 2.0, 0.25: 1.3, 0.30: 0.7}, True),  # both ends of the band count
+    ({0.15: 0.49, 0.20: 1.0, 0.25: 1.0, 0.30: 1.0}, False),
+    ({0.15: 1.0, 0.20: 1.0, 0.25: 1.0, 0.30: 2.01}, False),
+])
+def test_paper_rule_is_a_factor_two_at_every_latency(ratios, met):
+    verdict = judge(rows(ratios), {"mae_rad": estimate(1e-4)})
+    assert verdict["paper"]["met"] is met
+    assert verdict["paper"]["ours_over_paper"]["0.15"] == pytest.approx(ratios[0.15])
+
+
+def test_a_short_calibration_run_measures_every_latency_and_the_floor():
+    result = bm_calibration("test", seeds="0,1", conditions="ideal", max_steps=25, progress=False)
+    assert set(result["per_latency"]) == {"0.15", "0.20", "0.25", "0.30"}
+    for row in result["per_latency"].values():
+        assert len(row["mae_rad_per_seed"]) == 2 and all(v >= 0 for v in row["mae_rad_per_seed"])
+        assert row["mae_rad"]["mean"] == pytest.approx(sum(row["mae_rad_per_seed"]) / 2)
+    assert len(result["noise_floor"]["mae_rad_per_pair"]) == 1
+    assert result["steps"] == [25, 25]
+
+
+def test_one_seed_is_refused_it_has_no_noise_floor():
+    with pytest.raises(BadInput, match="noise floor"):
+        bm_calibration("test", seeds=[3], conditions="ideal", max_steps=5, progress=False)
+
+
+def test_command_writes_the_figure_and_its_numbers(tmp_path, capsys):
+    out = tmp_path / "cal.png"
+    code = cli.main(["calibrate", "--conditions", "ideal", "--seeds", "2", "--max-steps", "10", "--no-progress",
+                     "--out", str(out)])
+    printed = capsys.readouterr().out
+    assert code == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    numbers = json.loads(out.with_suffix(".json").read_text())
+    assert numbers["conditions"] == "ideal" and "rules" in numbers
+    assert "noise floor" in printed and ("MISSED" in printed or "met" in printed)
+    # A second run without --overwrite is refused and leaves the first outputs.
+    assert cli.main(["calibrate", "--conditions", "ideal", "--seeds", "2", "--max-steps", "10", "--no-progress",
+                     "--out", str(out)]) != 0
