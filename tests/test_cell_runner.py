@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from plm_highway.evaluation.cell_runner import drive_cells
+from plm_highway.evaluation.cell_runner import chunk_count, drive_cells
 from plm_highway.evaluation.closed_loop import LOG_COLUMNS
 from plm_highway.evaluation.reproduce import plan_cells
 from plm_highway.evaluation.run import CONDITIONS, make_policies, run_cells
@@ -53,3 +57,17 @@ def test_a_cell_whose_policy_is_neither_a_model_nor_a_name_is_refused():
         drive_cells(cells, load_track("test"), CONDITIONS["ideal"], {"bm": object(), "plm": object()}, max_steps=2)
     with pytest.raises(ValueError, match="workers -1"):
         drive_cells(cells, load_track("test"), CONDITIONS["ideal"], None, max_steps=2, workers=-1)
+
+
+@given(n_runs=st.integers(1, 500), workers=st.integers(1, 8), batch_size=st.integers(1, 64))
+def test_runs_split_into_chunks_no_larger_than_a_batch_and_balanced_over_the_workers(n_runs, workers, batch_size):
+    n_chunks = chunk_count(n_runs, workers, batch_size)
+    assert 1 <= n_chunks <= n_runs
+    assert math.ceil(n_runs / n_chunks) <= batch_size  # the largest chunk (runs dealt round-robin)
+    assert n_chunks >= min(workers, n_runs)
+    if n_runs >= workers * math.ceil(max(workers, math.ceil(n_runs / batch_size)) / workers):
+        assert n_chunks % workers == 0  # no worker idles while the others run a last round
+
+
+def test_75_runs_of_batch_32_on_2_workers_are_4_chunks():
+    assert chunk_count(75, 2, 32) == 4  # was 3: one worker idle for the last third of a track

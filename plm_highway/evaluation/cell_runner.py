@@ -69,8 +69,7 @@ def drive_cells(cells: Sequence[Cell], track_spec: TrackSpec, conditions: Condit
         return run_cells(run_cells_list, checkpoints, batch_size=batch_size, on_done=tick, threads=threads,
                          preset=conditions.checkpoint_preset)
     named = [_run_cell(cell, track_spec, conditions, steps, None) for cell in cells]
-    # At least one chunk per worker, at most batch_size runs per chunk (the bar moves as chunks end).
-    n_chunks = max(min(workers, len(named)), math.ceil(len(named) / batch_size))
+    n_chunks = chunk_count(len(named), workers, batch_size)
     chunks = [_Chunk(tuple(named[k::n_chunks]), checkpoints, conditions.checkpoint_preset, batch_size)
               for k in range(n_chunks)]
     logs: list[RunLog | None] = [None] * len(cells)
@@ -90,6 +89,14 @@ def drive_cells(cells: Sequence[Cell], track_spec: TrackSpec, conditions: Condit
             for future in futures:  # an error or an interrupt: drop what has not started
                 future.cancel()
     return logs
+
+
+def chunk_count(n_runs: int, workers: int, batch_size: int) -> int:
+    """How many chunks ``n_runs`` runs are split into for ``workers`` processes: at least one per worker, at
+    most ``batch_size`` runs each (the progress bar moves as chunks end), and a multiple of the workers where
+    there are runs enough (3 chunks on 2 workers leave one worker idle for the last third)."""
+    n_chunks = max(min(workers, n_runs), math.ceil(n_runs / batch_size))
+    return min(n_runs, workers * math.ceil(n_chunks / workers))
 
 
 def worker_pool(workers: int) -> ProcessPoolExecutor:
