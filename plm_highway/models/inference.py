@@ -12,8 +12,9 @@ Two calls:
   oneDNN kernels pick their summation order by batch size (measured: |difference| below 1e-6
   on steering with the shipped checkpoints). With ``batch_invariant=True`` the policy runs its
   convolutions and products with :func:`~plm_highway.models.batch_invariant.batch_invariant_ops`
-  (one torch thread): the BM's output for a sample is then bit-identical whatever else is in the
-  batch (PLM-Net runs one pass per latency segment of its grid, :meth:`PLMNetPolicy.rows_run_together`).
+  (one torch thread): a sample's output is then bit-identical whatever else is in the
+  batch (PLM-Net then evaluates every TAPM head, so that its products have one width whatever the
+  batch's latencies).
 
 Inputs are checked: frames uint8 of the model's size, finite speeds, finite latencies >= 0, and
 at most :data:`MAX_BATCH` samples. A non-finite steering output (NaN weights that slipped past the
@@ -65,13 +66,7 @@ class _Policy:
         """Frames uint8 (B, H, W), speeds (B,) m/s, latencies (B,) s (default 0) -> steering (B,) float64."""
         frames_t, speeds_t, latencies = self._checked_batch(frames, speeds_mps, latencies_s)
         with torch.inference_mode(), (batch_invariant_ops() if self.batch_invariant else contextlib.nullcontext()):
-            groups = self.rows_run_together(latencies) if self.batch_invariant else [slice(None)]
-            if len(groups) == 1:
-                steering = self._forward(frames_t, speeds_t, latencies)
-            else:
-                steering = torch.empty(len(frames_t))
-                for rows in groups:
-                    steering[rows] = self._forward(frames_t[rows], speeds_t[rows], latencies[rows])
+            steering = self._forward(frames_t, speeds_t, latencies)
         steering_np = steering.numpy().astype(np.float64)
         if not np.all(np.isfinite(steering_np)):
             i = int(np.flatnonzero(~np.isfinite(steering_np))[0])
@@ -83,10 +78,6 @@ class _Policy:
 
     def _forward(self, frames: torch.Tensor, speeds_mps: torch.Tensor, latencies_s: np.ndarray) -> torch.Tensor:
         raise NotImplementedError
-
-    def rows_run_together(self, latencies_s: np.ndarray) -> list:
-        """Batch-invariant mode: the groups of rows that share one forward pass (all of them here)."""
-        return [slice(None)]
 
     def _checked_batch(self, frames, speeds_mps, latencies_s) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
         frames = np.asarray(frames)
@@ -145,20 +136,11 @@ class PLMNetPolicy(_Policy):
         self.fused = FusedPLMNet(plm_net) if fused else None
         self.max_latency_s = plm_net.last_grid_s
 
-    def rows_run_together(self, latencies_s: np.ndarray) -> list:
-        """Rows whose latencies lie in one segment of the grid (0 apart): the fused form evaluates the heads
-        that the batch's segments need, and that product's width changes its sums; per segment, a
-        sample gets the heads it gets alone."""
-        grid_s = self.model.delta_ref_s.numpy()
-        segment = np.searchsorted(grid_s[1:-1], np.minimum(latencies_s, grid_s[-1])) * 2 + (latencies_s > 0)
-        values = np.unique(segment)
-        return [slice(None)] if len(values) == 1 else [np.flatnonzero(segment == value) for value in values]
-
     def _forward(self, frames, speeds_mps, latencies_s):
         if self.fused is None:
             output = self.model(frames, speeds_mps, torch.from_numpy(latencies_s))
             self.clamped_latency_count += output.n_clamped
             return output.steering
-        output = self.fused(frames, speeds_mps, latencies_s)
+        output = self.fused(frames, speeds_mps, latencies_s, all_heads=self.batch_invariant)
         self.clamped_latency_count += int(output.clamped.sum())
         return output.steering

@@ -187,8 +187,14 @@ class FusedPLMNet:
         self._packed_heads: dict[tuple[int, int], tuple[tuple[torch.Tensor, torch.Tensor], ...]] = {}
 
     @torch.inference_mode()
-    def __call__(self, frames: torch.Tensor, speed_mps: torch.Tensor, latency_s) -> PLMNetSteering:
-        """Frames uint8 (B, H, W), speed (B,) m/s, latency (B,) s (tensor or array) -> steering (B,)."""
+    def __call__(self, frames: torch.Tensor, speed_mps: torch.Tensor, latency_s, all_heads: bool = False) -> PLMNetSteering:
+        """Frames uint8 (B, H, W), speed (B,) m/s, latency (B,) s (tensor or array) -> steering (B,).
+
+        ``all_heads=True`` evaluates every head whenever a latency is above 0, instead of only the heads
+        that bracket the batch's latencies: the heads' products then have one width whatever the batch
+        holds, so with batch-invariant kernels a sample's steering does not depend on the other
+        samples' latencies (batch-invariant runs, :mod:`plm_highway.models.batch_invariant`).
+        """
         latency_np = np.asarray(latency_s, dtype=np.float32).reshape(-1)
         if len(latency_np) != len(frames):
             raise BadInput(f"latency_s: expected one latency per frame ({len(frames)}), got {len(latency_np)}")
@@ -201,7 +207,10 @@ class FusedPLMNet:
         # Grid segment of each sample, as interpolate_batch finds it: a_ref entries lo and lo + 1,
         # i.e. heads lo - 1 (none for lo = 0: the BM) and lo.
         lo = np.searchsorted(self._interior_grid_s, np.minimum(latency_np, np.float32(self.last_grid_s)))
-        first_head, stop_head = max(int(lo.min()) - 1, 0), int(lo.max()) + 1
+        if all_heads:
+            first_head, stop_head = 0, self.n_heads
+        else:
+            first_head, stop_head = max(int(lo.min()) - 1, 0), int(lo.max()) + 1
         trunk = torch.cat([
             torch.addcmul(self.action_bias, a_bm.view(-1, 1), self.action_weight),
             first_layer[:, self.bm_width :],
