@@ -143,5 +143,5 @@ class PLMNetPolicy(_Policy):
             self.clamped_latency_count += output.n_clamped
             return output.steering
         output = self.fused(frames, speeds_mps, latencies_s)
-        self.clamped_latency_count += int(output.clamped.sum())
+        self.clamped_latency_count += output.n_clamped
         return output.steering
