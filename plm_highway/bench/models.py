@@ -299,7 +299,6 @@ def closed_loop_check(latency: str = CLOSED_LOOP_LATENCY, seeds: int = CLOSED_LO
                 n = min(len(steering[name]), len(steering["reference_forward"]))
                 largest_difference[name] = max(largest_difference[name], float(np.max(np.abs(
                     steering[name][:n] - steering["reference_forward"][:n]))))
-    exact, int8 = _mean_ci(mae["fused"]), _mean_ci(mae["fused_int8"])
     return {
         "track": track,
         "latency": latency,
@@ -308,10 +307,16 @@ def closed_loop_check(latency: str = CLOSED_LOOP_LATENCY, seeds: int = CLOSED_LO
         **{f"{name}_mae": _mean_ci(values) for name, values in mae.items()},
         "fused_minus_reference_mae": _mean_ci(np.subtract(mae["fused"], mae["reference_forward"])),
         "int8_minus_fused_mae": _mean_ci(np.subtract(mae["fused_int8"], mae["fused"])),
-        "int8_mean_within_fused_ci": bool(abs(int8["mean"] - exact["mean"]) <= exact["ci95_half_width"]),
+        "int8_mean_within_fused_ci": mean_within_ci(mae["fused_int8"], mae["fused"]),
         "max_abs_steering_difference": largest_difference["fused"],
         "max_abs_steering_difference_int8": largest_difference["fused_int8"],
     }
+
+
+def mean_within_ci(values, reference_values) -> bool:
+    """Whether the mean of ``values`` lies within the 95% CI of ``reference_values``' mean."""
+    reference = _mean_ci(reference_values)
+    return bool(abs(float(np.mean(values)) - reference["mean"]) <= reference["ci95_half_width"])
 
 
 def _mean_ci(values) -> dict:
