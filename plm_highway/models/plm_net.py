@@ -13,9 +13,11 @@ raises ValueError: it is a bug upstream, not a condition to mitigate.
 the other) and what training and analysis use. :class:`FusedPLMNet` is its inference form, equal
 to it up to float rounding (measured: at most a few 1e-8 apart) and cheaper where PLM-Net's cost over
 the BM lies: the BM's first FC layer and the TAPM's image branch read the same features, so they
-run as one matrix product (the image features are read once, one call instead of two), and only
-the heads that bracket each sample's latency run (Algorithm 1 reads no others: one or two heads
-at batch size 1 instead of five).
+run as one matrix product, only the heads that bracket each sample's latency run (Algorithm 1
+reads no others: one or two heads at batch size 1 instead of five), the action and speed branches
+fold into one small product, and at batch size 1 the interpolation runs in Python floats.
+``FusedPLMNet(plm_net, tapm_int8=True)`` is an approximation on top: the TAPM's large layers in
+int8, the BM's part unchanged (see the class).
 """
 
 from __future__ import annotations
