@@ -32,7 +32,7 @@ from plm_highway.models.checkpoints import (
     state_fingerprint,
 )
 from plm_highway.models.inference import BaseModelPolicy, NonFiniteSteeringError, PLMNetPolicy
-from plm_highway.models.plm_net import FusedPLMNet, PLMNet, interpolate_actions
+from plm_highway.models.plm_net import FusedPLMNet, Int8Linear, PLMNet, fold_scalar_branches, interpolate_actions
 from plm_highway.models.shipped import load_shipped_plm_net, shipped_checkpoint_dir
 from plm_highway.models.tapm import TAPM, TAPMConfig
 
@@ -634,7 +634,7 @@ def assert_fused_equals_reference(plm_net, fused, frames, speed, latency_s):
         reference = plm_net(frames, speed, latency_s)
         output = fused(frames, speed, latency_s)
     torch.testing.assert_close(output.steering, reference.steering, rtol=0, atol=1e-6)
-    assert int(output.clamped.sum()) == reference.n_clamped
+    assert int(output.clamped.sum()) == output.n_clamped == reference.n_clamped
     return output, reference
 
 
@@ -697,9 +697,9 @@ def test_fused_plm_net_runs_only_the_heads_that_bracket_the_latency(plm_pair, mo
     ranges = []
     original = fused._heads
 
-    def recording_heads(trunk, first, stop):
+    def recording_heads(trunk, first, stop, batch_invariant=False):
         ranges.append((first, stop))
-        return original(trunk, first, stop)
+        return original(trunk, first, stop, batch_invariant)
 
     monkeypatch.setattr(fused, "_heads", recording_heads)
     n = len(latencies_s)
@@ -714,7 +714,8 @@ def test_packed_heads_equal_the_tapm_heads(plm_pair, first, stop):
     trunk = torch.relu(torch.randn(4, 700, generator=torch.Generator().manual_seed(first * 10 + stop)))
     with torch.inference_mode():
         torch.testing.assert_close(
-            fused._heads(trunk, first, stop), plm_net.tapm.heads(trunk, first, stop), rtol=0, atol=1e-6
+            fused._heads(trunk[:, fused.trunk_order], first, stop), plm_net.tapm.heads(trunk, first, stop),
+            rtol=0, atol=1e-6,
         )
 
 
@@ -722,6 +723,140 @@ def test_packed_heads_equal_the_tapm_heads(plm_pair, first, stop):
 def test_fused_plm_net_rejects_nan_and_negative_latency(plm_pair, bad_latency_s):
     with pytest.raises(ValueError, match="latency_s"):
         plm_pair[1](random_frames(2), torch.full((2,), 16.7), torch.tensor([0.1, bad_latency_s]))
+
+
+def test_fused_plm_net_runs_outside_inference_mode_without_gradients(plm_pair):
+    plm_net, fused = plm_pair
+    frames, speed, latency_s = random_frames(3, seed=5), torch.full((3,), 16.7), torch.tensor([0.0, 0.22, 0.4])
+    output = fused(frames, speed, latency_s)  # no surrounding inference mode: it enters one itself
+    assert not output.steering.requires_grad
+    with torch.inference_mode():
+        torch.testing.assert_close(output.steering, plm_net(frames, speed, latency_s).steering, rtol=0, atol=1e-6)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(-1, 1), st.floats(0, 60))
+def test_folded_action_and_speed_branches_equal_the_tapm_layers(plm_pair, a_bm, speed_mps):
+    plm_net, fused = plm_pair
+    bm, tapm = plm_net.bm, plm_net.tapm
+    weight, bias = fold_scalar_branches(bm, tapm)
+    a_bm_t, speed_t = torch.tensor([a_bm], dtype=torch.float32), torch.tensor([speed_mps], dtype=torch.float32)
+    with torch.inference_mode():
+        z_v = bm.encode(random_frames(1), speed_t)[1]
+        expected = torch.cat([tapm.action_fc(a_bm_t.view(-1, 1)), tapm.speed_fc(z_v)], dim=1)
+        folded = torch.stack((a_bm_t, speed_t), dim=1) @ weight + bias
+    # Folded in float64 and rounded once: within a few float32 roundings of the layer-by-layer values.
+    torch.testing.assert_close(folded, expected, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("latency_s", GRID_LATENCIES_S + BETWEEN_LATENCIES_S + ABOVE_LATENCIES_S)
+def test_fused_paper_preset_equals_the_reference_at_batch_size_one(paper_plm_net, latency_s):
+    assert_fused_equals_reference(
+        paper_plm_net, FusedPLMNet(paper_plm_net), random_frames(1, (160, 160), seed=11), torch.tensor([16.7]),
+        torch.tensor([latency_s]),
+    )
+
+
+@pytest.fixture(scope="module")
+def paper_plm_net():
+    torch.manual_seed(4)
+    bm = BaseModel(preset_config("paper"))
+    return PLMNet(bm, TAPM(TAPMConfig(image_feature_dim=bm.image_feature_dim))).eval()
+
+
+# --- int8 TAPM: the BM exact, the TAPM approximate ------------------------------------------------------
+
+
+def int8_error_bound(weight: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """Worst case of per-row int8 weights (step max|w_row| / 127) times inputs quantised over their
+    range [min(x, 0), max(x, 0)] in 127 steps: |w| * dx + |x| * dw + dw * dx per term, summed
+    (a step, not half a step, per factor: the zero point's rounding can shift the grid by up to half a step).
+    The input range is the whole batch's (dynamic quantisation is per tensor): a sample's error grows
+    with the largest input of the batch it shares."""
+    weight_step = weight.abs().amax(dim=1, keepdim=True) / 127  # (out, 1)
+    x_step = (x.clamp_min(0).amax() - x.clamp_max(0).amin()).expand(len(x), 1) / 127  # (B, 1)
+    return (
+        x_step * weight.abs().sum(dim=1)
+        + x.abs() @ weight_step.expand(-1, weight.shape[1]).T
+        + x_step * weight_step.T * weight.shape[1]
+    )
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.integers(1, 4), st.integers(1, 300), st.integers(1, 64), st.integers(0, 2**16), st.booleans(),
+)
+def test_int8_linear_stays_within_the_quantisation_bound(batch, in_features, out_features, seed, non_negative):
+    generator = torch.Generator().manual_seed(seed)
+    weight = torch.randn(out_features, in_features, generator=generator) / in_features**0.5
+    bias = torch.randn(out_features, generator=generator)
+    x = torch.randn(batch, in_features, generator=generator) * 3
+    if non_negative:  # what the TAPM feeds it: features after a ReLU
+        x = x.relu()
+    exact = torch.nn.functional.linear(x, weight, bias)
+    error = (Int8Linear(weight, bias)(x) - exact).abs()
+    assert bool((error <= int8_error_bound(weight, x) + 1e-5).all()), float((error - int8_error_bound(weight, x)).max())
+
+
+def test_int8_linear_is_exact_where_weights_and_inputs_are_on_the_grid():
+    # Rows whose largest |weight| is 127 steps, integer inputs up to 127: nothing to round.
+    weight = torch.tensor([[127.0, -3.0, 0.0], [1.0, 2.0, 127.0]]) / 127
+    x = torch.tensor([[127.0, 5.0, 0.0], [0.0, 1.0, 2.0]])
+    bias = torch.tensor([0.5, -0.25])
+    torch.testing.assert_close(Int8Linear(weight, bias)(x), torch.nn.functional.linear(x, weight, bias), rtol=0, atol=1e-5)
+
+
+@pytest.fixture(scope="module")
+def int8_fused(plm_pair):
+    return FusedPLMNet(plm_pair[0], tapm_int8=True)
+
+
+def test_int8_plm_net_computes_the_bm_exactly(plm_pair, int8_fused):
+    """Like for like: the BM's part of the int8 form is the BM's own computation, bit for bit."""
+    bm = plm_pair[0].bm
+    for n in (1, 5):
+        frames, speed = random_frames(n, seed=n), torch.linspace(5, 30, n)
+        with torch.inference_mode():
+            output = int8_fused(frames, speed, torch.zeros(n))  # latency 0: a_BM
+            assert torch.equal(output.steering, bm(frames, speed))
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    st.lists(st.one_of(st.sampled_from(GRID_LATENCIES_S + ABOVE_LATENCIES_S), st.floats(0, 0.5)), min_size=1,
+             max_size=5),
+    st.integers(0, 2**16),
+)
+def test_int8_plm_net_stays_close_to_the_reference(plm_pair, int8_fused, latencies, seed):
+    plm_net = plm_pair[0]
+    n = len(latencies)
+    frames, speed, latency_s = random_frames(n, seed=seed), torch.full((n,), 16.7), torch.tensor(latencies)
+    with torch.inference_mode():
+        reference = plm_net(frames, speed, latency_s)
+        output = int8_fused(frames, speed, latency_s)
+    # Measured on these weights: at most ~4e-4 (the shipped checkpoints: ~9e-3, see bench models).
+    torch.testing.assert_close(output.steering, reference.steering, rtol=0, atol=2e-3)
+    assert output.n_clamped == reference.n_clamped
+    assert bool((output.steering.abs() <= 1).all())  # interpolated tanh outputs
+
+
+def test_int8_plm_net_paper_preset_stays_close_to_the_reference(paper_plm_net):
+    latency_s = torch.tensor([0.0, 0.1, 0.15, 0.22, 0.35, 0.5])
+    n = len(latency_s)
+    frames, speed = random_frames(n, (160, 160), seed=2), torch.full((n,), 16.7)
+    fused = FusedPLMNet(paper_plm_net, tapm_int8=True)
+    with torch.inference_mode():
+        reference = paper_plm_net(frames, speed, latency_s).steering
+        torch.testing.assert_close(fused(frames, speed, latency_s).steering, reference, rtol=0, atol=2e-3)
+        one_by_one = torch.cat([fused(frames[i : i + 1], speed[i : i + 1], latency_s[i : i + 1]).steering
+                                for i in range(n)])
+    torch.testing.assert_close(one_by_one, reference, rtol=0, atol=2e-3)
+    assert torch.equal(one_by_one[0], paper_plm_net.bm(frames[:1], speed[:1])[0])  # latency 0: the BM's own
+
+
+def test_int8_needs_the_fused_form():
+    with pytest.raises(ValueError, match="tapm_int8"):
+        PLMNetPolicy(small_plm_net(), fused=False, tapm_int8=True)
 
 
 # --- batched policies -----------------------------------------------------------------------------------
@@ -1062,19 +1197,26 @@ def test_bench_models_cli_prints_and_writes_the_figures(tmp_path, capsys):
     assert cli.main(args) == 0
     result = json.loads(out.read_text())
     figures = result["presets"]["default"]
-    for key in ("bm_ms_median", "plm_ms_median", "plm_reference_ms_median", "overhead_ratio", "overhead_ratio_cpu",
-                "reference_overhead_ratio"):
+    for key in ("bm_ms_median", "plm_ms_median", "plm_int8_ms_median", "plm_reference_ms_median", "overhead_ratio",
+                "overhead_ratio_cpu", "int8_overhead_ratio", "int8_overhead_ratio_cpu", "reference_overhead_ratio"):
         assert figures[key] > 0, key
     assert len(figures["repeats"]) == 2
-    assert figures["overhead_ratio"] == pytest.approx(np.median([r["overhead_ratio"] for r in figures["repeats"]]))
+    first_repeat = figures["repeats"][0]
+    for key, side in (("overhead_ratio", "plm"), ("int8_overhead_ratio", "plm_int8")):
+        assert figures[key] == pytest.approx(np.median([r[key] for r in figures["repeats"]]))
+        assert first_repeat[key] == pytest.approx(first_repeat[f"{side}_ms_median"] / first_repeat["bm_ms_median"])
     assert figures["max_abs_difference_fused_vs_reference"] < 1e-6
+    assert 0 < figures["max_abs_difference_int8_vs_reference"] < 1e-2
     assert set(figures["throughput_samples_per_s"]["plm"]) == {"1", "8", "32"}
     assert all(v > 0 for v in figures["throughput_samples_per_s"]["bm"].values())
     assert figures["training_samples_per_s"]["bm"] > 0 and figures["training_samples_per_s"]["tapm"] > 0
     assert figures["bm_params"] == 851_371 and figures["tapm_frozen_params"] == 851_371
     assert figures["tapm_trainable_params"] == 1_418_205
     printed = capsys.readouterr().out
-    assert "overhead PLM-Net / BM" in printed and "batched throughput" in printed and "training, samples/s" in printed
+    assert "overhead PLM-Net (exact, fp32) / BM" in printed and "overhead PLM-Net (int8 TAPM) / BM" in printed
+    assert "batched throughput" in printed and "training, samples/s" in printed
+    table_row = next(line for line in printed.splitlines() if line.strip().startswith("default") and "(" in line)
+    assert f"{figures['overhead_ratio']:.3f}" in table_row and f"{figures['int8_overhead_ratio']:.3f}" in table_row
 
 
 @pytest.mark.parametrize(
@@ -1090,6 +1232,15 @@ def test_bench_models_cli_prints_and_writes_the_figures(tmp_path, capsys):
 def test_bench_models_refuses_bad_arguments(capsys, args, message):
     assert cli.main(["bench", "models", *args]) == cli.EXIT_BAD_INPUT
     assert re.search(message, capsys.readouterr().err)
+
+
+def test_bench_says_whether_the_approximation_stays_within_the_exact_forms_interval():
+    from plm_highway.bench.models import mean_within_ci
+
+    exact = [1.0, 2.0, 3.0]  # mean 2, 95% half width 4.3027 / sqrt(3) = 2.484
+    assert mean_within_ci([4.4, 4.5, 4.5], exact)  # mean 4.4667: 2.4667 from 2
+    assert not mean_within_ci([4.5, 4.5, 4.5], exact)  # mean 4.5: 2.5 from 2
+    assert mean_within_ci([-0.4, -0.5, -0.5], exact) and not mean_within_ci([-0.5] * 3, exact)
 
 
 def test_bench_confidence_interval_matches_the_t_table():

@@ -4,13 +4,15 @@ Per preset (``--preset default|paper|both``), with freshly initialised models (t
 depend on the weights' values), torch on ``--threads`` threads (1 by default: at batch size 1 a
 second thread gains nothing and in the closed loop the simulator needs the other core):
 
-1. **Overhead at batch size 1**, what the closed loop runs: the BM policy, the PLM-Net policy
-   (its fused inference form) and the PLM-Net reference (:meth:`PLMNet.forward`, every head) are
-   timed frame by frame in interleaved blocks of :data:`BLOCK_FRAMES` frames (rotating which goes
-   first), so that a slow spell of a shared machine hits all sides alike. The ratio of median
-   times is taken per repeat; the report gives the median over ``--repeats`` (3) and each repeat's,
-   for wall time and for the calling thread's CPU time (which other processes disturb less).
-   The fused and reference outputs are compared on every timed input (max |difference|).
+1. **Overhead at batch size 1**, what the closed loop runs: the BM policy, the PLM-Net policy in
+   its exact inference form (:class:`FusedPLMNet`, fp32), the same with the TAPM's large layers in
+   int8 (``tapm_int8=True``, an approximation) and the PLM-Net reference (:meth:`PLMNet.forward`,
+   every head) are timed frame by frame in interleaved blocks of :data:`BLOCK_FRAMES` frames
+   (rotating which goes first), so that a slow spell of a shared machine hits all sides alike.
+   The ratio of median times is taken per repeat; the report gives the median over ``--repeats``
+   (3) and each repeat's, for wall time and for the calling thread's CPU time (which other
+   processes disturb less), and a table of both presets' ratios side by side at the end.
+   Both fused forms are compared with the reference on every timed input (max |difference|).
 2. **Batched throughput**: ``steer_batch`` of both policies at batch sizes 1, 8 and 32, samples/s
    from the median call time, interleaved the same way.
 3. **Training samples/s** of the BM and of the TAPM (on a frozen BM) over a short synthetic run:
@@ -19,11 +21,14 @@ second thread gains nothing and in the closed loop the simulator needs the other
 
 ``--closed-loop`` also drives the shipped default checkpoints on the test track: the reference
 run (BM, no latency) and, for 5 seeds of the paper's time-variant profile (``steps:0.0-0.35:1.0``),
-PLM-Net with the reference forward and with the fused one, reporting each form's steering MAE
-against the reference (mean and 95% CI over the seeds), their paired difference, and the largest
-step-wise difference between the two. The fused form equals the reference up to float rounding
+PLM-Net with the reference forward, the exact fused form and the int8 form, reporting each form's
+steering MAE against the reference (mean and 95% CI over the seeds), the paired differences
+(exact fused - reference forward: float rounding; int8 - exact fused: the approximation, before
+and after), whether the int8 mean lies within the exact form's CI, and the largest step-wise
+difference from the reference forward. The exact form equals the reference up to float rounding
 (~1e-7), but a closed loop amplifies that: a difference that moves the car by a nanometre changes
 a rendered uint8 pixel sooner or later, so the runs part slightly; the MAE shows whether it matters.
+No paper-preset checkpoints are shipped, so the closed loop runs the default preset only.
 
 The 1-minute load average before the run is recorded: on a shared machine the absolute times
 mean little, the ratios measured side by side in one run are what to compare.
@@ -92,6 +97,7 @@ def benchmark_preset(preset: str, n_frames: int, n_warmup: int, repeats: int, tr
     policies = {
         "bm": BaseModelPolicy(bm),
         "plm": PLMNetPolicy(plm_net),
+        "plm_int8": PLMNetPolicy(plm_net, tapm_int8=True),
         "plm_reference": PLMNetPolicy(plm_net, fused=False),
     }
     frames, latencies_s = _inputs(bm.config.image_size_px, max(n_warmup + n_frames, max(BATCH_SIZES)), seed)
@@ -106,6 +112,9 @@ def benchmark_preset(preset: str, n_frames: int, n_warmup: int, repeats: int, tr
         **overhead,
         "max_abs_difference_fused_vs_reference": _max_difference(
             policies["plm"], policies["plm_reference"], frames, latencies_s
+        ),
+        "max_abs_difference_int8_vs_reference": _max_difference(
+            policies["plm_int8"], policies["plm_reference"], frames, latencies_s
         ),
         "throughput_samples_per_s": _throughput(policies, frames, latencies_s, n_frames, repeats),
         "training_samples_per_s": _training_speed(bm.config, train_batches, repeats, seed),
@@ -144,6 +153,8 @@ def _overhead(policies: dict, frames: np.ndarray, latencies_s: np.ndarray, n_war
             **{f"{name}_cpu_ms_median": cpu[name] for name in cpu},
             "overhead_ratio": wall["plm"] / wall["bm"],
             "overhead_ratio_cpu": cpu["plm"] / cpu["bm"],
+            "int8_overhead_ratio": wall["plm_int8"] / wall["bm"],
+            "int8_overhead_ratio_cpu": cpu["plm_int8"] / cpu["bm"],
             "reference_overhead_ratio": wall["plm_reference"] / wall["bm"],
             "reference_overhead_ratio_cpu": cpu["plm_reference"] / cpu["bm"],
         })
@@ -254,12 +265,13 @@ def _training_speed(config, train_batches: int, repeats: int, seed: int) -> dict
 
 
 def closed_loop_check(latency: str = CLOSED_LOOP_LATENCY, seeds: int = CLOSED_LOOP_SEEDS, track: str = "test") -> dict:
-    """Steering MAE of PLM-Net, reference forward vs fused, against the reference run; shipped checkpoints.
+    """Steering MAE of PLM-Net, reference forward vs exact fused vs int8, against the reference run.
 
-    One reference run (the BM without latency, which no seed changes) and, per seed, PLM-Net with
-    each forward at ``latency`` (a random profile: the seed draws its realisation). Reports each
-    form's mean MAE with its 95% confidence interval over the seeds, the paired difference with its
-    interval, and the largest step-wise steering difference between the two forms.
+    Shipped default checkpoints. One reference run (the BM without latency, which no seed changes)
+    and, per seed, PLM-Net in each form at ``latency`` (a random profile: the seed draws its
+    realisation). Reports each form's mean MAE with its 95% confidence interval over the seeds, the
+    paired differences with their intervals, whether the int8 mean lies within the exact form's
+    interval, and the largest step-wise steering difference of each fused form from the reference.
     """
     from plm_highway.evaluation.closed_loop import drive
     from plm_highway.evaluation.policies import VisionPolicy, single_threaded_inference
@@ -268,30 +280,43 @@ def closed_loop_check(latency: str = CLOSED_LOOP_LATENCY, seeds: int = CLOSED_LO
     from plm_highway.models.shipped import load_shipped_plm_net
 
     plm_net = load_shipped_plm_net("default")
-    forms = {"reference_forward": False, "fused": True}
+    forms = {
+        "reference_forward": {"fused": False},
+        "fused": {"fused": True},
+        "fused_int8": {"fused": True, "tapm_int8": True},
+    }
     mae: dict[str, list[float]] = {name: [] for name in forms}
-    largest_difference = 0.0
+    largest_difference = {name: 0.0 for name in forms if name != "reference_forward"}
     with single_threaded_inference():
         reference = drive("reference", VisionPolicy(BaseModelPolicy(plm_net.bm)), track, "const:0", 0)
         for seed in range(seeds):
             steering = {}
-            for name, fused in forms.items():
-                log = drive(name, VisionPolicy(PLMNetPolicy(plm_net, fused=fused)), track, latency, seed)
+            for name, options in forms.items():
+                log = drive(name, VisionPolicy(PLMNetPolicy(plm_net, **options)), track, latency, seed)
                 steering[name] = log.columns["steering"]
                 mae[name].append(steering_mae(*common_span(reference.columns["steering"], steering[name])))
-            n = min(len(values) for values in steering.values())
-            largest_difference = max(largest_difference, float(np.max(np.abs(
-                steering["fused"][:n] - steering["reference_forward"][:n]))))
-    paired = np.asarray(mae["fused"]) - np.asarray(mae["reference_forward"])
+            for name in largest_difference:
+                n = min(len(steering[name]), len(steering["reference_forward"]))
+                largest_difference[name] = max(largest_difference[name], float(np.max(np.abs(
+                    steering[name][:n] - steering["reference_forward"][:n]))))
     return {
         "track": track,
         "latency": latency,
         "seeds": list(range(seeds)),
         "checkpoints": "shipped default",
         **{f"{name}_mae": _mean_ci(values) for name, values in mae.items()},
-        "fused_minus_reference_mae": _mean_ci(paired),
-        "max_abs_steering_difference": largest_difference,
+        "fused_minus_reference_mae": _mean_ci(np.subtract(mae["fused"], mae["reference_forward"])),
+        "int8_minus_fused_mae": _mean_ci(np.subtract(mae["fused_int8"], mae["fused"])),
+        "int8_mean_within_fused_ci": mean_within_ci(mae["fused_int8"], mae["fused"]),
+        "max_abs_steering_difference": largest_difference["fused"],
+        "max_abs_steering_difference_int8": largest_difference["fused_int8"],
     }
+
+
+def mean_within_ci(values, reference_values) -> bool:
+    """Whether the mean of ``values`` lies within the 95% CI of ``reference_values``' mean."""
+    reference = _mean_ci(reference_values)
+    return bool(abs(float(np.mean(values)) - reference["mean"]) <= reference["ci95_half_width"])
 
 
 def _mean_ci(values) -> dict:
@@ -313,21 +338,33 @@ def format_report(result: dict) -> str:
         f"{conditions['warmup_frames']} warm-up, {conditions['repeats']} repeats (medians)",
     ]
     target = result["target_overhead_ratio"]
+
+    def verdict(ratio: float) -> str:
+        return "meets" if ratio <= target else "MISSES"
+
     for preset, figures in result["presets"].items():
         height, width = figures["image_size_px"]
-        status = "meets" if figures["overhead_ratio"] <= target else "MISSES"
-        per_repeat = ", ".join(f"{r['overhead_ratio']:.3f}" for r in figures["repeats"])
+
+        def per_repeat(key: str, figures=figures) -> str:
+            return ", ".join(f"{r[key]:.3f}" for r in figures["repeats"])
+
         lines += [
             "",
             f"preset {preset} ({height}x{width} px): BM {figures['bm_params']:,} parameters, TAPM "
             f"{figures['tapm_trainable_params']:,} trainable + the frozen BM",
             f"  batch 1, median ms:  BM {figures['bm_ms_median']:.3f} | PLM-Net {figures['plm_ms_median']:.3f} "
+            f"| PLM-Net int8 TAPM {figures['plm_int8_ms_median']:.3f} "
             f"| PLM-Net reference forward {figures['plm_reference_ms_median']:.3f}",
-            f"  overhead PLM-Net / BM: {figures['overhead_ratio']:.3f} (repeats {per_repeat}; CPU time "
-            f"{figures['overhead_ratio_cpu']:.3f}); {status} the target <= {target}",
+            f"  overhead PLM-Net (exact, fp32) / BM: {figures['overhead_ratio']:.3f} (repeats "
+            f"{per_repeat('overhead_ratio')}; CPU time {figures['overhead_ratio_cpu']:.3f}); "
+            f"{verdict(figures['overhead_ratio'])} the target <= {target}",
+            f"  overhead PLM-Net (int8 TAPM) / BM: {figures['int8_overhead_ratio']:.3f} (repeats "
+            f"{per_repeat('int8_overhead_ratio')}; CPU time {figures['int8_overhead_ratio_cpu']:.3f}); "
+            f"{verdict(figures['int8_overhead_ratio'])} the target <= {target}",
             f"  before (reference forward) / BM: {figures['reference_overhead_ratio']:.3f} (CPU time "
-            f"{figures['reference_overhead_ratio_cpu']:.3f}); fused vs reference steering max |difference| "
-            f"{figures['max_abs_difference_fused_vs_reference']:.2e}",
+            f"{figures['reference_overhead_ratio_cpu']:.3f}); steering max |difference| from the reference: "
+            f"exact {figures['max_abs_difference_fused_vs_reference']:.2e}, int8 "
+            f"{figures['max_abs_difference_int8_vs_reference']:.2e}",
         ]
         throughput = figures["throughput_samples_per_s"]
         lines.append("  batched throughput, samples/s: " + "; ".join(
@@ -336,18 +373,37 @@ def format_report(result: dict) -> str:
         ))
         training = figures["training_samples_per_s"]
         lines.append(f"  training, samples/s: BM {training['bm']:,.0f}, TAPM (frozen BM) {training['tapm']:,.0f}")
+    lines += [
+        "",
+        f"PLM-Net / BM at batch size 1, median over {conditions['repeats']} repeats (wall time; CPU time in "
+        f"brackets), target <= {target}:",
+        f"  {'preset':8s} {'BM ms':>8s}  {'exact (fp32)':>22s}  {'int8 TAPM':>22s}  {'reference forward':>17s}",
+    ]
+    for preset, figures in result["presets"].items():
+        exact, int8 = figures["overhead_ratio"], figures["int8_overhead_ratio"]
+        exact_cell = f"{exact:.3f} ({figures['overhead_ratio_cpu']:.3f}) {verdict(exact)}"
+        int8_cell = f"{int8:.3f} ({figures['int8_overhead_ratio_cpu']:.3f}) {verdict(int8)}"
+        lines.append(
+            f"  {preset:8s} {figures['bm_ms_median']:8.3f}  {exact_cell:>22s}  {int8_cell:>22s}  "
+            f"{figures['reference_overhead_ratio']:17.3f}"
+        )
     if "closed_loop" in result:
         check = result["closed_loop"]
 
         def ci(figure: dict) -> str:
             return f"{figure['mean']:.5f} +- {figure['ci95_half_width']:.5f}"
 
+        within = "within" if check["int8_mean_within_fused_ci"] else "OUTSIDE"
         lines += [
             "",
             f"closed loop ({check['checkpoints']} checkpoints, track {check['track']}, {check['latency']}, "
             f"seeds {check['seeds'][0]}-{check['seeds'][-1]}), PLM-Net steering MAE vs the reference run "
-            f"(mean +- 95% CI): reference forward {ci(check['reference_forward_mae'])}, fused "
-            f"{ci(check['fused_mae'])}; paired difference {ci(check['fused_minus_reference_mae'])}; largest "
-            f"step difference {check['max_abs_steering_difference']:.2e}",
+            f"(mean +- 95% CI over the seeds):",
+            f"  reference forward {ci(check['reference_forward_mae'])} | exact fused (before) "
+            f"{ci(check['fused_mae'])} | int8 TAPM (after) {ci(check['fused_int8_mae'])}",
+            f"  paired: exact fused - reference forward {ci(check['fused_minus_reference_mae'])}; int8 - exact "
+            f"{ci(check['int8_minus_fused_mae'])}; the int8 mean is {within} the exact form's CI",
+            f"  largest step difference from the reference forward: exact "
+            f"{check['max_abs_steering_difference']:.2e}, int8 {check['max_abs_steering_difference_int8']:.2e}",
         ]
     return "\n".join(lines)

@@ -121,7 +121,8 @@ def configure_models(parser) -> None:
     parser.add_argument("--train-batches", type=int, default=10,
                         help=f"training batches of {bench.TRAIN_BATCH_SIZE} per timed epoch")
     parser.add_argument("--closed-loop", action="store_true",
-                        help="also drive the shipped checkpoints with the reference and the fused PLM-Net")
+                        help="also drive the shipped checkpoints with PLM-Net's reference forward, its exact fused "
+                             "form and its int8 TAPM form (steering MAE before/after, 5 seeds, 95%% CIs)")
     parser.add_argument("--json", metavar="OUT.json", help="write the results to this JSON file")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random weights and inputs")

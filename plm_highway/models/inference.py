@@ -126,14 +126,21 @@ class PLMNetPolicy(_Policy):
 
     ``fused=True`` (default) runs :class:`~plm_highway.models.plm_net.FusedPLMNet`, the inference
     form; ``False`` runs :meth:`PLMNet.forward` itself (every head), the reference it is checked against.
+    ``tapm_int8=True`` (fused only) runs the TAPM's image branch and heads' first layers in int8, an
+    approximation that pays on the paper preset (see ``FusedPLMNet``); the BM's part stays exact. It
+    has no batch-invariant form: ``batch_invariant`` needs it off.
     """
 
     name = "PLM-Net"
 
-    def __init__(self, plm_net: PLMNet, batch_invariant: bool = False, fused: bool = True):
+    def __init__(self, plm_net: PLMNet, batch_invariant: bool = False, fused: bool = True, tapm_int8: bool = False):
         super().__init__(plm_net.bm.config.image_size_px, batch_invariant)
+        if tapm_int8 and not fused:
+            raise BadInput("tapm_int8: the int8 TAPM is a form of the fused inference; it needs fused=True")
+        if tapm_int8 and batch_invariant:
+            raise BadInput("tapm_int8: the int8 TAPM has no batch-invariant form; it needs batch_invariant=False")
         self.model = plm_net.eval()
-        self.fused = FusedPLMNet(plm_net) if fused else None
+        self.fused = FusedPLMNet(plm_net, tapm_int8=tapm_int8) if fused else None
         self.max_latency_s = plm_net.last_grid_s
 
     def _forward(self, frames, speeds_mps, latencies_s):
@@ -141,6 +148,6 @@ class PLMNetPolicy(_Policy):
             output = self.model(frames, speeds_mps, torch.from_numpy(latencies_s))
             self.clamped_latency_count += output.n_clamped
             return output.steering
-        output = self.fused(frames, speeds_mps, latencies_s, all_heads=self.batch_invariant)
-        self.clamped_latency_count += int(output.clamped.sum())
+        output = self.fused(frames, speeds_mps, latencies_s, batch_invariant=self.batch_invariant)
+        self.clamped_latency_count += output.n_clamped
         return output.steering

@@ -13,13 +13,17 @@ raises ValueError: it is a bug upstream, not a condition to mitigate.
 the other) and what training and analysis use. :class:`FusedPLMNet` is its inference form, equal
 to it up to float rounding (measured: at most a few 1e-8 apart) and cheaper where PLM-Net's cost over
 the BM lies: the BM's first FC layer and the TAPM's image branch read the same features, so they
-run as one matrix product (the image features are read once, one call instead of two), and only
-the heads that bracket each sample's latency run (Algorithm 1 reads no others: one or two heads
-at batch size 1 instead of five).
+run as one matrix product, only the heads that bracket each sample's latency run (Algorithm 1
+reads no others: one or two heads at batch size 1 instead of five), the action and speed branches
+fold into one small product, and at batch size 1 the interpolation runs in Python floats.
+``FusedPLMNet(plm_net, tapm_int8=True)`` is an approximation on top: the TAPM's large layers in
+int8, the BM's part unchanged (see the class).
 """
 
 from __future__ import annotations
 
+import bisect
+import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -153,88 +157,182 @@ class PLMNet(nn.Module):
 class PLMNetSteering(NamedTuple):
     steering: torch.Tensor  # (B,) the interpolated action a_PLM
     clamped: np.ndarray  # (B,) bool: latency above the last grid value (the last head was used)
+    n_clamped: int  # clamped.sum()
+
+
+# Batch size 1's two possible masks, read-only so that callers cannot change the shared arrays.
+_ONE_CLAMPED = (np.zeros(1, bool), np.ones(1, bool))
+for _mask in _ONE_CLAMPED:
+    _mask.setflags(write=False)
 
 
 class FusedPLMNet:
     """Inference-only PLM-Net, equal to :meth:`PLMNet.forward`'s steering up to float rounding.
 
-    Built from a trained, frozen ``plm_net``: the fused first layer, the action branch and the packed
-    heads are copies taken then (~5 MB for the default preset, ~44 MB for the paper preset), so a
-    ``plm_net`` whose weights change afterwards needs a new ``FusedPLMNet``. Runs under
+    What it saves over :meth:`PLMNet.forward` (measured in the closed loop's setting, batch size 1,
+    where every operation runs with cold caches and costs several times its isolated time):
+
+    - one product for the BM's first FC layer and the TAPM's image branch (both read z_o);
+    - only the one or two heads that bracket each sample's latency (Algorithm 1 reads no others),
+      as four plain products;
+    - the TAPM's action and speed branches folded into one (B, 2) x (2, 200) product
+      (:func:`fold_scalar_branches`); the heads' input columns permuted so the trunk is one
+      concatenation;
+    - at batch size 1 the latency check, the segment search and the interpolation in Python floats
+      instead of ~25 numpy calls (larger batches use the vectorised :func:`interpolate_batch`).
+
+    Built from a trained, frozen ``plm_net``: the fused first layer, the folded branches and the
+    packed heads are copies taken then (~5 MB for the default preset, ~44 MB for the paper preset),
+    so a ``plm_net`` whose weights change afterwards needs a new ``FusedPLMNet``. Runs under
     ``torch.inference_mode`` (no gradients).
+
+    ``tapm_int8=True`` is an approximation: the TAPM's two large layers (the image branch, FC 500 on
+    z_o, and the heads' first layers) run as int8 products (:class:`Int8Linear`) and read a quarter
+    of the bytes, which is where the paper preset's cost lies (its image branch alone is 21.6 MB of
+    fp32 weights per frame). The BM's layers stay fp32 and are the BM's own calls, so ``a_BM``
+    (and the steering at latency 0) is bit-identical to the BM's; the heads' outputs move by up to
+    ~1e-2 with the shipped checkpoints (``bench models --closed-loop`` reports the closed-loop MAE
+    with and without it).
     """
 
-    def __init__(self, plm_net: PLMNet):
+    def __init__(self, plm_net: PLMNet, tapm_int8: bool = False):
         bm, tapm = plm_net.bm.eval(), plm_net.tapm.eval()
         self.bm, self.tapm = bm, tapm
+        self.tapm_int8 = bool(tapm_int8)
         first, image_fc = bm.mlp[0], tapm.image_fc
         self.bm_width = first.out_features
-        # The TAPM reads z_o only: its rows get zero weights for the speed (and acceleration) features,
-        # so one product over the BM's concatenated MLP input yields both layers.
-        padding = torch.zeros(image_fc.out_features, first.in_features - image_fc.in_features)
         with torch.no_grad():
-            self.weight = torch.cat([first.weight, torch.cat([image_fc.weight, padding], dim=1)]).contiguous()
-            self.bias = torch.cat([first.bias, image_fc.bias])
-            # a_BM -> FC 100 is a rank-1 map: a_BM * w + b, one fused op instead of a (B, 1) product.
-            self.action_weight = tapm.action_fc.weight.view(1, -1).clone()
-            self.action_bias = tapm.action_fc.bias.clone()
+            if self.tapm_int8:
+                # Apart from the BM's first layer: int8 and fp32 cannot share one product.
+                self.image_fc = Int8Linear(image_fc.weight, image_fc.bias)
+            else:
+                # The TAPM reads z_o only: its rows get zero weights for the speed (and acceleration)
+                # features, so one product over the BM's concatenated MLP input yields both layers.
+                padding = torch.zeros(image_fc.out_features, first.in_features - image_fc.in_features)
+                self.first_layer = Fp32Linear.of(
+                    torch.cat([first.weight, torch.cat([image_fc.weight, padding], dim=1)]),
+                    torch.cat([first.bias, image_fc.bias]),
+                )
+            branch_weight, branch_bias = fold_scalar_branches(bm, tapm)
+            self.branches = Fp32Linear(branch_weight.t().contiguous(), branch_bias, branch_weight)  # (in, out)
+            # The trunk is built as [image 500, action 100, speed 100] (one concatenation of two
+            # parts); the heads' input columns are permuted to match.
+            n_action, n_image = tapm.action_fc.out_features, image_fc.out_features
+            # trunk_order[i]: the column of TAPM.trunk's output that this trunk's column i holds.
+            self.trunk_order = torch.cat([
+                torch.arange(n_action, n_action + n_image), torch.arange(n_action),
+                torch.arange(n_action + n_image, tapm.heads_in.in_features),
+            ])
+            self._heads_in_weight = tapm.heads_in.weight[:, self.trunk_order].contiguous()
         self.delta_ref_s = plm_net.delta_ref_s.numpy().copy()  # float32
         self._interior_grid_s = self.delta_ref_s[1:-1]
+        self._grid_s = self.delta_ref_s.tolist()  # the float32 values as Python floats, exactly
         self.last_grid_s = plm_net.last_grid_s
         self.n_heads = tapm.config.n_heads
         # Per contiguous head range (at most n (n + 1) / 2 of them, built when first needed).
         self._sub_grids: dict[tuple[int, int], np.ndarray] = {}
-        self._packed_heads: dict[tuple[int, int], tuple[tuple[torch.Tensor, torch.Tensor], ...]] = {}
+        self._packed_heads: dict[tuple[int, int], tuple] = {}
 
-    @torch.inference_mode()
-    def __call__(self, frames: torch.Tensor, speed_mps: torch.Tensor, latency_s, all_heads: bool = False) -> PLMNetSteering:
+    def __call__(self, frames: torch.Tensor, speed_mps: torch.Tensor, latency_s,
+                 batch_invariant: bool = False) -> PLMNetSteering:
         """Frames uint8 (B, H, W), speed (B,) m/s, latency (B,) s (tensor or array) -> steering (B,).
 
-        ``all_heads=True`` evaluates every head whenever a latency is above 0, instead of only the heads
-        that bracket the batch's latencies: the heads' products then have one width whatever the batch
-        holds, so with batch-invariant kernels a sample's steering does not depend on the other
-        samples' latencies (batch-invariant runs, :mod:`plm_highway.models.batch_invariant`).
+        ``batch_invariant=True``: the form for :func:`~plm_highway.models.batch_invariant.batch_invariant_ops`
+        (the caller enters it). Every head is evaluated whenever a latency is above 0, every product goes
+        through ``F.linear`` (which those kernels replace) and batch size 1 takes the batch path, so a
+        sample's steering does not depend on the batch's size nor on the other samples' latencies.
         """
+        if batch_invariant and self.tapm_int8:
+            raise ValueError("the int8 TAPM has no batch-invariant form")
+        if torch.is_inference_mode_enabled():  # the policies' case: entering it again costs an op's time
+            return self._steer(frames, speed_mps, latency_s, batch_invariant)
+        with torch.inference_mode():
+            return self._steer(frames, speed_mps, latency_s, batch_invariant)
+
+    def _steer(self, frames: torch.Tensor, speed_mps: torch.Tensor, latency_s, batch_invariant: bool) -> PLMNetSteering:
         latency_np = np.asarray(latency_s, dtype=np.float32).reshape(-1)
         if len(latency_np) != len(frames):
             raise BadInput(f"latency_s: expected one latency per frame ({len(frames)}), got {len(latency_np)}")
-        clamped = check_latency_array(latency_np, self.last_grid_s)
-        z_o, z_v = self.bm.encode(frames, speed_mps)
-        first_layer = torch.nn.functional.linear(self.bm.mlp_input(z_o, z_v), self.weight, self.bias)
-        a_bm = self.bm.steering_from_first_layer(first_layer[:, : self.bm_width])
-        if not latency_np.any():  # every latency 0: Algorithm 1 returns a_BM, no head is needed
-            return PLMNetSteering(a_bm, clamped)
-        # Grid segment of each sample, as interpolate_batch finds it: a_ref entries lo and lo + 1,
-        # i.e. heads lo - 1 (none for lo = 0: the BM) and lo.
-        lo = np.searchsorted(self._interior_grid_s, np.minimum(latency_np, np.float32(self.last_grid_s)))
-        if all_heads:
-            first_head, stop_head = 0, self.n_heads
+        one_sample = len(latency_np) == 1 and not batch_invariant
+        if one_sample:
+            latency = float(latency_np[0])  # the float32 value, exactly
+            if not latency >= 0:  # NaN fails the comparison too
+                raise BadInput(f"latency_s: must be a number >= 0 s, got {latency}")
+            clamped = _ONE_CLAMPED[latency > self.last_grid_s]
+            n_clamped = int(latency > self.last_grid_s)
+            any_latency = latency > 0
         else:
-            first_head, stop_head = max(int(lo.min()) - 1, 0), int(lo.max()) + 1
-        trunk = torch.cat([
-            torch.addcmul(self.action_bias, a_bm.view(-1, 1), self.action_weight),
-            first_layer[:, self.bm_width :],
-            self.tapm.speed_fc(z_v),
-        ], dim=1).relu_()
-        heads = self._heads(trunk, first_head, stop_head)
+            clamped = check_latency_array(latency_np, self.last_grid_s)
+            n_clamped = int(clamped.sum())
+            any_latency = latency_np.any()
+        z_o, z_v = self.bm.encode(frames, speed_mps)
+        if self.tapm_int8:
+            a_bm = self.bm.steering_from_features(z_o, z_v)
+        else:
+            first_layer = self.first_layer.apply(self.bm.mlp_input(z_o, z_v), batch_invariant)
+            a_bm = self.bm.steering_from_first_layer(first_layer[:, : self.bm_width])
+        if not any_latency:  # every latency 0: Algorithm 1 returns a_BM, no head is needed
+            return PLMNetSteering(a_bm, clamped, n_clamped)
+        if batch_invariant:
+            first_head, stop_head = 0, self.n_heads
+        elif one_sample:
+            # Segment [lo, lo + 1] of delta_ref, as interpolate_batch finds it (lo = 0: latency in (0, 0.15]).
+            lo = min(bisect.bisect_left(self._grid_s, latency), len(self._grid_s) - 1) - 1
+            first_head, stop_head = max(lo - 1, 0), lo + 1
+        else:
+            # Grid segment of each sample, as interpolate_batch finds it: a_ref entries lo and lo + 1,
+            # i.e. heads lo - 1 (none for lo = 0: the BM) and lo.
+            lo_np = np.searchsorted(self._interior_grid_s, np.minimum(latency_np, np.float32(self.last_grid_s)))
+            first_head, stop_head = max(int(lo_np.min()) - 1, 0), int(lo_np.max()) + 1
+        image_features = self.image_fc(z_o) if self.tapm_int8 else first_layer[:, self.bm_width :]
+        branches = self.branches.apply(torch.stack((a_bm, speed_mps.to(a_bm.dtype)), dim=1), batch_invariant)
+        heads = self._heads(torch.cat([image_features, branches], dim=1).relu_(), first_head, stop_head,
+                            batch_invariant)
+        if one_sample:
+            steering = torch.tensor([self._interpolate_one(latency, lo, float(a_bm), heads.tolist()[0])])
+            return PLMNetSteering(steering, clamped, n_clamped)
         a_ref = np.concatenate([a_bm.numpy()[:, None], heads.numpy()], axis=1)
         # The sub-grid [0, heads' latencies] puts every sample in the same segment as the full grid
         # (all latencies lie above delta_ref[first_head + 1] when first_head > 0, and at most at
         # delta_ref[stop_head]), so the interpolation is the reference's, value for value.
         steering = interpolate_batch(latency_np, self._sub_grid(first_head, stop_head), a_ref)
-        return PLMNetSteering(torch.from_numpy(steering), clamped)
+        return PLMNetSteering(torch.from_numpy(steering), clamped, n_clamped)
 
-    def _heads(self, trunk: torch.Tensor, first_head: int, stop_head: int) -> torch.Tensor:
-        """:meth:`TAPM.heads` in eval mode, as four plain products: (B, 700) -> (B, stop - first)."""
+    def _interpolate_one(self, latency: float, lo: int, a_bm: float, heads: list[float]) -> float:
+        """:func:`interpolate_batch` for one sample in segment ``lo``, in float64 (the result is then
+        rounded to float32: within a float32 rounding of the reference's float32 arithmetic)."""
+        a_lo, a_hi = (a_bm, heads[0]) if lo == 0 else (heads[0], heads[1])
+        delta_lo, delta_hi = self._grid_s[lo], self._grid_s[lo + 1]
+        latency = min(latency, delta_hi)  # above the grid: the last head
+        if latency == delta_hi:  # a grid point returns its action bit-exactly
+            return a_hi
+        value = a_lo + (latency - delta_lo) / (delta_hi - delta_lo) * (a_hi - a_lo)
+        return min(max(value, min(a_lo, a_hi)), max(a_lo, a_hi))
+
+    def _heads(self, trunk: torch.Tensor, first_head: int, stop_head: int, batch_invariant: bool = False
+               ) -> torch.Tensor:
+        """:meth:`TAPM.heads` in eval mode, as four plain products: (B, 700) -> (B, stop - first).
+
+        ``trunk`` is ordered [image, action, speed] (see ``__init__``), not as :meth:`TAPM.trunk`.
+        """
         key = (first_head, stop_head)
         if key not in self._packed_heads:
-            self._packed_heads[key] = _pack_heads(self.tapm, first_head, stop_head)
-        (w_in, b_in), (w_hidden, b_hidden), (w_tanh, b_tanh), (w_out, b_out) = self._packed_heads[key]
-        functional = torch.nn.functional
-        hidden = functional.linear(trunk, w_in, b_in).relu_()
-        hidden = functional.linear(hidden, w_hidden, b_hidden).relu_()
-        hidden = functional.linear(hidden, w_tanh, b_tanh).tanh_()
-        return functional.linear(hidden, w_out, b_out).tanh_()
+            self._packed_heads[key] = self._pack_heads(first_head, stop_head)
+        heads_in, hidden_layer, tanh_layer, out_layer = self._packed_heads[key]
+        if batch_invariant:  # heads_in is fp32 here (int8 has no batch-invariant form)
+            hidden = heads_in.apply(trunk, True).relu_()
+            hidden = hidden_layer.apply(hidden, True).relu_()
+            return out_layer.apply(tanh_layer.apply(hidden, True).tanh_(), True).tanh_()
+        hidden = heads_in(trunk).relu_()
+        hidden = hidden_layer(hidden).relu_()
+        return out_layer(tanh_layer(hidden).tanh_()).tanh_()
+
+    def _pack_heads(self, first_head: int, stop_head: int) -> tuple:
+        heads_in_bias, *later = _pack_heads(self.tapm, first_head, stop_head)
+        width = len(heads_in_bias) // (stop_head - first_head)
+        weight = self._heads_in_weight[first_head * width : stop_head * width]
+        heads_in = Int8Linear(weight, heads_in_bias) if self.tapm_int8 else Fp32Linear.of(weight, heads_in_bias)
+        return (heads_in, *(Fp32Linear.of(weight, bias) for weight, bias in later))
 
     def _sub_grid(self, first_head: int, stop_head: int) -> np.ndarray:
         key = (first_head, stop_head)
@@ -245,17 +343,81 @@ class FusedPLMNet:
         return self._sub_grids[key]
 
 
-def _pack_heads(tapm: TAPM, first: int, stop: int) -> tuple[tuple[torch.Tensor, torch.Tensor], ...]:
-    """(weight (out, in), bias) of heads ``first .. stop - 1``, layer by layer, as ``F.linear`` takes them.
+def fold_scalar_branches(bm: BaseModel, tapm: TAPM) -> tuple[torch.Tensor, torch.Tensor]:
+    """The TAPM's action and speed branches as one map of (a_BM, speed m/s): weight (2, 200), bias (200,).
+
+    Both are affine in a scalar before their ReLU: a_BM -> FC 100 directly, and the speed through
+    z_v = speed_embedding(speed / scale) (linear, no activation) -> FC 100, so
+    ``[a_BM, speed] @ weight + bias`` equals ``[action_fc(a_BM), speed_fc(z_v)]``. Folded in
+    float64 and rounded once: one (B, 2) product replaces the two layers and the embedding.
+    """
+    action_fc, speed_fc, embedding = tapm.action_fc, tapm.speed_fc, bm.speed_embedding
+    n_action, n_speed = action_fc.out_features, speed_fc.out_features
+    speed_weight = speed_fc.weight.double()
+    weight = torch.zeros(2, n_action + n_speed, dtype=torch.float64)
+    weight[0, :n_action] = action_fc.weight.double()[:, 0]
+    weight[1, n_action:] = speed_weight @ embedding.weight.double()[:, 0] / bm.config.speed_scale_mps
+    bias = torch.cat([action_fc.bias.double(), speed_weight @ embedding.bias.double() + speed_fc.bias.double()])
+    return weight.float(), bias.float()
+
+
+class Fp32Linear(NamedTuple):
+    """A linear layer as one ``addmm`` (``F.linear`` dispatches a transpose and then ``addmm``), or through
+    ``F.linear`` for batch-invariant runs (:mod:`plm_highway.models.batch_invariant` replaces it)."""
+
+    weight: torch.Tensor  # (out, in), contiguous, as nn.Linear holds it
+    bias: torch.Tensor  # (out,)
+    weight_in_out: torch.Tensor  # (in, out), as addmm reads it
+
+    @classmethod
+    def of(cls, weight: torch.Tensor, bias: torch.Tensor) -> Fp32Linear:
+        """From ``nn.Linear``'s layout, weight (out, in)."""
+        weight = weight.detach().contiguous()
+        return cls(weight, bias.detach().contiguous(), weight.t())
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.addmm(self.bias, x, self.weight_in_out)
+
+    def apply(self, x: torch.Tensor, batch_invariant: bool) -> torch.Tensor:
+        return torch.nn.functional.linear(x, self.weight, self.bias) if batch_invariant else self(x)
+
+
+class Int8Linear:
+    """``F.linear`` with int8 weights (one scale per output row) and dynamically quantised inputs.
+
+    PyTorch's dynamic quantised linear (fbgemm / oneDNN on x86): per call, the input is quantised
+    to 7-bit unsigned integers over its own range (``reduce_range``: x86's 16-bit pair sums cannot
+    overflow), multiplied in int8 and rescaled, the bias added in fp32. Reads a quarter of the fp32
+    weight bytes, which pays where a layer is memory-bound (batch size 1, large weights).
+    """
+
+    def __init__(self, weight: torch.Tensor, bias: torch.Tensor):
+        weight = weight.detach().float()
+        scales = (weight.abs().amax(dim=1) / 127).clamp_min(torch.finfo(torch.float32).tiny).double()
+        zero_points = torch.zeros(len(weight), dtype=torch.int64)
+        with warnings.catch_warnings():
+            # PyTorch 2.13 flags quantised tensor creation as deprecated; the packed weight is all we keep.
+            warnings.simplefilter("ignore", UserWarning)
+            quantised = torch.quantize_per_channel(weight, scales, zero_points, 0, torch.qint8)
+            self._packed = torch.ops.quantized.linear_prepack(quantised, bias.detach().float().contiguous())
+        self.out_features, self.in_features = weight.shape
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.ops.quantized.linear_dynamic(x, self._packed, True)
+
+
+def _pack_heads(tapm: TAPM, first: int, stop: int) -> tuple:
+    """Heads ``first .. stop - 1``, layer by layer: the first layer's bias, then (weight (out, in),
+    bias) of the three later layers, as ``F.linear`` takes them (the first layer's weight columns
+    are permuted by the caller).
 
     The grouped layers become block-diagonal matrices (head h's block maps head h's units only), so
     that the heads run as four products with no reshaping: at batch size 1 the number of operations,
     not their arithmetic, is the cost. The zero blocks add exact zeros.
     """
     width = tapm.heads_in.out_features // tapm.config.n_heads
-    rows = slice(first * width, stop * width)
     with torch.no_grad():
-        layers = [(tapm.heads_in.weight[rows].clone(), tapm.heads_in.bias[rows].clone())]
+        layers: list = [tapm.heads_in.bias[first * width : stop * width].clone()]
         for grouped in (tapm.heads_hidden, tapm.heads_tanh, tapm.heads_out):
             blocks = [weight.T for weight in grouped.weight[first:stop]]  # (in, out) per head -> (out, in)
             layers.append((torch.block_diag(*blocks).contiguous(), grouped.bias[first:stop].reshape(-1).clone()))
