@@ -14,10 +14,13 @@ from plm_highway.cli import main
 def test_every_side_drives_the_same_runs(tmp_path, capsys):
     out = tmp_path / "bench.json"
     assert main(["bench", "sweep", "--envs", "3", "--steps", "4", "--workers", "1", "--policy", "bm",
-                 "--json", str(out)]) == 0
+                 "--repeats", "2", "--json", str(out)]) == 0
     result = json.loads(out.read_text())
     sides = result["sides"]
-    assert len(sides) == 7
+    assert len(sides) == 8 and any(name.endswith("warm") for name in sides)
+    for figures in sides.values():  # the median of the repeats
+        assert len(figures["wall_s_repeats"]) == 2
+        assert figures["wall_s"] == pytest.approx(sum(figures["wall_s_repeats"]) / 2)
     serial = [name for name in sides if name.startswith("one env at a time")]
     assert max(sides[name]["speed_up"] for name in serial) == 1.0  # ratios against the fastest serial side
     for name, figures in sides.items():

@@ -16,20 +16,26 @@ wall times side by side with their ratio to the *fastest* one-env side:
    thread each; a forward pass releases the GIL, so one batch's envs step meanwhile);
 6. **batched, gymnasium SyncVectorEnv** (``autoreset_mode=DISABLED``): the envs in gymnasium's
    vector API, one ``steer_batch`` per step;
-7. **process pool**: the N runs over ``--workers`` spawned processes, each batched; the time
-   includes starting the processes and loading the model in each.
+7. **process pool, cold**: the N runs over ``--workers`` spawned processes, each batched; the time
+   includes starting the processes and loading the model in each;
+8. **process pool, warm**: the same on workers started and loaded before the clock, as the one-env
+   sides load their model before it (a sweep or ``reproduce`` starts its pool once).
 
-Each side's largest |steering difference| against side 3 is printed (0: identical). The 1-minute
+Every side is timed ``--repeats`` times, the sides interleaved; the medians are printed and the
+speed-ups are ratios of medians (the one-env sides' times spread by up to 2x between runs on this
+shared machine). Each side's largest |steering difference| against side 3 is printed (0: identical). The 1-minute
 load average is printed: on a shared machine the absolute times mean little, compare the ratios.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from functools import partial
 
 import numpy as np
+from tqdm.auto import tqdm
 
 SERIAL_SIDES = ("one env at a time, default kernels, 1 thread", "one env at a time, default kernels, 2 threads",
                 "one env at a time, batch-invariant kernels")
@@ -37,8 +43,10 @@ REFERENCE_SIDE = SERIAL_SIDES[2]
 
 
 def bench_sweep(n_envs: int = 16, steps: int = 100, policy: str = "plm", latency: str = "steps:0.0-0.35:1.0",
-                track: str = "test", workers: int = 2, two_thread_serial: bool = True) -> dict:
-    """The sides of the module docstring; ``two_thread_serial=False`` leaves out side 2 (on a loaded
+                track: str = "test", workers: int = 2, two_thread_serial: bool = True, repeats: int = 3) -> dict:
+    """The sides of the module docstring, each timed ``repeats`` times (the sides interleaved, so that a
+    slow spell of a shared machine hits every side alike); each side's median wall time is reported and
+    the speed-ups are ratios of medians. ``two_thread_serial=False`` leaves out side 2 (on a loaded
     machine two torch threads at batch size 1 can take 20x longer than one)."""
     import torch
 
@@ -46,42 +54,58 @@ def bench_sweep(n_envs: int = 16, steps: int = 100, policy: str = "plm", latency
     from plm_highway.evaluation.closed_loop import drive
     from plm_highway.evaluation.policies import VisionPolicy, make_policy, single_threaded_inference
 
+    if not 1 <= repeats <= 100:
+        raise ValueError(f"repeats {repeats}: must lie in [1, 100]")
     load = os.getloadavg()[0]
     vision = make_policy(policy)
     default_kernels = make_policy(policy)
     default_kernels.model_policy.batch_invariant = False
     cells = [RunCell(f"seed {seed}", vision, track, latency, seed, max_steps=steps) for seed in range(n_envs)]
-    sides: dict[str, dict] = {}
-
-    def timed(name: str, function, threads: int = 1):
-        previous = torch.get_num_threads()
-        torch.set_num_threads(threads)
-        try:
-            start = time.perf_counter()
-            steering = function()
-            sides[name] = {"wall_s": time.perf_counter() - start, "torch_threads": threads}
-        finally:
-            torch.set_num_threads(previous)
-        return steering
 
     def serial(policy_object: VisionPolicy) -> np.ndarray:
         return _steering([drive(c.name, policy_object, track, latency, c.seed, max_steps=steps) for c in cells])
 
-    with single_threaded_inference():
-        drive("warm-up", vision, track, latency, 0, max_steps=3)
-        drive("warm-up", default_kernels, track, latency, 0, max_steps=3)
-        steering = {SERIAL_SIDES[0]: timed(SERIAL_SIDES[0], partial(serial, default_kernels))}
-        if two_thread_serial:
-            steering[SERIAL_SIDES[1]] = timed(SERIAL_SIDES[1], partial(serial, default_kernels), threads=2)
-        steering[REFERENCE_SIDE] = timed(REFERENCE_SIDE, partial(serial, vision))
-        steering["batched, own envs"] = timed(
-            "batched, own envs", lambda: _steering(run_cells(cells, batch_size=n_envs)))
-        steering["batched, 2 threads"] = timed(
-            "batched, 2 threads", lambda: _steering(run_cells(cells, batch_size=n_envs, threads=2)))
-        steering["batched, gymnasium SyncVectorEnv"] = timed(
-            "batched, gymnasium SyncVectorEnv", lambda: _vector_env_steering(vision, cells, steps))
-    pool_side = f"process pool ({workers} workers, batched)"
-    steering[pool_side] = timed(pool_side, lambda: _pool_steering(policy, track, latency, n_envs, steps, workers))
+    pool_side = f"process pool ({workers} workers, batched), cold"
+    warm_side = f"process pool ({workers} workers, batched), warm"
+    # (name, function, torch threads, inside single_threaded_inference)
+    plan = [(SERIAL_SIDES[0], partial(serial, default_kernels), 1, True)]
+    if two_thread_serial:
+        plan.append((SERIAL_SIDES[1], partial(serial, default_kernels), 2, True))
+    plan += [
+        (REFERENCE_SIDE, partial(serial, vision), 1, True),
+        ("batched, own envs", lambda: _steering(run_cells(cells, batch_size=n_envs)), 1, True),
+        ("batched, 2 threads", lambda: _steering(run_cells(cells, batch_size=n_envs, threads=2)), 1, True),
+        ("batched, gymnasium SyncVectorEnv", lambda: _vector_env_steering(vision, cells, steps), 1, True),
+        (pool_side, lambda: _pool_steering(policy, track, latency, n_envs, steps, workers), 1, False),
+    ]
+    walls: dict[str, list[float]] = {name: [] for name, *_ in plan}
+    walls[warm_side] = []
+    steering: dict[str, np.ndarray] = {}
+
+    def timed(name: str, function, threads: int) -> None:
+        previous = torch.get_num_threads()
+        torch.set_num_threads(threads)
+        try:
+            start = time.perf_counter()
+            result = function()
+            walls[name].append(time.perf_counter() - start)
+        finally:
+            torch.set_num_threads(previous)
+        if name in steering and not np.array_equal(steering[name], result):
+            raise RuntimeError(f"bench sweep: side {name!r} steered differently in a repeat")
+        steering[name] = result
+
+    with _warm_pool(policy, track, latency, workers) as pool:
+        with single_threaded_inference():
+            drive("warm-up", vision, track, latency, 0, max_steps=3)
+            drive("warm-up", default_kernels, track, latency, 0, max_steps=3)
+        for _ in tqdm(range(repeats), desc="bench sweep repeats", leave=False):
+            for name, function, threads, single in plan:
+                with single_threaded_inference() if single else contextlib.nullcontext():
+                    timed(name, function, threads)
+            timed(warm_side, lambda: _warm_pool_steering(pool, policy, track, latency, n_envs, steps, workers), 1)
+    sides = {name: {"wall_s": float(np.median(times)), "wall_s_repeats": times,
+                    "torch_threads": 2 if name == SERIAL_SIDES[1] else 1} for name, times in walls.items()}
     reference = steering[REFERENCE_SIDE]
     best_serial_s = min(sides[name]["wall_s"] for name in SERIAL_SIDES if name in sides)
     for name, figures in sides.items():
@@ -89,8 +113,9 @@ def bench_sweep(n_envs: int = 16, steps: int = 100, policy: str = "plm", latency
         figures["policy_steps_per_s"] = n_envs * steps / figures["wall_s"]
         figures["max_steering_difference"] = float(np.max(np.abs(steering[name] - reference)))
     return {"envs": n_envs, "steps": steps, "policy": policy, "latency": latency, "track": track,
-            "load_average_1min": load, "load_average_1min_after": os.getloadavg()[0], "cpus": os.cpu_count(),
-            "reference_side": REFERENCE_SIDE, "speed_up_relative_to": "the fastest one-env side", "sides": sides}
+            "repeats": repeats, "load_average_1min": load, "load_average_1min_after": os.getloadavg()[0],
+            "cpus": os.cpu_count(), "reference_side": REFERENCE_SIDE,
+            "speed_up_relative_to": "the fastest one-env side (median wall times)", "sides": sides}
 
 
 def _steering(logs) -> np.ndarray:
@@ -127,6 +152,52 @@ def _pool_steering(policy: str, track: str, latency: str, n_envs: int, steps: in
     for index, chunk in enumerate(chunks):
         out[list(chunk[3])] = pooled[index]
     return out
+
+
+@contextlib.contextmanager
+def _warm_pool(policy: str, track: str, latency: str, workers: int):
+    """A pool of ``workers`` processes that have imported everything and loaded the model before the clock
+    starts, as the one-env sides have: the setup a sweep pays once, not per run."""
+    from plm_highway.evaluation.cell_runner import worker_pool
+
+    with worker_pool(workers) as pool:
+        pids: set[int] = set()
+        for _ in range(10):  # a task per idle worker until every worker has warmed up
+            pids |= {future.result() for future in
+                     [pool.submit(_warm_up, policy, track, latency) for _ in range(workers)]}
+            if len(pids) >= workers:
+                break
+        yield pool
+
+
+def _warm_up(policy: str, track: str, latency: str) -> int:
+    """A worker: load the model and drive a few steps (imports, caches); its pid."""
+    _warm_pool_chunk((policy, track, latency, (0,), 3))
+    time.sleep(0.5)  # hold this worker so that the other warm-up task goes to another
+    return os.getpid()
+
+
+def _warm_pool_steering(pool, policy: str, track: str, latency: str, n_envs: int, steps: int,
+                        workers: int) -> np.ndarray:
+    chunks = [(policy, track, latency, tuple(range(n_envs))[w::workers], steps) for w in range(workers)]
+    chunks = [chunk for chunk in chunks if chunk[3]]
+    out = np.zeros((n_envs, steps))
+    for chunk, steering in zip(chunks, pool.map(_warm_pool_chunk, chunks)):
+        out[list(chunk[3])] = steering
+    return out
+
+
+def _warm_pool_chunk(chunk) -> np.ndarray:
+    """A warm pool worker: the chunk's runs batched with the model this process loaded once."""
+    from plm_highway.evaluation.batched import RunCell, run_cells
+    from plm_highway.evaluation.cell_runner import worker_policy
+    from plm_highway.evaluation.policies import SHIPPED_PRESET, single_threaded_inference
+
+    policy, track, latency, seeds, steps = chunk
+    vision = worker_policy(policy, None, SHIPPED_PRESET, "measured")
+    with single_threaded_inference():
+        logs = run_cells([RunCell(f"seed {s}", vision, track, latency, s, max_steps=steps) for s in seeds])
+    return _steering(logs)
 
 
 def _pool_chunk(chunk) -> np.ndarray:
@@ -188,7 +259,8 @@ def report_lines(result: dict) -> list[str]:
              f"{result['latency']}; load average {result['load_average_1min']:.2f} "
              f"(after: {result.get('load_average_1min_after', float('nan')):.2f}) on {result['cpus']} CPUs "
              "(a shared, loaded machine: compare the ratios)",
-             "speed-up: against the fastest one-env side; max |dsteer|: against "
+             f"wall s: median of {result.get('repeats', 1)} timed repeats per side; speed-up: against the fastest "
+             "one-env side; max |dsteer|: against "
              f"'{result.get('reference_side', 'one env at a time')}' (0 = identical)",
              f"{'side':48s} {'wall s':>8s} {'steps/s':>8s} {'speed-up':>9s} {'max |dsteer|':>13s}"]
     for name, figures in result["sides"].items():

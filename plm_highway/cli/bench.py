@@ -203,7 +203,9 @@ def configure_sweep(parser) -> None:
     parser.add_argument("--policy", choices=("bm", "plm"), default="plm", help="model policy driving every run")
     parser.add_argument("--latency", default="steps:0.0-0.35:1.0", help="latency profile of every run")
     parser.add_argument("--track", default="test", help="track of every run")
-    parser.add_argument("--workers", type=bounded_int(1, 64), default=2, help="processes of the pool side")
+    parser.add_argument("--workers", type=bounded_int(1, 64), default=2, help="processes of the pool sides")
+    parser.add_argument("--repeats", type=bounded_int(1, 100), default=3,
+                        help="times every side is timed (interleaved); medians are reported")
     parser.add_argument("--no-two-thread-serial", action="store_true",
                         help="leave out the one-env side on two torch threads (very slow on a loaded machine)")
     parser.add_argument("--json", metavar="OUT.json", help="also write the figures to this JSON file")
@@ -218,7 +220,7 @@ def run_sweep(args) -> int:
     if args.json:
         check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
     result = bench_sweep(args.envs, args.steps, args.policy, args.latency, args.track, args.workers,
-                         not args.no_two_thread_serial)
+                         not args.no_two_thread_serial, args.repeats)
     print("\n".join(report_lines(result)))
     if args.json:
         write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)

@@ -131,14 +131,15 @@ def _drive_chunk(chunk: _Chunk) -> list[RunLog]:
     from plm_highway.evaluation.policies import single_threaded_inference
 
     cells = [RunCell(**{**cell.__dict__,
-                        "policy": _worker_policy(cell.policy, chunk.checkpoints, chunk.preset, cell.latency_source)})
+                        "policy": worker_policy(cell.policy, chunk.checkpoints, chunk.preset, cell.latency_source)})
              if cell.policy in ("bm", "plm") else cell for cell in chunk.cells]
     with single_threaded_inference():
         return run_cells(cells, chunk.checkpoints, batch_size=chunk.batch_size, preset=chunk.preset)
 
 
 @functools.lru_cache(maxsize=8)
-def _worker_policy(name: str, checkpoints: str | None, preset: str, latency_source: str) -> VisionPolicy:
+def worker_policy(name: str, checkpoints: str | None, preset: str, latency_source: str) -> VisionPolicy:
+    """The named policy, loaded once per process (pool workers keep it across chunks)."""
     from plm_highway.evaluation.policies import make_policy
 
     return make_policy(name, checkpoints, latency_source=latency_source, preset=preset)
