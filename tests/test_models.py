@@ -1251,3 +1251,18 @@ def test_bench_confidence_interval_matches_the_t_table():
     assert figure["mean"] == 2.0
     assert figure["ci95_half_width"] == pytest.approx(4.3027 / 3**0.5, abs=1e-4)
     assert _mean_ci([0.5])["ci95_half_width"] == 0.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("conditions", ["ideal", "paper"])
+def test_closed_loop_check_drives_each_preset_under_its_conditions(conditions):
+    from plm_highway.bench.models import closed_loop_check
+
+    check = closed_loop_check(conditions, seeds=2, max_steps=12)
+    assert check["conditions"] == conditions and check["max_steps"] == 12
+    assert check["checkpoints"] == f"shipped {'default' if conditions == 'ideal' else 'paper'}"
+    for form in ("reference_forward", "fused", "fused_int8"):
+        assert len(check[f"{form}_mae"]["values"]) == 2
+    # The exact form is the reference up to float rounding; int8 moves the steering, within its bound.
+    assert check["max_abs_steering_difference"] < 1e-4
+    assert 0 < check["max_abs_steering_difference_int8"] < 0.05

@@ -19,8 +19,10 @@ second thread gains nothing and in the closed loop the simulator needs the other
    the training loop itself (batches of 32, augmentation, Adam, deterministic algorithms), epochs
    alternating between the two, the median over ``--repeats``.
 
-``--closed-loop`` also drives the shipped default checkpoints on the test track: the reference
-run (BM, no latency) and, for 5 seeds of the paper's time-variant profile (``steps:0.0-0.35:1.0``),
+``--closed-loop`` also drives each timed preset's shipped checkpoints on the test track, under the
+conditions they are for (default: ``ideal``; paper: ``paper``, as ``reproduce`` drives them;
+``--closed-loop-steps`` shortens the runs): per seed the reference run (BM, no latency) and, for 5
+seeds of the paper's time-variant profile (``steps:0.0-0.35:1.0``),
 PLM-Net with the reference forward, the exact fused form and the int8 form, reporting each form's
 steering MAE against the reference (mean and 95% CI over the seeds), the paired differences
 (exact fused - reference forward: float rounding; int8 - exact fused: the approximation, before
@@ -28,7 +30,6 @@ and after), whether the int8 mean lies within the exact form's CI, and the large
 difference from the reference forward. The exact form equals the reference up to float rounding
 (~1e-7), but a closed loop amplifies that: a difference that moves the car by a nanometre changes
 a rendered uint8 pixel sooner or later, so the runs part slightly; the MAE shows whether it matters.
-No paper-preset checkpoints are shipped, so the closed loop runs the default preset only.
 
 The 1-minute load average before the run is recorded: on a shared machine the absolute times
 mean little, the ratios measured side by side in one run are what to compare.
@@ -40,6 +41,7 @@ import os
 import time
 
 import numpy as np
+from tqdm.auto import tqdm
 
 BLOCK_FRAMES = 50
 TARGET_OVERHEAD_RATIO = 1.25
@@ -58,8 +60,13 @@ MAX_REPEATS = 100
 
 
 
+# The conditions each preset's shipped checkpoints are driven under.
+PRESET_CONDITIONS = {"default": "ideal", "paper": "paper"}
+
+
 def benchmark_models(presets=PRESETS, n_frames: int = 500, n_warmup: int = 50, repeats: int = 3,
-                     train_batches: int = 10, seed: int = 0, closed_loop: bool = False) -> dict:
+                     train_batches: int = 10, seed: int = 0, closed_loop: bool = False,
+                     closed_loop_steps: int | None = None) -> dict:
     import torch
 
     result = {
@@ -79,7 +86,8 @@ def benchmark_models(presets=PRESETS, n_frames: int = 500, n_warmup: int = 50, r
         },
     }
     if closed_loop:
-        result["closed_loop"] = closed_loop_check()
+        result["closed_loop"] = {preset: closed_loop_check(PRESET_CONDITIONS[preset], max_steps=closed_loop_steps)
+                                 for preset in presets}
     return result
 
 
@@ -264,22 +272,31 @@ def _training_speed(config, train_batches: int, repeats: int, seed: int) -> dict
     return {name: n_rows / float(np.median(values)) for name, values in seconds.items()}
 
 
-def closed_loop_check(latency: str = CLOSED_LOOP_LATENCY, seeds: int = CLOSED_LOOP_SEEDS, track: str = "test") -> dict:
+def closed_loop_check(conditions: str = "ideal", latency: str = CLOSED_LOOP_LATENCY, seeds: int = CLOSED_LOOP_SEEDS,
+                      track: str = "test", max_steps: int | None = None) -> dict:
     """Steering MAE of PLM-Net, reference forward vs exact fused vs int8, against the reference run.
 
-    Shipped default checkpoints. One reference run (the BM without latency, which no seed changes)
-    and, per seed, PLM-Net in each form at ``latency`` (a random profile: the seed draws its
-    realisation). Reports each form's mean MAE with its 95% confidence interval over the seeds, the
-    paired differences with their intervals, whether the int8 mean lies within the exact form's
-    interval, and the largest step-wise steering difference of each fused form from the reference.
+    The shipped checkpoints of ``conditions`` (``ideal``: the default preset; ``paper``: the paper
+    preset, its camera, loop rate, latency injection and image noise), driven as ``reproduce`` drives
+    them. Per seed, the reference run (the BM without latency) and PLM-Net in each form at
+    ``latency`` (a random profile: the seed draws its realisation); ``max_steps`` shortens every run.
+    Reports each form's mean MAE with its 95% confidence interval over the seeds, the paired
+    differences with their intervals, whether the int8 mean lies within the exact form's interval,
+    and the largest step-wise steering difference of each fused form from the reference forward.
     """
     from plm_highway.evaluation.closed_loop import drive
     from plm_highway.evaluation.policies import VisionPolicy, single_threaded_inference
+    from plm_highway.evaluation.reproduce import conditions_named
+    from plm_highway.evaluation.run import Cell, drive_options, scored_steps
     from plm_highway.metrics.steering import common_span, steering_mae
     from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
     from plm_highway.models.shipped import load_shipped_plm_net
+    from plm_highway.road.track import load_track
 
-    plm_net = load_shipped_plm_net("default")
+    run_conditions = conditions_named(conditions)
+    track_spec = load_track(track)
+    steps = scored_steps(track_spec, run_conditions, max_steps)
+    plm_net = load_shipped_plm_net(run_conditions.checkpoint_preset)
     forms = {
         "reference_forward": {"fused": False},
         "fused": {"fused": True},
@@ -287,23 +304,30 @@ def closed_loop_check(latency: str = CLOSED_LOOP_LATENCY, seeds: int = CLOSED_LO
     }
     mae: dict[str, list[float]] = {name: [] for name in forms}
     largest_difference = {name: 0.0 for name in forms if name != "reference_forward"}
+
+    def run(name: str, model_policy, spec: str, seed: int):
+        options = drive_options(Cell("", "", spec, seed), run_conditions, steps)
+        policy = VisionPolicy(model_policy, latency_source=run_conditions.latency_source)
+        return drive(name, policy, track_spec, spec, seed, **options).columns["steering"]
+
     with single_threaded_inference():
-        reference = drive("reference", VisionPolicy(BaseModelPolicy(plm_net.bm)), track, "const:0", 0)
-        for seed in range(seeds):
-            steering = {}
-            for name, options in forms.items():
-                log = drive(name, VisionPolicy(PLMNetPolicy(plm_net, **options)), track, latency, seed)
-                steering[name] = log.columns["steering"]
-                mae[name].append(steering_mae(*common_span(reference.columns["steering"], steering[name])))
+        for seed in tqdm(range(seeds), desc=f"closed loop ({conditions})", leave=False):
+            reference = run("reference", BaseModelPolicy(plm_net.bm), "const:0", seed)
+            steering = {name: run(name, PLMNetPolicy(plm_net, **options), latency, seed)
+                        for name, options in forms.items()}
+            for name in forms:
+                mae[name].append(steering_mae(*common_span(reference, steering[name])))
             for name in largest_difference:
                 n = min(len(steering[name]), len(steering["reference_forward"]))
                 largest_difference[name] = max(largest_difference[name], float(np.max(np.abs(
                     steering[name][:n] - steering["reference_forward"][:n]))))
     return {
+        "conditions": run_conditions.name,
         "track": track,
         "latency": latency,
         "seeds": list(range(seeds)),
-        "checkpoints": "shipped default",
+        "max_steps": steps,
+        "checkpoints": f"shipped {run_conditions.checkpoint_preset}",
         **{f"{name}_mae": _mean_ci(values) for name, values in mae.items()},
         "fused_minus_reference_mae": _mean_ci(np.subtract(mae["fused"], mae["reference_forward"])),
         "int8_minus_fused_mae": _mean_ci(np.subtract(mae["fused_int8"], mae["fused"])),
@@ -387,8 +411,7 @@ def format_report(result: dict) -> str:
             f"  {preset:8s} {figures['bm_ms_median']:8.3f}  {exact_cell:>22s}  {int8_cell:>22s}  "
             f"{figures['reference_overhead_ratio']:17.3f}"
         )
-    if "closed_loop" in result:
-        check = result["closed_loop"]
+    for check in result.get("closed_loop", {}).values():
 
         def ci(figure: dict) -> str:
             return f"{figure['mean']:.5f} +- {figure['ci95_half_width']:.5f}"
@@ -396,8 +419,9 @@ def format_report(result: dict) -> str:
         within = "within" if check["int8_mean_within_fused_ci"] else "OUTSIDE"
         lines += [
             "",
-            f"closed loop ({check['checkpoints']} checkpoints, track {check['track']}, {check['latency']}, "
-            f"seeds {check['seeds'][0]}-{check['seeds'][-1]}), PLM-Net steering MAE vs the reference run "
+            f"closed loop ({check['checkpoints']} checkpoints, {check['conditions']} conditions, track "
+            f"{check['track']}, {check['latency']}, seeds {check['seeds'][0]}-{check['seeds'][-1]}, "
+            f"{check['max_steps'] or 'all'} steps), PLM-Net steering MAE vs the reference run "
             f"(mean +- 95% CI over the seeds):",
             f"  reference forward {ci(check['reference_forward_mae'])} | exact fused (before) "
             f"{ci(check['fused_mae'])} | int8 TAPM (after) {ci(check['fused_int8_mae'])}",

@@ -122,7 +122,10 @@ def configure_models(parser) -> None:
                         help=f"training batches of {bench.TRAIN_BATCH_SIZE} per timed epoch")
     parser.add_argument("--closed-loop", action="store_true",
                         help="also drive the shipped checkpoints with PLM-Net's reference forward, its exact fused "
-                             "form and its int8 TAPM form (steering MAE before/after, 5 seeds, 95%% CIs)")
+                             "form and its int8 TAPM form (steering MAE before/after, 5 seeds, 95%% CIs), each "
+                             "preset under its conditions (default: ideal, paper: paper)")
+    parser.add_argument("--closed-loop-steps", type=bounded_int(10, 1_000_000), default=None,
+                        help="stop each closed-loop run after this many policy steps (default: the scored track)")
     parser.add_argument("--json", metavar="OUT.json", help="write the results to this JSON file")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random weights and inputs")
@@ -150,7 +153,7 @@ def run_models(args) -> int:
     torch.set_num_threads(args.threads)
     presets = bench.PRESETS if args.preset == "both" else (args.preset,)
     result = bench.benchmark_models(presets, args.frames, args.warmup, args.repeats, args.train_batches, args.seed,
-                                    args.closed_loop)
+                                    args.closed_loop, args.closed_loop_steps)
     print(bench.format_report(result))
     if args.json:
         write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)

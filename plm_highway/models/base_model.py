@@ -117,9 +117,10 @@ def normalise_frames(frames: torch.Tensor) -> torch.Tensor:
     Per-image min-max stretch to the full range, then x / 127.5 - 1, as the original did: it makes
     the model insensitive to global brightness and contrast. A constant image maps to -1.
     """
+    low, high = frames.flatten(1).aminmax(dim=1)  # on the uint8 frames: the same values, a quarter of the bytes
     pixels = frames.to(torch.float32).unsqueeze(1)
-    low, high = pixels.flatten(1).aminmax(dim=1)
-    low = low.view(-1, 1, 1, 1)
+    low = low.to(torch.float32).view(-1, 1, 1, 1)
+    high = high.to(torch.float32)
     scale = 2.0 / (high.view(-1, 1, 1, 1) - low).clamp_min(1.0)
     return (pixels - low) * scale - 1.0
 
@@ -196,7 +197,7 @@ def _conv_stack(config: BaseModelConfig) -> nn.Sequential:
     for filters, kernel, stride in CONV_LAYERS:
         layers.append(nn.Conv2d(in_channels, filters, kernel, stride))
         if config.conv_activation == "relu":
-            layers.append(nn.ReLU())
+            layers.append(nn.ReLU(inplace=True))  # a convolution's output is needed by nothing else
         in_channels = filters
     layers.append(nn.Flatten())
     return nn.Sequential(*layers)
