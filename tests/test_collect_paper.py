@@ -14,6 +14,7 @@ from plm_highway.data.dataset import read_dataset
 from plm_highway.envs import ENV_ID
 from plm_highway.evaluation.run import CONDITIONS
 from plm_highway.expert import HumanDemonstrator, expert_steering
+from plm_highway.expert.controller import ExpertParams
 
 
 @pytest.fixture(scope="module")
@@ -29,6 +30,7 @@ def test_paper_recording_has_the_original_camera_loop_and_driver(paper_collected
     assert manifest["policy_frequency"] == 30 and manifest["demonstrator"] == "human"
     assert manifest["conditions"] == "paper"
     assert manifest["steering_time_constant_s"] == CONDITIONS["paper"].steering_time_constant_s > 0
+    assert manifest["max_steering_rad"] == CONDITIONS["paper"].max_steering_rad == 0.4
     assert {key: manifest["camera"][key] for key in PAPER_CAMERA} == PAPER_CAMERA
     assert manifest["collector"]["expert"]["reaction_delay_s"] > 0
 
@@ -36,7 +38,8 @@ def test_paper_recording_has_the_original_camera_loop_and_driver(paper_collected
 def test_paper_labels_are_the_demonstrators_not_the_experts(paper_collected):
     _, steps, _ = paper_collected
     env = gymnasium.make(ENV_ID, config={"track": "train", "policy_frequency": 30, "simulation_frequency": 30,
-                                         "steering_time_constant_s": CONDITIONS["paper"].steering_time_constant_s})
+                                         "steering_time_constant_s": CONDITIONS["paper"].steering_time_constant_s,
+                                         "max_steering_rad": CONDITIONS["paper"].max_steering_rad})
     rows = np.flatnonzero(steps["episode_id"] == 0)
     # The same start: the collector's first episode starts where its first row is (centred, start drawn from seed 4).
     rng = np.random.default_rng(4)
@@ -51,7 +54,7 @@ def test_paper_labels_are_the_demonstrators_not_the_experts(paper_collected):
         assert (info["x_m"], info["y_m"]) == pytest.approx((steps["x_m"][row], steps["y_m"][row]), abs=1e-6)
         label = driver(None, info)
         assert steps["steering"][row] == pytest.approx(label, abs=1e-6)
-        expert_gap.append(abs(label - expert_steering(info)))
+        expert_gap.append(abs(label - expert_steering(info, ExpertParams(max_steering_rad=0.4))))
         _, _, _, _, info = env.step(np.array([steps["executed_steering"][row]], dtype=np.float32))
     assert np.mean(expert_gap) > 0.02  # the human is not the expert
 

@@ -28,6 +28,8 @@ from plm_highway.data.dataset import STEP_COLUMNS
 from plm_highway.errors import BadInput
 from plm_highway.evaluation.run import CONDITIONS
 from plm_highway.expert import ExpertPolicy, HumanDemonstrator
+from plm_highway.expert.controller import ExpertParams
+from plm_highway.expert.human import HumanParams
 from plm_highway.models.config_checks import check_choice, check_int, check_number
 
 DEMONSTRATOR_STREAM = 13  # the human demonstrator draws from np.random.default_rng([seed, DEMONSTRATOR_STREAM])
@@ -91,12 +93,16 @@ def recording_setup(config: CollectConfig) -> tuple[dict, str]:
     env_config = {"speed_mps": config.speed_mps, "camera": dict(PAPER_CAMERA) if camera_name == "paper" else {},
                   "policy_frequency": conditions.policy_frequency_hz,
                   "simulation_frequency": conditions.simulation_frequency_hz,
-                  "steering_time_constant_s": conditions.steering_time_constant_s}
+                  "steering_time_constant_s": conditions.steering_time_constant_s,
+                  "max_steering_rad": conditions.max_steering_rad}
     return env_config, config.demonstrator or conditions.demonstrator
 
 
-def make_demonstrator(name: str, policy_frequency_hz: float, rng: np.random.Generator):
-    return HumanDemonstrator(policy_frequency_hz, rng=rng) if name == "human" else ExpertPolicy()
+def make_demonstrator(name: str, policy_frequency_hz: float, rng: np.random.Generator, max_steering_rad: float = 0.2):
+    """The demonstrator, told the car's steering range (its commands are fractions of it)."""
+    if name == "human":
+        return HumanDemonstrator(policy_frequency_hz, replace(HumanParams(), max_steering_rad=max_steering_rad), rng)
+    return ExpertPolicy(ExpertParams(max_steering_rad=max_steering_rad))
 
 
 def collect(track: str = "train", progress: bool = True, config: CollectConfig | None = None,
@@ -111,7 +117,8 @@ def collect(track: str = "train", progress: bool = True, config: CollectConfig |
     rng = np.random.default_rng(config.seed)
     # Its own stream: the episode starts drawn from `rng` stay those of an expert recording with this seed.
     expert = make_demonstrator(demonstrator_name, unwrapped.config["policy_frequency"],
-                               np.random.default_rng([config.seed, DEMONSTRATOR_STREAM]))
+                               np.random.default_rng([config.seed, DEMONSTRATOR_STREAM]),
+                               unwrapped.config["max_steering_rad"])
     track_spec = unwrapped.track
     steps_per_episode = int(round(config.episode_seconds * unwrapped.config["policy_frequency"]))
     frame_shape = env.observation_space.shape

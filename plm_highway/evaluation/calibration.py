@@ -25,7 +25,6 @@ import numpy as np
 from plm_highway.evaluation import paper_results as paper
 from plm_highway.evaluation.policies import make_policy
 from plm_highway.evaluation.protocol import (
-    MAX_STEERING_RAD,
     PAPER_FULL_SCALE_DEG,
     PAPER_STEERING_RATIO,
     PAPER_TRACK,
@@ -100,15 +99,15 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
         for seed, reference in zip(seed_list, references):
             delayed = by_cell[(seed, f"const:{latency_s:g}")]
             maes.append(steering_errors(*common_span(reference.columns["steering"],
-                                                     delayed.columns["steering"]))["mae"] * MAX_STEERING_RAD)
+                                                     delayed.columns["steering"]))["mae"] * chosen.max_steering_rad)
         per_latency[latency_s] = {"mae_rad_per_seed": maes, "mae_rad": mean_ci(maes).as_dict(),
                                   "left_road": [by_cell[(s, f"const:{latency_s:g}")].left_road for s in seed_list],
                                   "paper_rad": paper_bm_mae_rad(latency_s)}
-    floor_values = [value * MAX_STEERING_RAD for value in noise_floor(references)]
+    floor_values = [value * chosen.max_steering_rad for value in noise_floor(references)]
     floor = {"mae_rad_per_pair": floor_values, "mae_rad": mean_ci(floor_values).as_dict()}
     return {"track": spec.name, "conditions": conditions, "seeds": seed_list, "latencies_s": list(LATENCIES_S),
             "steps": [log.steps for log in references], "reference_left_road": [r.left_road for r in references],
-            "steering_ratio": PAPER_STEERING_RATIO, "max_steering_rad": MAX_STEERING_RAD,
+            "steering_ratio": PAPER_STEERING_RATIO, "max_steering_rad": chosen.max_steering_rad,
             "noise_floor": floor, "per_latency": {f"{k:.2f}": v for k, v in per_latency.items()},
             "rules": judge(per_latency, floor)}
 

@@ -167,14 +167,15 @@ def mean_ci(values: Sequence[float], confidence: float = CONFIDENCE) -> Estimate
 # ---------------------------------------------------------------------------------------------
 
 
-def to_front_wheel_rad(error: float, metric: str) -> float:
-    scale = MAX_STEERING_RAD
+def to_front_wheel_rad(error: float, metric: str, max_steering_rad: float = MAX_STEERING_RAD) -> float:
+    """A normalised-steering error in front-wheel radians (``max_steering_rad``: the conditions' full scale)."""
+    scale = max_steering_rad
     return error * scale ** 2 if metric == "mse" else error * scale
 
 
-def to_paper_units(error: float, metric: str) -> float:
+def to_paper_units(error: float, metric: str, max_steering_rad: float = MAX_STEERING_RAD) -> float:
     """A normalised-steering error in the paper's unit (1 = 450 deg of steering wheel), via the steering ratio."""
-    scale = MAX_STEERING_RAD * PAPER_STEERING_RATIO / math.radians(PAPER_FULL_SCALE_DEG)
+    scale = max_steering_rad * PAPER_STEERING_RATIO / math.radians(PAPER_FULL_SCALE_DEG)
     return error * scale ** 2 if metric == "mse" else error * scale
 
 
@@ -254,7 +255,8 @@ def mean_trajectory(per_seed: Sequence[dict]) -> dict:
 # ---------------------------------------------------------------------------------------------
 
 
-def judge_targets(settings: Mapping[str, dict], track_name: str) -> list[dict]:
+def judge_targets(settings: Mapping[str, dict], track_name: str, max_steering_rad: float = MAX_STEERING_RAD
+                  ) -> list[dict]:
     """One row per setting with a paper MAE reduction, on the paper's track only: met if our mean over
     seeds reaches it and PLM-Net stayed on the road in every seed; the CI is stated beside it."""
     if track_name != PAPER_TRACK:
@@ -277,19 +279,19 @@ def judge_targets(settings: Mapping[str, dict], track_name: str) -> list[dict]:
             detail = f"ours {estimate.mean:.1f}% {ci} vs the paper's {target:.1f}%"
             if off_road:
                 detail += f"; PLM-Net left the road in {off_road} of {estimate.n} seeds"
-            detail += "; " + _why_missed(entry)
+            detail += "; " + _why_missed(entry, max_steering_rad)
         rows.append({"setting": spec, "target": f"steering MAE reduction >= {target:.1f}% (paper)", "paper": target,
                      "ours": estimate.mean, "ci_low": estimate.low, "ci_high": estimate.high, "seeds": estimate.n,
                      "met": met, "detail": detail})
     return rows
 
 
-def _why_missed(entry: dict) -> str:
+def _why_missed(entry: dict, max_steering_rad: float) -> str:
     base = entry["steering"]["baseline"]["mae"].mean
     mit = entry["steering"]["mitigated"]["mae"].mean
     if mit >= base:
         return f"PLM-Net's MAE {mit:.4f} is not below the BM's {base:.4f}: it is worse here"
-    return (f"the BM with this latency is only {base:.4f} off the reference ({to_paper_units(base, 'mae'):.3f} in "
+    return (f"the BM with this latency is only {base:.4f} off the reference ({to_paper_units(base, 'mae', max_steering_rad):.3f} in "
             f"the paper's unit, where the paper's BM is far off), PLM-Net {mit:.4f}")
 
 

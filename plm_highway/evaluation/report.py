@@ -84,7 +84,7 @@ class Reproduction:
         def track_result(measured: dict) -> TrackResult:
             spec = measured["track_spec"]
             return TrackResult(spec.name, spec, measured["settings"],
-                               protocol.judge_targets(measured["settings"], spec.name),
+                               protocol.judge_targets(measured["settings"], spec.name, conditions.max_steering_rad),
                                protocol.where_plm_is_worse(measured["settings"]), measured["noise_floor"],
                                scored_steps(spec, conditions, max_steps))
 
@@ -173,7 +173,8 @@ def trajectory_reduction(part_metrics: dict, metric: str) -> float | None:
     return None if base is None or mit is None or base == 0 else reduction_pct(base, mit)
 
 
-def steering_table(entry: dict, spec: str, with_paper: bool = True) -> tuple[list[str], list[list[str]]]:
+def steering_table(entry: dict, spec: str, with_paper: bool = True,
+                   max_steering_rad: float = protocol.MAX_STEERING_RAD) -> tuple[list[str], list[list[str]]]:
     """Rows BM / PLM-Net / reduction; per error ours (mean ± 95% CI), in the paper's unit, and the paper's."""
     key = paper_key(spec) if with_paper else None
     label = setting_label(spec)
@@ -187,7 +188,7 @@ def steering_table(entry: dict, spec: str, with_paper: bool = True) -> tuple[lis
         off = sum(1 for s in entry["per_seed"] if s["steering"][run]["off_road"])
         row = [RUN_ROW_LABELS[run].format(label=label) + (f" (left the road in {off} seeds)" if off else "")]
         for m in ERROR_NAMES:
-            row += [est(steering[run][m]), num(protocol.to_paper_units(steering[run][m].mean, m)),
+            row += [est(steering[run][m]), num(protocol.to_paper_units(steering[run][m].mean, m, max_steering_rad)),
                     num(theirs[m]) if theirs else "—"]
         rows.append(row)
     row = ["PLM-Net's reduction vs BM"]
@@ -452,7 +453,7 @@ def render_report(r: Reproduction, figure_files: dict, other_figures: dict) -> s
             "heading": f"Latency {label}" if is_constant(spec) else label[0].upper() + label[1:],
             "steering_name": f"Table {tables['steering']}" if tables else "Steering table",
             "trajectory_name": f"Table {tables['trajectory']}" if tables else "Trajectory table",
-            "steering": steering_table(entry, spec), "trajectory": trajectory_table(entry, spec),
+            "steering": steering_table(entry, spec, max_steering_rad=r.conditions.max_steering_rad), "trajectory": trajectory_table(entry, spec),
             "figures": figures})
     generalisation = []
     for name, g in r.generalisation.items():
@@ -485,7 +486,7 @@ def render_report(r: Reproduction, figure_files: dict, other_figures: dict) -> s
         generalisation=generalisation, sweep_lines=sweep_lines,
         sweep_max=f"{max(r.sweep['latencies_s']):.2f}" if r.sweep else "",
         grid_max=f"{r.sweep['tapm_grid_max_s']:.2f}" if r.sweep else "",
-        max_steer=protocol.MAX_STEERING_RAD, ratio=f"{protocol.PAPER_STEERING_RATIO:g}",
+        max_steer=c.max_steering_rad, ratio=f"{protocol.PAPER_STEERING_RATIO:g}",
         protocol_lines=protocol_lines(r), method_lines=method_lines(r.track.track_spec, c), notes=paper.NOTES,
         shows=shows_lines(r, met))
 

@@ -38,33 +38,38 @@ from plm_highway.expert.controller import ExpertParams, expert_steering
 
 @dataclass(frozen=True)
 class HumanParams:
-    reaction_delay_s: float = 0.18
+    reaction_delay_s: float = 0.15
     hand_time_constant_s: float = 0.08
-    max_steering_rate_radps: float = 0.6  # front-wheel angle rate
-    natural_frequency_radps: float = 1.5
-    damping_ratio: float = 0.8
+    max_steering_rate_radps: float = 1.0  # front-wheel angle rate
+    natural_frequency_radps: float = 2.0
+    damping_ratio: float = 0.9
     offset_noise_m: float = 0.2  # stationary std of the wander in the lateral position the driver steers by
     heading_noise_rad: float = 0.02  # stationary std of the heading-error misjudgement
     wander_time_constant_s: float = 2.0  # correlation time of both
-    motor_noise: float = 0.15  # std of the per-step command noise [normalised steering]
-    max_steering_rad: float = 0.2  # the env's full scale (front wheels)
+    motor_noise_rad: float = 0.03  # std of the per-step command noise, front-wheel angle
+    max_steering_rad: float = 0.4  # the car's full scale (front wheels): the paper conditions' car
 
 
 HUMAN_PARAM_SOURCES = {
     "reaction_delay_s": "human visual-motor delay in compensatory tracking, 0.15-0.3 s (McRuer & Jex 1967, "
-                        "crossover model tau_e); the paper's introduction: a human's reaction time is above zero",
+                        "crossover model tau_e), its lower end (a driver with preview of the road); the paper's "
+                        "introduction: a human's reaction time is above zero",
     "hand_time_constant_s": "neuromuscular lag of the arms on a wheel, about 0.1-0.2 s (McRuer crossover model T_N)",
-    "max_steering_rate_radps": "0.6 rad/s at the front wheels = 410 deg/s at a 12:1 hand wheel, the middle of the "
-                               "300-700 deg/s hand-wheel rates measured for ordinary and evasive driving",
-    "natural_frequency_radps": "looser than the expert's 3 rad/s (2.0 already limit-cycles with the paper conditions' 0.1 s actuator: a driver adapts to the car): a person following a lane centre on a racing-"
-                               "wheel simulator corrects offsets over seconds (paper Sec. 4.1: centre line followed)",
-    "damping_ratio": "slightly less damped than the expert's 0.9",
+    "max_steering_rate_radps": "1.0 rad/s at the front wheels = 690 deg/s at a 12:1 hand wheel, the upper end of the "
+                               "300-700 deg/s hand-wheel rates measured for ordinary and evasive driving (0.6 rad/s "
+                               "adds enough phase lag to make this driver weave off the road)",
+    "natural_frequency_radps": "calibrated (issue 9): the stiffest tracking this driver keeps on the road over the "
+                               "whole train track (2.0 rad/s; 2.2 leaves it at 0.15 s reaction delay); the Base Model "
+                               "imitating it inherits the gain without the driver's delays, so it is stable without "
+                               "latency and, like the paper's BM, oscillates once 0.15-0.3 s of latency are added "
+                               "(plm-highway calibrate, figures/bm-calibration.png)",
+    "damping_ratio": "the expert's 0.9",
     "offset_noise_m": "calibrated: with the motor noise, makes the labels' std approach the paper's Table 1 "
                       "(see tests/test_expert_human.py for the band reached) while the car stays on the road",
     "heading_noise_rad": "calibrated with offset_noise_m",
     "wander_time_constant_s": "the slow lateral wander of human lane keeping (seconds)",
-    "motor_noise": "calibrated with offset_noise_m: per-step hand noise, smoothed by the hand's lag",
-    "max_steering_rad": "the env's max_steering_rad",
+    "motor_noise_rad": "calibrated with offset_noise_m: per-step hand noise, smoothed by the hand's lag",
+    "max_steering_rad": "the car's full scale: the paper conditions' 0.4 rad (plm_highway.evaluation.run)",
 }
 
 
@@ -123,7 +128,8 @@ class HumanDemonstrator:
                                           self.dt_s, self.rng)
         perceived = dict(state, lateral_offset_m=state["lateral_offset_m"] + self.offset_wander_m,
                          heading_error_rad=state["heading_error_rad"] + self.heading_wander_rad)
-        return expert_steering(perceived, self._tracking) + p.motor_noise * float(self.rng.standard_normal())
+        motor_noise = p.motor_noise_rad / p.max_steering_rad  # in normalised steering
+        return expert_steering(perceived, self._tracking) + motor_noise * float(self.rng.standard_normal())
 
     def __call__(self, frame, info: dict) -> float:
         self._pending.append(self.decide(info))
