@@ -84,3 +84,12 @@ def test_command_writes_the_figure_and_its_numbers(tmp_path, capsys):
     # A second run without --overwrite is refused and leaves the first outputs.
     assert cli.main(["calibrate", "--conditions", "ideal", "--seeds", "2", "--max-steps", "10", "--no-progress",
                      "--out", str(out)]) != 0
+
+
+@pytest.mark.slow
+def test_a_calibration_on_worker_processes_gives_the_same_numbers():
+    one_at_a_time = bm_calibration("test", seeds="0,1", conditions="paper", max_steps=15, progress=False)
+    pooled = bm_calibration("test", seeds="0,1", conditions="paper", max_steps=15, progress=False, workers=2)
+    assert pooled["per_latency"] == one_at_a_time["per_latency"]
+    assert pooled["noise_floor"] == one_at_a_time["noise_floor"]
+    assert one_at_a_time["max_steering_rad"] == 0.4  # the paper conditions' range converts to radians

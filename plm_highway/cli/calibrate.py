@@ -21,6 +21,8 @@ def configure(parser) -> None:
                         help="seeds: a count N (seeds 0..N-1) or a list a,b,c; at least two (the noise floor)")
     parser.add_argument("--max-steps", type=bounded_int(1, 10_000_000),
                         help="stop each run after this many policy steps (quick looks)")
+    parser.add_argument("--workers", type=bounded_int(0, 256), default=d["workers"],
+                        help="0: the runs one at a time; N: batched on N processes (the same numbers)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_overwrite(parser)
 
@@ -33,7 +35,7 @@ def run(args) -> int:
     check_target(args.out, FIGURE, overwrite=args.overwrite)
     with single_threaded_inference():
         result = bm_calibration(args.track, args.seeds, args.conditions, args.checkpoints, args.max_steps,
-                                not args.no_progress)
+                                not args.no_progress, args.workers)
     result["command"] = args.command_line
     figure_path, json_path = write_calibration(result, args.out, overwrite=args.overwrite)
     for line in summary_lines(result):

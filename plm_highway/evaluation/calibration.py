@@ -71,9 +71,11 @@ def judge(per_latency: dict[float, dict], floor: dict) -> dict:
 
 
 def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: str = "paper",
-                   checkpoints=None, max_steps: int | None = None, progress: bool = True) -> dict:
+                   checkpoints=None, max_steps: int | None = None, progress: bool = True, workers: int = 0) -> dict:
     """Drive the BM at :data:`LATENCIES_S` under ``seeds``; return the per-seed MAEs, their means with 95% CIs
-    (front-wheel radians), the noise floor, the paper's numbers and the two rules judged."""
+    (front-wheel radians), the noise floor, the paper's numbers and the two rules judged. ``workers`` 0 drives
+    the runs one at a time; >= 1 batched on that many processes (the same numbers, bit for bit)."""
+    from plm_highway.evaluation.cell_runner import drive_cells
     from plm_highway.road.track import load_track
 
     seed_list = parse_seeds(seeds)
@@ -83,12 +85,15 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
         raise BadInput(f"--seeds {seeds!r}: the noise floor needs at least two seeds")
     spec = load_track(track)
     chosen = CONDITIONS[conditions]
-    policies = {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset)}
+    policies = None if workers else {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset)}
     cells = [Cell("reference" if latency_s == 0 else "baseline", "bm", f"const:{latency_s:g}", seed,
                   f"BM {latency_s:.2f} s seed {seed}") for seed in seed_list for latency_s in LATENCIES_S]
     bar = progress_bar(len(cells), progress, desc="calibration")
     try:
-        logs = run_cells(cells, spec, chosen, policies, max_steps, bar)
+        if workers:
+            logs = drive_cells(cells, spec, chosen, None, checkpoints, max_steps, bar, workers=workers)
+        else:
+            logs = run_cells(cells, spec, chosen, policies, max_steps, bar)
     finally:
         bar.close()
     by_cell = {(cell.seed, cell.latency): log for cell, log in zip(cells, logs)}

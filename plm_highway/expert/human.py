@@ -17,11 +17,13 @@ Every random draw comes from the ``np.random.Generator`` the caller passes to :m
 run is reproducible from the caller's seed. Parameters are data (:class:`HumanParams`); each one's
 source is in :data:`HUMAN_PARAM_SOURCES`.
 
-Calibration target: the spread of the paper's steering data (Table 1: std 0.177, quartiles -0.069 and
-0.059, in units of 450 deg of steering wheel). With the 12:1 steering ratio of
-:mod:`plm_highway.evaluation.protocol`, 0.177 is 0.116 rad at the front wheels, 0.58 of this env's
-full scale (0.2 rad). :func:`paper_units` converts; ``tests/test_expert_human.py`` states the band
-that the recorded labels are held to.
+Calibration targets (issue 9): the spread of the paper's steering data (Table 1: std 0.177, quartiles -0.069
+and 0.059, in units of 450 deg of steering wheel; with the 12:1 steering ratio of
+:mod:`plm_highway.evaluation.protocol`, 0.177 is 0.116 rad at the front wheels), and, through the Base Model
+that imitates this driver, the paper's BM degradation with latency. The tracking is the stiffest that keeps
+the car on the train track with the paper conditions' 0.4 rad steering range; the recorded labels' std is
+0.125 in the paper's unit. :func:`paper_units` converts; ``tests/test_expert_human.py`` states the band that
+the labels are held to.
 """
 
 from __future__ import annotations
