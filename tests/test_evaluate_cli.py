@@ -159,3 +159,35 @@ def test_any_track_file_works_and_a_closed_track_is_driven_for_one_lap(tmp_path)
     assert result["trajectory_method"]["parts"]["left"]["segments"] == [1, 3]
     assert result["trajectory"]["right"]["reference"]["frechet_dist"] is None  # no right turn on this track
     assert 0 < result["trajectory"]["full"]["baseline"]["frechet_dist"] < 1.0
+
+
+@pytest.mark.slow
+def test_paper_conditions_drive_the_runs_as_reproduce_does(tmp_path, capsys):
+    from plm_highway.evaluation.cell_runner import drive_cells
+    from plm_highway.evaluation.policies import single_threaded_inference
+    from plm_highway.evaluation.run import CONDITIONS, Cell, make_policies
+    from plm_highway.road.track import load_track
+
+    out = tmp_path / "paper"
+    assert cli.main(["evaluate", "--conditions", "paper", "--latency", "const:0.15", "--seed", "2", "--max-steps", "20",
+                     "--out", str(out)]) == 0
+    result = json.loads((out / "result.json").read_text())
+    assert result["conditions"] == "paper" and "per_seed" not in result
+    baseline = read_csv(out / "baseline.csv")
+    assert float(baseline[1]["t_s"]) - float(baseline[0]["t_s"]) == pytest.approx(1 / 30)  # the paper's 30 Hz loop
+    # The same runs as reproduce --conditions paper drives them (paper checkpoints, pipeline, seed-2 start).
+    conditions = CONDITIONS["paper"]
+    cells = [Cell("baseline", "bm", "const:0.15", 2), Cell("mitigated", "plm", "const:0.15", 2)]
+    with single_threaded_inference():
+        logs = drive_cells(cells, load_track("test"), conditions, make_policies(None, conditions), None, 20)
+    with single_threaded_inference():
+        _, evaluated = evaluate_cli.evaluate("test", "const:0.15", "plm", 2, 20, conditions="paper")
+    for log, name in zip(logs, ("baseline", "mitigated")):
+        np.testing.assert_array_equal(evaluated[name].columns["steering"], log.columns["steering"])
+        written = np.array([float(row["steering"]) for row in read_csv(out / f"{name}.csv")])
+        np.testing.assert_allclose(written, log.columns["steering"], rtol=1e-5)  # the CSV's 6 significant digits
+
+
+def test_the_ekf_is_refused_under_paper_conditions(capsys):
+    assert cli.main(["evaluate", "--conditions", "paper", "--policy", "ekf", "--max-steps", "5"]) == 2
+    assert "--conditions paper" in capsys.readouterr().err

@@ -46,13 +46,13 @@ def check_inputs(track, latency, max_steps=None) -> tuple[TrackSpec, str]:
     return track_spec, latency_spec
 
 
-def run_steps(track, max_steps: int | None) -> int | None:
-    """Steps each run drives under ``ideal`` conditions: one lap of a closed track, an open track until the
+def run_steps(track, max_steps: int | None, conditions: str = "ideal") -> int | None:
+    """Steps each run drives under ``conditions``: one lap of a closed track, an open track until the
     camera could first see its end (:func:`plm_highway.evaluation.run.scored_steps`), at most ``max_steps``."""
     from plm_highway.evaluation.run import CONDITIONS, scored_steps
 
     track_spec = load_track(track) if not isinstance(track, TrackSpec) else track
-    return scored_steps(track_spec, CONDITIONS["ideal"], max_steps)
+    return scored_steps(track_spec, CONDITIONS[conditions], max_steps)
 
 
 def compare_runs(logs: dict[str, RunLog], track, latency_spec: str, policy: str, seed: int,
@@ -71,20 +71,39 @@ def compare_runs(logs: dict[str, RunLog], track, latency_spec: str, policy: str,
 
 
 def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps=None, checkpoints=None,
-             seeds=None) -> tuple[dict, dict]:
+             seeds=None, conditions: str = "ideal") -> tuple[dict, dict]:
     """Run the comparison; returns (result dict, {run name: RunLog}).
 
     ``seeds`` (a count N: seeds ``seed .. seed+N-1``, or a list): every run once per seed, each seed with its own
     start perturbation (:func:`plm_highway.evaluation.run.start_perturbation`); the result is the first seed's, plus
     ``seeds``, ``per_seed`` (each seed's ``runs`` and ``steering``) and ``over_seeds`` (mean and 95% CI of every
     steering error and reduction). Without ``seeds``: the single run of ``seed``, centred start (as before).
+
+    ``conditions`` (``ideal`` or ``paper``, as for ``reproduce``): the loop rate, pipeline, camera, latency
+    injection, image noise and checkpoint preset of those conditions; under ``paper`` every run, single or
+    per seed, is driven as ``reproduce`` drives it (a seed above 0 also perturbs the start).
     """
+    from plm_highway.evaluation.run import CONDITIONS
+
+    if conditions not in CONDITIONS:
+        raise BadInput(f"--conditions {conditions!r}: expected one of {list(CONDITIONS)}")
+    if conditions != "ideal" and policy == "ekf":
+        raise BadInput(f"--policy ekf with --conditions {conditions}: the EKF policy is built for the ideal "
+                       "conditions' car and loop; use --conditions ideal")
     track_spec, latency_spec = check_inputs(track, latency, max_steps)
-    max_steps = run_steps(track_spec, max_steps)
-    if seeds is not None:
+    max_steps = run_steps(track_spec, max_steps, conditions)
+    if seeds is not None or conditions != "ideal":
         if policy == "ekf":  # each seed needs its own sensor-noise stream; compare over seeds with 'estimate compare'
             raise BadInput("--seeds with --policy ekf: not supported by evaluate; use 'plm-highway estimate compare'")
-        return _evaluate_seeds(track, track_spec, latency_spec, policy, _seed_list(seeds, seed), max_steps, checkpoints)
+        seed_list = [seed] if seeds is None else _seed_list(seeds, seed)
+        result, logs = _evaluate_seeds(track, track_spec, latency_spec, policy, seed_list, max_steps, checkpoints,
+                                       conditions)
+        if seeds is None:  # one run per role: no per-seed summary
+            for key in ("seeds", "per_seed", "over_seeds"):
+                result.pop(key, None)
+        if conditions != "ideal":
+            result["conditions"] = conditions
+        return result, logs
     if policy == "ekf":
         from plm_highway.estimation.policy import ekf_policy
 
@@ -112,21 +131,23 @@ def _seed_list(seeds, first_seed: int) -> list[int]:
 
 
 def _evaluate_seeds(track, track_spec: TrackSpec, latency_spec: str, policy: str, seeds: list[int],
-                    max_steps: int | None, checkpoints) -> tuple[dict, dict]:
+                    max_steps: int | None, checkpoints, conditions: str = "ideal") -> tuple[dict, dict]:
     from plm_highway.evaluation import protocol
     from plm_highway.evaluation.cell_runner import drive_cells
     from plm_highway.evaluation.run import CONDITIONS, Cell
 
+    chosen = CONDITIONS[conditions]
     base_policy = "expert" if policy == "expert" else "bm"
-    policies = {base_policy: make_policy(base_policy, checkpoints)}
+    policies = {base_policy: make_policy(base_policy, checkpoints, preset=chosen.checkpoint_preset)}
     roles = {"reference": base_policy, "baseline": base_policy}
     if policy == "plm":
-        policies["plm"] = make_policy("plm", checkpoints)
+        policies["plm"] = make_policy("plm", checkpoints, latency_source=chosen.latency_source,
+                                      preset=chosen.checkpoint_preset)
         roles["mitigated"] = "plm"
     cells = [Cell(role, who, "const:0" if role == "reference" else latency_spec, seed)
              for seed in seeds for role, who in roles.items()]
     # Batched (one forward pass per model and step); batch-invariant models: each run is its one-env run.
-    logs = drive_cells(cells, track_spec, CONDITIONS["ideal"], policies, checkpoints, max_steps)
+    logs = drive_cells(cells, track_spec, chosen, policies, checkpoints, max_steps)
     per_seed_logs = [dict(zip(roles, logs[k:k + len(roles)])) for k in range(0, len(logs), len(roles))]
     first = compare_runs(per_seed_logs[0], track, latency_spec, policy, seeds[0], track_spec)
     first["seeds"] = seeds
