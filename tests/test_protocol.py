@@ -138,6 +138,9 @@ def test_targets_are_the_papers_reductions_on_its_test_track_only():
     assert protocol.judge_targets(settings, "unseen") == []
     off = protocol.judge_targets({"const:0.2": _entry([0.1, 0.1], [0.01, 0.01], mit_off_road=True)}, "test")
     assert off[0]["met"] is False and "left the road in 2 of 2 seeds" in off[0]["detail"]
+    assert "the mean reaches the paper's number" in off[0]["detail"]  # 90% >= 62.1%: the road is what misses
+    below = protocol.judge_targets({"const:0.2": _entry([0.1, 0.1], [0.05, 0.05])}, "test")  # 50% < 62.1%
+    assert "the paper's BM 0.192" in below[0]["detail"] and "reaches" not in below[0]["detail"]
 
 
 def test_where_plm_is_worse_is_said_in_words():

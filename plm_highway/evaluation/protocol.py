@@ -279,7 +279,10 @@ def judge_targets(settings: Mapping[str, dict], track_name: str, max_steering_ra
             detail = f"ours {estimate.mean:.1f}% {ci} vs the paper's {target:.1f}%"
             if off_road:
                 detail += f"; PLM-Net left the road in {off_road} of {estimate.n} seeds"
-            detail += "; " + _why_missed(entry, paper.steering(key, "baseline"), max_steering_rad)
+            if estimate.mean >= target:  # the mean reaches it; leaving the road is what misses
+                detail += ": the mean reaches the paper's number, but a target is met only with PLM-Net on the road"
+            else:
+                detail += "; " + _why_missed(entry, paper.steering(key, "baseline"), max_steering_rad)
         rows.append({"setting": spec, "target": f"steering MAE reduction >= {target:.1f}% (paper)", "paper": target,
                      "ours": estimate.mean, "ci_low": estimate.low, "ci_high": estimate.high, "seeds": estimate.n,
                      "met": met, "detail": detail})
