@@ -103,7 +103,7 @@ def bench_sweep(n_envs: int = 16, steps: int = 100, policy: str = "plm", latency
             for name, function, threads, single in plan:
                 with single_threaded_inference() if single else contextlib.nullcontext():
                     timed(name, function, threads)
-            timed(warm_side, lambda: _warm_pool_steering(pool, policy, track, latency, n_envs, steps, workers), 1)
+            timed(warm_side, lambda: _pool_steering(policy, track, latency, n_envs, steps, workers, pool), 1)
     sides = {name: {"wall_s": float(np.median(times)), "wall_s_repeats": times,
                     "torch_threads": 2 if name == SERIAL_SIDES[1] else 1} for name, times in walls.items()}
     reference = steering[REFERENCE_SIDE]
@@ -142,15 +142,21 @@ def _vector_env_steering(vision, cells, steps: int) -> np.ndarray:
     return out
 
 
-def _pool_steering(policy: str, track: str, latency: str, n_envs: int, steps: int, workers: int) -> np.ndarray:
-    from plm_highway.sweep.backends import LocalPool
+def _pool_steering(policy: str, track: str, latency: str, n_envs: int, steps: int, workers: int,
+                   pool=None) -> np.ndarray:
+    """The runs split over ``workers`` processes, (N, steps) steering; ``pool``: a warm pool to use, else a
+    fresh one is spawned (and its start-up timed with the runs)."""
+    from plm_highway.evaluation.cell_runner import worker_pool
 
     chunks = [(policy, track, latency, tuple(range(n_envs))[w::workers], steps) for w in range(workers)]
     chunks = [chunk for chunk in chunks if chunk[3]]
-    pooled = dict(LocalPool(len(chunks)).map_unordered(_pool_chunk, chunks))
+    with contextlib.ExitStack() as stack:
+        if pool is None:
+            pool = stack.enter_context(worker_pool(len(chunks)))
+        steering = list(pool.map(_pool_chunk, chunks))
     out = np.zeros((n_envs, steps))
-    for index, chunk in enumerate(chunks):
-        out[list(chunk[3])] = pooled[index]
+    for chunk, chunk_steering in zip(chunks, steering):
+        out[list(chunk[3])] = chunk_steering
     return out
 
 
@@ -172,23 +178,15 @@ def _warm_pool(policy: str, track: str, latency: str, workers: int):
 
 def _warm_up(policy: str, track: str, latency: str) -> int:
     """A worker: load the model and drive a few steps (imports, caches); its pid."""
-    _warm_pool_chunk((policy, track, latency, (0,), 3))
+    _pool_chunk((policy, track, latency, (0,), 3))
     time.sleep(0.5)  # hold this worker so that the other warm-up task goes to another
     return os.getpid()
 
 
-def _warm_pool_steering(pool, policy: str, track: str, latency: str, n_envs: int, steps: int,
-                        workers: int) -> np.ndarray:
-    chunks = [(policy, track, latency, tuple(range(n_envs))[w::workers], steps) for w in range(workers)]
-    chunks = [chunk for chunk in chunks if chunk[3]]
-    out = np.zeros((n_envs, steps))
-    for chunk, steering in zip(chunks, pool.map(_warm_pool_chunk, chunks)):
-        out[list(chunk[3])] = steering
-    return out
-
-
-def _warm_pool_chunk(chunk) -> np.ndarray:
-    """A warm pool worker: the chunk's runs batched with the model this process loaded once."""
+def _pool_chunk(chunk) -> np.ndarray:
+    """A pool worker: the chunk's runs batched, with the model this process loads once (a warm pool's
+    workers have loaded it before the clock)."""
+    os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     from plm_highway.evaluation.batched import RunCell, run_cells
     from plm_highway.evaluation.cell_runner import worker_policy
     from plm_highway.evaluation.policies import SHIPPED_PRESET, single_threaded_inference
@@ -197,18 +195,6 @@ def _warm_pool_chunk(chunk) -> np.ndarray:
     vision = worker_policy(policy, None, SHIPPED_PRESET, "measured")
     with single_threaded_inference():
         logs = run_cells([RunCell(f"seed {s}", vision, track, latency, s, max_steps=steps) for s in seeds])
-    return _steering(logs)
-
-
-def _pool_chunk(chunk) -> np.ndarray:
-    """A pool worker: the chunk's runs batched; (runs, steps) steering."""
-    os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    from plm_highway.evaluation.batched import RunCell, run_cells
-    from plm_highway.evaluation.policies import single_threaded_inference
-
-    policy, track, latency, seeds, steps = chunk
-    with single_threaded_inference():
-        logs = run_cells([RunCell(f"seed {s}", policy, track, latency, s, max_steps=steps) for s in seeds])
     return _steering(logs)
 
 

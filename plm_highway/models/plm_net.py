@@ -319,13 +319,9 @@ class FusedPLMNet:
         if key not in self._packed_heads:
             self._packed_heads[key] = self._pack_heads(first_head, stop_head)
         heads_in, hidden_layer, tanh_layer, out_layer = self._packed_heads[key]
-        if batch_invariant:  # heads_in is fp32 here (int8 has no batch-invariant form)
-            hidden = heads_in.apply(trunk, True).relu_()
-            hidden = hidden_layer.apply(hidden, True).relu_()
-            return out_layer.apply(tanh_layer.apply(hidden, True).tanh_(), True).tanh_()
-        hidden = heads_in(trunk).relu_()
-        hidden = hidden_layer(hidden).relu_()
-        return out_layer(tanh_layer(hidden).tanh_()).tanh_()
+        hidden = heads_in.apply(trunk, batch_invariant).relu_()
+        hidden = hidden_layer.apply(hidden, batch_invariant).relu_()
+        return out_layer.apply(tanh_layer.apply(hidden, batch_invariant).tanh_(), batch_invariant).tanh_()
 
     def _pack_heads(self, first_head: int, stop_head: int) -> tuple:
         heads_in_bias, *later = _pack_heads(self.tapm, first_head, stop_head)
@@ -404,6 +400,12 @@ class Int8Linear:
 
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
         return torch.ops.quantized.linear_dynamic(x, self._packed, True)
+
+    def apply(self, x: torch.Tensor, batch_invariant: bool) -> torch.Tensor:
+        """As :meth:`Fp32Linear.apply`; there is no batch-invariant int8 product (the input's range is the batch's)."""
+        if batch_invariant:
+            raise ValueError("Int8Linear has no batch-invariant form")
+        return self(x)
 
 
 def _pack_heads(tapm: TAPM, first: int, stop: int) -> tuple:
