@@ -88,8 +88,8 @@ def test_command_writes_the_figure_and_its_numbers(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_a_calibration_on_worker_processes_gives_the_same_numbers():
-    one_at_a_time = bm_calibration("test", seeds="0,1", conditions="paper", max_steps=15, progress=False)
+    in_process = bm_calibration("test", seeds="0,1", conditions="paper", max_steps=15, progress=False)
     pooled = bm_calibration("test", seeds="0,1", conditions="paper", max_steps=15, progress=False, workers=2)
-    assert pooled["per_latency"] == one_at_a_time["per_latency"]
-    assert pooled["noise_floor"] == one_at_a_time["noise_floor"]
-    assert one_at_a_time["max_steering_rad"] == 0.4  # the paper conditions' range converts to radians
+    assert pooled["per_latency"] == in_process["per_latency"]
+    assert pooled["noise_floor"] == in_process["noise_floor"]
+    assert in_process["max_steering_rad"] == 0.4  # the paper conditions' range converts to radians

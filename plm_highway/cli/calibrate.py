@@ -22,7 +22,7 @@ def configure(parser) -> None:
     parser.add_argument("--max-steps", type=bounded_int(1, 10_000_000),
                         help="stop each run after this many policy steps (quick looks)")
     parser.add_argument("--workers", type=bounded_int(0, 256), default=d["workers"],
-                        help="0: the runs one at a time; N: batched on N processes (the same numbers)")
+                        help="0: the runs batched in this process; N: on N processes (the same numbers)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_overwrite(parser)
 

@@ -32,7 +32,7 @@ from plm_highway.evaluation.protocol import (
     noise_floor,
     parse_seeds,
 )
-from plm_highway.evaluation.run import CONDITIONS, Cell, progress_bar, run_cells
+from plm_highway.evaluation.run import CONDITIONS, Cell, progress_bar
 from plm_highway.io import FIGURE, file_kind, json_text, pyplot, save_figure_into, write_outputs
 from plm_highway.metrics.steering import common_span, steering_errors
 
@@ -74,7 +74,7 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
                    checkpoints=None, max_steps: int | None = None, progress: bool = True, workers: int = 0) -> dict:
     """Drive the BM at :data:`LATENCIES_S` under ``seeds``; return the per-seed MAEs, their means with 95% CIs
     (front-wheel radians), the noise floor, the paper's numbers and the two rules judged. ``workers`` 0 drives
-    the runs one at a time; >= 1 batched on that many processes (the same numbers, bit for bit)."""
+    the runs batched in this process; >= 1 on that many processes (the same numbers, bit for bit)."""
     from plm_highway.evaluation.cell_runner import drive_cells
     from plm_highway.road.track import load_track
 
@@ -90,10 +90,7 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
                   f"BM {latency_s:.2f} s seed {seed}") for seed in seed_list for latency_s in LATENCIES_S]
     bar = progress_bar(len(cells), progress, desc="calibration")
     try:
-        if workers:
-            logs = drive_cells(cells, spec, chosen, None, checkpoints, max_steps, bar, workers=workers)
-        else:
-            logs = run_cells(cells, spec, chosen, policies, max_steps, bar)
+        logs = drive_cells(cells, spec, chosen, policies, checkpoints, max_steps, bar, workers=workers)
     finally:
         bar.close()
     by_cell = {(cell.seed, cell.latency): log for cell, log in zip(cells, logs)}
