@@ -154,10 +154,11 @@ def test_legacy_fifo_property(segments, seed):
     records = run(env, len(requested) - 1, seed=seed)
     ages = ages_in_frames(records, 20)
     assert ages == legacy_ages_from_the_description(requested)
-    # Once settled the age is the request; after any change it is not, for a while.
+    # Once settled the age is the request; after a rise it is not, for a while (the FIFO refills and serves
+    # fresher frames). A fall by one frame can be served at once (hypothesis found 2 -> 1 frames).
     first_change = segments[0][1]
     assert ages[first_change - 1] == requested[0]
-    if len(set(requested)) > 1:
+    if len(segments) > 1 and segments[1][0] > segments[0][0]:
         assert ages[first_change:] != requested[first_change:]
 
 
