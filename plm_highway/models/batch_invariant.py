@@ -60,40 +60,49 @@ def linear(input, weight, bias=None):
     The rows go through products of exactly :data:`ROWS_PER_PRODUCT` rows (zero rows fill the last),
     so MKL sees one shape, hence one kernel and one summation order, at every batch size; a batch of
     one pays for ``ROWS_PER_PRODUCT`` rows (compute that a memory-bound one-row product mostly
-    hides), a batch of 16 gets most of a 16-row product's reuse of the weights.
+    hides), a batch of 16 gets most of a 16-row product's reuse of the weights. The outputs are padded
+    too, to a multiple of :data:`ROW_ALIGNMENT`: with 2 or 3 outputs MKL's AVX-512 path sums a row
+    differently depending on the other rows of the product (measured on a Xeon with AVX-512; from
+    16 outputs on, and at 1, 5 or 10, it does not).
     """
     rows = input.reshape(-1, input.shape[-1])
     n_rows, width = rows.shape
+    n_out = weight.shape[0]
     padded_width = -(-width // ROW_ALIGNMENT) * ROW_ALIGNMENT
+    padded_out = -(-n_out // ROW_ALIGNMENT) * ROW_ALIGNMENT
     padded_rows = -(-n_rows // ROWS_PER_PRODUCT) * ROWS_PER_PRODUCT
     # A fresh buffer whose rows all start on a 64-byte boundary: MKL's path depends on alignment too.
     buffer = rows.new_zeros(padded_rows, padded_width)
     buffer[:n_rows, :width] = rows
-    if padded_width != width:
-        weight = _padded_weight(weight, padded_width)
+    weight = _padded(weight, (padded_out, padded_width))
+    if bias is not None:
+        bias = _padded(bias, (padded_out,))
     out = torch.cat([F.linear(buffer[start : start + ROWS_PER_PRODUCT], weight, bias)
                      for start in range(0, padded_rows, ROWS_PER_PRODUCT)])
-    return out[:n_rows].reshape(*input.shape[:-1], weight.shape[0])
+    return out[:n_rows, :n_out].reshape(*input.shape[:-1], n_out)
 
 
-_PADDED_WEIGHTS: dict[int, tuple[weakref.ref, int, torch.Tensor]] = {}
+_PADDED: dict[int, tuple[weakref.ref, int, tuple[int, ...], torch.Tensor]] = {}
 _PADDED_LOCK = threading.Lock()
 
 
-def _padded_weight(weight: torch.Tensor, padded_width: int) -> torch.Tensor:
-    """``weight`` with zero columns up to ``padded_width``, kept while ``weight`` lives unchanged (a model's
-    layers are padded once, not at every step)."""
+def _padded(tensor: torch.Tensor, shape: tuple[int, ...]) -> torch.Tensor:
+    """``tensor`` with zeros appended along each dimension up to ``shape``, kept while ``tensor`` lives
+    unchanged (a model's layers are padded once, not at every step)."""
+    if tuple(tensor.shape) == shape:
+        return tensor
     # Inference tensors (weights a model packs inside inference mode) have no version counter; they
     # are caches built once, never changed in place.
-    version = -1 if torch.is_inference(weight) else weight._version
+    version = -1 if torch.is_inference(tensor) else tensor._version
     with _PADDED_LOCK:
-        entry = _PADDED_WEIGHTS.get(id(weight))
-        if entry is not None and entry[0]() is weight and entry[1] == version:
-            return entry[2]
-        padded = F.pad(weight, (0, padded_width - weight.shape[1]))
-        for key in [k for k, (ref, _, _) in _PADDED_WEIGHTS.items() if ref() is None]:
-            del _PADDED_WEIGHTS[key]
-        _PADDED_WEIGHTS[id(weight)] = (weakref.ref(weight), version, padded)
+        entry = _PADDED.get(id(tensor))
+        if entry is not None and entry[0]() is tensor and entry[1] == version and entry[2] == shape:
+            return entry[3]
+        pads = [amount for size, target in zip(reversed(tensor.shape), reversed(shape)) for amount in (0, target - size)]
+        padded = F.pad(tensor, pads)
+        for key in [k for k, (ref, *_) in _PADDED.items() if ref() is None]:
+            del _PADDED[key]
+        _PADDED[id(tensor)] = (weakref.ref(tensor), version, shape, padded)
         return padded
 
 
