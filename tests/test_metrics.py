@@ -41,8 +41,14 @@ def quietly(fn, *args, **kwargs):
         return fn(*args, **kwargs)
 
 
-def assert_matches(ours, reference):
-    np.testing.assert_allclose(ours, reference, rtol=REL_TOL, atol=0, equal_nan=True)
+def assert_matches(ours, reference, atol: float = 0.0):
+    np.testing.assert_allclose(ours, reference, rtol=REL_TOL, atol=atol, equal_nan=True)
+
+
+def area_atol(*curves) -> float:
+    """The reference sums signed triangle areas, and numpy's CPU-dispatched kernels round that sum differently
+    on AVX-512 and AVX2 CPUs: two identical curves with coordinates ~50 gave 9e-13 on one, exactly 0 on another."""
+    return 1e-12 * max(1.0, *(float(np.max(np.abs(c))) for c in curves)) ** 2
 
 
 def smooth_pair(n_points: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -92,7 +98,7 @@ def test_dtw_distance_and_matrix_match_reference(n_dims, metric, data):
 @given(pair=curve_pairs())
 def test_area_matches_reference(pair):
     exp, num = pair
-    assert_matches(pm.area_between_two_curves(exp, num), sm.area_between_two_curves(exp, num))
+    assert_matches(pm.area_between_two_curves(exp, num), sm.area_between_two_curves(exp, num), area_atol(exp, num))
 
 
 @SETTINGS
@@ -147,8 +153,8 @@ def test_area_with_ties_and_vertical_segments_matches_reference():
     exp = np.column_stack([np.arange(300.0), 5 + np.round(rng.normal(size=300))])
     num = np.column_stack([np.repeat(np.arange(0.0, 300.0, 6.0), 2), 5 + np.round(rng.normal(size=100))])
     num = np.vstack([num, [[299.0, 5.0]]])
-    assert_matches(pm.area_between_two_curves(exp, num), sm.area_between_two_curves(exp, num))
-    assert_matches(pm.area_between_two_curves(num, exp), sm.area_between_two_curves(num, exp))
+    assert_matches(pm.area_between_two_curves(exp, num), sm.area_between_two_curves(exp, num), area_atol(exp, num))
+    assert_matches(pm.area_between_two_curves(num, exp), sm.area_between_two_curves(num, exp), area_atol(exp, num))
 
 
 def test_results_are_plain_floats_and_inputs_untouched():

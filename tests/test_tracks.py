@@ -349,8 +349,10 @@ def test_segment_lookup_with_its_cache_agrees_with_the_vectorised_lookup(lengths
 @given(radius_m=st.floats(20.0, 500.0), angle_deg=st.floats(5.0, 169.0), direction=st.sampled_from(["left", "right"]),
        offset_m=st.sampled_from([-4.0, 0.0, 4.0]), points=st.lists(st.tuples(st.floats(-300, 300), st.floats(-300, 300)),
                                                                      min_size=1, max_size=10))
-def test_scalar_lane_frames_are_highway_env_lanes_bit_for_bit(radius_m, angle_deg, direction, offset_m, points):
-    """The env's tracker replaces highway-env's lane arithmetic; it must give exactly the same numbers."""
+def test_scalar_lane_frames_are_highway_env_lanes_to_the_last_bits(radius_m, angle_deg, direction, offset_m, points):
+    """The env's tracker replaces highway-env's lane arithmetic, operation for operation, in ``math`` instead of
+    numpy. Equal to a few units in the last place, not bit for bit: numpy's float64 ``arctan2`` is CPU-dispatched
+    (on an AVX-512 Xeon it differs from libm's ``atan2`` in the last bit, on an AVX2 CPU it agreed)."""
     from plm_highway.road.builder import ArcFrame, StraightFrame
 
     built = build_road(parse_track(spec(straight(37.5), arc(radius_m, angle_deg, direction))))
@@ -360,5 +362,8 @@ def test_scalar_lane_frames_are_highway_env_lanes_bit_for_bit(radius_m, angle_de
             assert frame.length_m == lane.length
             for x_m, y_m in points:
                 expected = lane.local_coordinates(np.array([x_m, y_m]))
-                assert frame.local_coordinates(x_m, y_m) == (float(expected[0]), float(expected[1]))
-                assert frame.heading_at(expected[0]) == lane.heading_at(expected[0])
+                scale_m = radius_m + abs(x_m) + abs(y_m)  # the size of the numbers the arithmetic handles
+                got = frame.local_coordinates(x_m, y_m)
+                for ours, theirs in zip(got, (float(expected[0]), float(expected[1]))):
+                    assert abs(ours - theirs) <= 8 * math.ulp(scale_m), (got, expected)
+                assert frame.heading_at(expected[0]) == pytest.approx(lane.heading_at(expected[0]), rel=0, abs=1e-14)
