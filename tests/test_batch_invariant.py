@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from plm_highway.models.base_model import BaseModel, preset_config
-from plm_highway.models.batch_invariant import batch_invariant_ops, conv2d, linear
+from plm_highway.models.batch_invariant import batch_invariant_ops, conv2d, conv_stack, linear
 from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
 from plm_highway.models.plm_net import PLMNet
 from plm_highway.models.shipped import load_shipped_plm_net
@@ -107,3 +107,23 @@ def test_a_convolution_sample_is_the_same_at_any_batch_size():
         for n in (2, 3, 16, 17, 20):
             assert torch.equal(conv2d(images[:n], weight, bias, 2), alone[:n])
     torch.testing.assert_close(alone, torch.nn.functional.conv2d(images, weight, bias, 2), rtol=0, atol=1e-4)
+
+
+@pytest.mark.parametrize("preset", ["default", "paper"])
+def test_the_conv_stack_is_the_layer_by_layer_convolutions_bit_for_bit(preset):
+    # conv_stack keeps the activations in oneDNN's blocked layout between layers; the values must be those of
+    # the layers run one by one through oneDNN's convolution (the per-layer batch-invariant path), whatever the batch.
+    torch.manual_seed(3)
+    bm = BaseModel(preset_config(preset)).eval()
+    height, width = bm.config.image_size_px
+    pixels = torch.rand(5, bm.config.input_channels, height, width) * 2 - 1
+    with torch.no_grad():
+        layer_by_layer = pixels
+        for layer in bm.convs:
+            layer_by_layer = (conv2d(layer_by_layer, layer.weight, layer.bias, layer.stride)
+                              if isinstance(layer, torch.nn.Conv2d) else layer(layer_by_layer))
+        stacked = conv_stack(bm.convs, pixels)
+        alone = torch.cat([conv_stack(bm.convs, pixels[i : i + 1]) for i in range(5)])
+    assert torch.equal(stacked, layer_by_layer)
+    assert torch.equal(stacked, alone)
+    torch.testing.assert_close(stacked, bm.convs(pixels), rtol=1e-5, atol=1e-5)

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 import plm_highway
 from plm_highway import cli
-from plm_highway.models import shipped
+from plm_highway.models import batch_invariant, shipped
 from plm_highway.models.base_model import (
     BaseModel,
     BaseModelConfig,
@@ -391,13 +391,17 @@ def test_plm_net_interpolates_per_sample_and_counts_clamped_latencies():
     assert output.n_clamped == 2
 
 
-def test_plm_net_runs_the_convolutions_once():
+@pytest.mark.parametrize("grad", [False, True])
+def test_plm_net_runs_the_convolutions_once(monkeypatch, grad):
+    # With gradients through the conv modules, without them as one oneDNN stack (batch_invariant.conv_stack).
     plm_net = small_plm_net()
     calls = []
-    plm_net.bm.convs[0].register_forward_hook(lambda *_: calls.append(1))
-    with torch.inference_mode():
+    plm_net.bm.convs[0].register_forward_hook(lambda *_: calls.append("module"))
+    stack = batch_invariant.conv_stack
+    monkeypatch.setattr(batch_invariant, "conv_stack", lambda *args: calls.append("stack") or stack(*args))
+    with torch.set_grad_enabled(grad):
         plm_net(random_frames(2), torch.full((2,), 16.7), torch.tensor([0.1, 0.3]))
-    assert len(calls) == 1
+    assert calls == ["module" if grad else "stack"]
 
 
 @pytest.mark.parametrize("bad_latency_s", [float("nan"), -0.05])
