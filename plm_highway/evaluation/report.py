@@ -300,7 +300,7 @@ and no target is judged.
 |---|---|---|
 | control loop | {{ r.conditions.policy_frequency_hz }} Hz | 30 Hz (ROS loop) |
 | speed | {{ r.conditions.speed_mps }} m/s | about 60 km/h (16.7 m/s), constant |
-| demonstrator the BM imitates | noise-free privileged expert (shipped `default` checkpoints) | a human with a Logitech wheel, steering std 0.18 |
+| demonstrator the BM imitates | {% if r.conditions.demonstrator == "human" %}human-like demonstrator (plm_highway/expert/human.py){% else %}noise-free privileged expert{% endif %} (shipped `{{ r.conditions.checkpoint_preset }}` checkpoints) | a human with a Logitech wheel, steering std 0.18 |
 | latency injection | {{ injection }} | the original's FIFO of loop frames |
 | latency PLM-Net is told | {{ told }} | the requested latency |
 | image noise | {{ r.conditions.image_noise_std }} grey levels | simulator camera noise |
