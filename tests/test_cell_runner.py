@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from plm_highway.evaluation.cell_runner import chunk_count, drive_cells
 from plm_highway.evaluation.closed_loop import LOG_COLUMNS
 from plm_highway.evaluation.reproduce import plan_cells
-from plm_highway.evaluation.run import CONDITIONS, make_policies, run_cells
+from plm_highway.evaluation.run import CONDITIONS, Cell, make_policies, run_cells
 from plm_highway.road.track import load_track
 
 
@@ -21,7 +21,10 @@ def serial(request):
     conditions = CONDITIONS[request.param]
     track_spec = load_track("test")
     settings = ["const:0.2", conditions.time_varying[-1]]
-    cells = plan_cells(settings, [0, 3], track_spec.name)
+    # As reproduce plans them (under the legacy FIFO the BM baseline of the varying profile is constant), plus a
+    # sweep cell with a wrong latency estimate.
+    cells = [*plan_cells(settings, [0, 3], track_spec.name, conditions),
+             Cell("sweep", "plm", "const:0.2", 3, latency_bias_s=0.05)]
     policies = make_policies(None, conditions)
     return cells, track_spec, conditions, policies, run_cells(cells, track_spec, conditions, policies, max_steps=18)
 
@@ -71,3 +74,13 @@ def test_runs_split_into_chunks_no_larger_than_a_batch_and_balanced_over_the_wor
 
 def test_75_runs_of_batch_32_on_2_workers_are_4_chunks():
     assert chunk_count(75, 2, 32) == 4  # was 3: one worker idle for the last third of a track
+
+
+def test_a_latency_bias_is_what_plm_net_is_told(serial):
+    cells, track_spec, conditions, policies, references = serial
+    [unbiased] = [log for cell, log in zip(cells, references) if cell.key == ("mitigated", "const:0.2", 3)]
+    biased_log = references[-1]
+    assert not np.array_equal(biased_log.columns["steering"], unbiased.columns["steering"])
+    [again] = run_cells([Cell("sweep", "plm", "const:0.2", 3, latency_bias_s=0.05)], track_spec, conditions, policies,
+                        max_steps=18)
+    np.testing.assert_array_equal(again.columns["steering"], biased_log.columns["steering"])

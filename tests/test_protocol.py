@@ -15,8 +15,15 @@ from plm_highway.errors import BadInput
 from plm_highway.evaluation import protocol
 from plm_highway.evaluation.closed_loop import RunLog
 from plm_highway.evaluation.policies import VisionPolicy
-from plm_highway.evaluation.reproduce import default_settings
-from plm_highway.evaluation.run import CONDITIONS, scored_steps, sight_m, start_perturbation
+from plm_highway.evaluation.reproduce import default_settings, plan_cells
+from plm_highway.evaluation.run import (
+    CONDITIONS,
+    baseline_latency,
+    scored_steps,
+    sight_m,
+    start_perturbation,
+    with_injection,
+)
 from plm_highway.road.track import load_track, parse_track
 
 # ---------------------------------------------------------------------------------------------
@@ -259,3 +266,34 @@ def test_reports_of_the_two_conditions_live_apart():
     assert ideal == Path("figures/reproduce") and paper == Path("figures/reproduce-paper-conditions")
     assert ideal not in paper.parents  # replacing one report never deletes the other
     assert output_dir(None, "unseen", "unseen", "paper") == paper / "unseen"
+
+
+def test_the_legacy_fifo_runs_the_bm_baseline_of_a_varying_profile_at_its_middle():
+    # The original's time-variant run cut the BM's buffer to its constant configured delta (issue 9).
+    assert protocol.legacy_baseline_spec("steps:0.0-0.35:1.0") == "const:0.175"
+    assert protocol.legacy_baseline_spec("frames:9-21:60@60") == "const:0.25"  # 15 frames: the paper's 0.25 s
+    assert protocol.legacy_baseline_spec("frames:9-21:60@30") == "const:0.5"
+    assert protocol.legacy_baseline_spec("frames:9-20:60@30") == "const:0.466667"  # 14 frames: a whole frame count
+    assert protocol.legacy_baseline_spec("const:0.2") == "const:0.2"
+    with pytest.raises(BadInput, match="--injection time"):
+        protocol.legacy_baseline_spec("sine:0.2:0.1:2")
+    paper, ideal = CONDITIONS["paper"], CONDITIONS["ideal"]
+    assert baseline_latency("steps:0.0-0.35:1.0", paper) == "const:0.175"
+    assert baseline_latency("steps:0.0-0.35:1.0", ideal) == "steps:0.0-0.35:1.0"
+    cells = [c for c in plan_cells(["const:0.2", "frames:9-21:60@60"], [3], "test", paper) if c.role != "reference"]
+    assert [(c.role, c.latency, c.key) for c in cells] == [
+        ("baseline", "const:0.2", ("baseline", "const:0.2", 3)), ("mitigated", "const:0.2", ("mitigated", "const:0.2", 3)),
+        ("baseline", "const:0.25", ("baseline", "frames:9-21:60@60", 3)),
+        ("mitigated", "frames:9-21:60@60", ("mitigated", "frames:9-21:60@60", 3))]
+
+
+def test_an_injection_override_carries_what_plm_net_is_told():
+    exact_paper = with_injection(CONDITIONS["paper"], "time")
+    assert (exact_paper.injection, exact_paper.latency_source) == ("time", "measured")
+    assert exact_paper.policy_frequency_hz == 30 and exact_paper.camera == PAPER_CAMERA  # nothing else changes
+    assert baseline_latency("frames:9-21:60@60", exact_paper) == "frames:9-21:60@60"
+    legacy_ideal = with_injection(CONDITIONS["ideal"], "legacy-fifo")
+    assert (legacy_ideal.injection, legacy_ideal.latency_source) == ("legacy-fifo", "requested")
+    assert with_injection(CONDITIONS["ideal"], None) is CONDITIONS["ideal"]
+    with pytest.raises(BadInput, match="--injection 'udp'"):
+        with_injection(CONDITIONS["ideal"], "udp")

@@ -136,6 +136,45 @@ def test_reproduce_writes_report_tables_and_figures(checkpoints, tmp_path, capsy
     assert list(tmp_path.joinpath("figures").iterdir()) == [out]  # no temporary directory left behind
 
 
+def test_the_legacy_fifo_is_compared_with_exact_ages(checkpoints, tmp_path):
+    out = tmp_path / "legacy"
+    code = cli.main(["reproduce", "--out", str(out), "--checkpoints", str(checkpoints), "--max-steps", "60", "--seeds",
+                     "3", "--settings", "const:0.2", "steps:0.1-0.3:0.5", "--generalise", "--injection", "legacy-fifo",
+                     "--workers", "0", "--no-progress"])
+    assert code == 0
+    results = json.loads((out / "results.json").read_text())
+    detail = results["conditions_detail"]
+    assert (detail["injection"], detail["latency_source"]) == ("legacy-fifo", "requested")
+    comparison = results["injection_comparison"]
+    assert (comparison["injection"], comparison["latency_source"]) == ("time", "measured")
+    assert list(comparison["settings"]) == ["steps:0.1-0.3:0.5"]  # only the time-varying settings are compared
+    legacy, exact = results["settings"]["steps:0.1-0.3:0.5"], comparison["settings"]["steps:0.1-0.3:0.5"]
+    # The paired difference is legacy minus exact, seed by seed.
+    pairs = list(zip(legacy["per_seed"], exact["per_seed"]))
+    expected = sum(a["steering"]["baseline"]["mae"] - b["steering"]["baseline"]["mae"] for a, b in pairs) / len(pairs)
+    assert comparison["legacy_minus_time"]["steps:0.1-0.3:0.5"]["baseline_mae"]["mean"] == pytest.approx(expected)
+    assert legacy["per_seed"][0]["steering"] != exact["per_seed"][0]["steering"]
+    report = (out / "report.md").read_text()
+    section = report.split("## The legacy FIFO against exact ages")[1].split("\n## ")[0]
+    rows = [line for line in section.splitlines() if line.startswith(("| steps:0.1-0.3:0.5", "| *"))]
+    assert len(rows) == 3 and "`legacy-fifo`" in rows[0] and "0.20 s" in rows[0] and "`time`" in rows[1]
+    assert "legacy - exact, paired" in rows[2]
+    assert "**The paper's time-varying baseline was effectively a constant latency.**" in section
+
+
+def test_under_the_legacy_fifo_the_bm_baseline_sees_a_constant_latency_and_plm_net_the_profile(checkpoints, tmp_path):
+    out = tmp_path / "evaluation"
+    code = cli.main(["evaluate", "--checkpoints", str(checkpoints), "--latency", "steps:0.1-0.3:0.5", "--max-steps",
+                     "80", "--seed", "4", "--injection", "legacy-fifo", "--out", str(out)])
+    assert code == 0
+    with open(out / "baseline.csv", newline="") as handle:
+        baseline = [float(row["latency_s"]) for row in csv.DictReader(handle)]
+    with open(out / "mitigated.csv", newline="") as handle:
+        mitigated = [float(row["latency_s"]) for row in csv.DictReader(handle)]
+    assert set(baseline) == {0.2} and len(set(mitigated)) > 1  # 80 steps at 20 Hz: 8 draws every 0.5 s
+    assert json.loads((out / "result.json").read_text())["injection"] == "legacy-fifo"
+
+
 @pytest.mark.parametrize("arguments, message", [
     (["--settings", "const:0.2", "const:zero"], "'const:zero'"),
     (["--checkpoints", "{tmp}/nowhere"], "no such directory"),
@@ -147,13 +186,17 @@ def test_reproduce_writes_report_tables_and_figures(checkpoints, tmp_path, capsy
     (["--seeds", "1,x"], "expected a count"),
     (["--seeds", "3,3"], "a seed is repeated"),
     (["--conditions", "lab"], "invalid choice: 'lab'"),
+    (["--injection", "udp"], "invalid choice: 'udp'"),
+    (["--injection", "legacy-fifo", "--settings", "sine:0.2:0.1:2"], "use --injection time"),
     (["--conditions", "paper", "--settings", "frames:9-21:60@30", "const:2"], "beyond the buffer"),
 ])
 def test_bad_input_exits_2_before_any_run(tmp_path, capsys, arguments, message, monkeypatch):
     bad_track = tmp_path / "bad.json"
     bad_track.write_text(json.dumps({"name": "bad", "lanes": 9, "segments": [{"type": "straight", "length_m": 50}]}))
-    monkeypatch.setattr(reproduce, "drive", _no_drive)
-    monkeypatch.setattr(reproduce, "drive_cells", _no_drive)
+    from plm_highway.evaluation import run
+
+    monkeypatch.setattr(run, "drive", _no_drive)  # the serial path
+    monkeypatch.setattr(reproduce, "drive_cells", _no_drive)  # every run reproduce drives, the sweep's included
     out = tmp_path / "out"
     arguments = [a.format(tmp=tmp_path, bad_track=bad_track) for a in arguments]
     assert cli.main(["reproduce", "--out", str(out), *arguments]) == 2

@@ -13,7 +13,7 @@ def configure(parser) -> None:
     from plm_highway.cli._common import defaults_of
     from plm_highway.evaluation.evaluate import evaluate
     from plm_highway.evaluation.policies import POLICY_NAMES
-    from plm_highway.evaluation.run import CONDITION_NAMES
+    from plm_highway.evaluation.run import CONDITION_NAMES, INJECTION_LATENCY_SOURCE
 
     d = defaults_of(evaluate)
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
@@ -26,6 +26,10 @@ def configure(parser) -> None:
     parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],
                         help="ideal: this simulator's setup; paper: the paper's loop, pipeline, camera, latency "
                              "injection and the `paper` checkpoints, as reproduce --conditions paper drives them")
+    parser.add_argument("--injection", choices=tuple(INJECTION_LATENCY_SOURCE),
+                        help="latency injection instead of the conditions' own (ideal: time, paper: legacy-fifo), as "
+                             "for reproduce; legacy-fifo also runs the BM baseline of a time-varying profile at its "
+                             "middle latency, as the original code did")
     add_seed(parser, d["seed"])
     parser.add_argument("--seeds", help="run every run once per seed: a count N (seeds --seed .. --seed+N-1) or a "
                                         "list a,b,c; the JSON adds per_seed and over_seeds (mean, 95%% CI)")
@@ -46,7 +50,7 @@ def run(args) -> int:
             check_target(path, kind, overwrite=args.overwrite)
     with single_threaded_inference():
         result, logs = evaluate(args.track, args.latency, args.policy, args.seed, args.max_steps, args.checkpoints,
-                                args.seeds, args.conditions)
+                                args.seeds, args.conditions, args.injection)
     sys.stdout.write(json_text(result, EVALUATION_JSON))
     if args.json or args.out:
         publish_results(result, logs, args.json, args.out, overwrite=args.overwrite)

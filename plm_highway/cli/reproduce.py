@@ -7,7 +7,7 @@ from plm_highway.cli._common import Command, add_overwrite, add_seed, bounded_fl
 
 def configure(parser) -> None:
     from plm_highway.evaluation.reproduce import reproduce
-    from plm_highway.evaluation.run import CONDITION_NAMES
+    from plm_highway.evaluation.run import CONDITION_NAMES, INJECTION_LATENCY_SOURCE
 
     d = defaults_of(reproduce)
     parser.add_argument("--out", help="output directory (default: figures/reproduce, figures/reproduce/TRACK for a "
@@ -16,6 +16,12 @@ def configure(parser) -> None:
     parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],
                         help="ideal: this project's setup; paper: the paper's loop rate, latency profiles and the "
                              "original's FIFO injection (see the report's Conditions section)")
+    parser.add_argument("--injection", choices=tuple(INJECTION_LATENCY_SOURCE),
+                        help="latency injection instead of the conditions' own (ideal: time, paper: legacy-fifo): "
+                             "time delivers frames of their exact age and tells PLM-Net that age; legacy-fifo is the "
+                             "original's FIFO (fresher frames while it refills, PLM-Net told the requested latency, "
+                             "the BM baseline of a time-varying setting at a constant latency). The report compares "
+                             "the time-varying settings under both")
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: shipped)")
     parser.add_argument("--settings", nargs="+", metavar="SPEC",
@@ -52,7 +58,7 @@ def run(args) -> int:
         results = reproduce(args.track, args.settings, args.checkpoints, args.seed, args.max_steps, args.out,
                             args.generalise, args.sweep, args.sweep_max, args.sweep_step, not args.no_progress,
                             args.command_line, overwrite=args.overwrite, seeds=args.seeds, conditions=args.conditions,
-                            workers=args.workers, batch_size=args.batch_size)
+                            workers=args.workers, batch_size=args.batch_size, injection=args.injection)
     out = output_dir(args.out, args.track, results["track"], args.conditions)
     for target in results["targets"]:
         print(f"{'met   ' if target['met'] else 'MISSED'} {setting_label(target['setting']):>26}: {target['target']}: "

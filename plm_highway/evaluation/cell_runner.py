@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from plm_highway.evaluation.batched import DEFAULT_BATCH_SIZE, RunCell, run_cells
 from plm_highway.evaluation.closed_loop import RunLog
 from plm_highway.evaluation.policies import VisionPolicy
-from plm_highway.evaluation.run import Cell, Conditions, drive_options, scored_steps
+from plm_highway.evaluation.run import Cell, Conditions, biased, drive_options, scored_steps
 from plm_highway.road.track import TrackSpec
 
 MAX_WORKERS = 256
@@ -121,8 +121,10 @@ def _run_cell(cell: Cell, track_spec: TrackSpec, conditions: Conditions, steps: 
         raise ValueError(f"cell {cell.name!r}: policy {cell.policy!r} is neither a model policy object nor one of "
                          f"{list(NAMED_POLICIES)} but a {type(policy).__name__}, which runs stepped together would "
                          "share; drive these cells with plm_highway.evaluation.run.run_cells")
-    return RunCell(cell.name, policy, track_spec, cell.latency, cell.seed, latency_source=conditions.latency_source,
-                   **drive_options(cell, conditions, steps))
+    else:
+        policy = biased(policy, cell.latency_bias_s)
+    return RunCell(cell.name, policy, track_spec, cell.latency, cell.seed, latency_bias_s=cell.latency_bias_s,
+                   latency_source=conditions.latency_source, **drive_options(cell, conditions, steps))
 
 
 def _drive_chunk(chunk: _Chunk) -> list[RunLog]:
@@ -130,8 +132,8 @@ def _drive_chunk(chunk: _Chunk) -> list[RunLog]:
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     from plm_highway.evaluation.policies import single_threaded_inference
 
-    cells = [RunCell(**{**cell.__dict__,
-                        "policy": worker_policy(cell.policy, chunk.checkpoints, chunk.preset, cell.latency_source)})
+    cells = [RunCell(**{**cell.__dict__, "policy": biased(
+                 worker_policy(cell.policy, chunk.checkpoints, chunk.preset, cell.latency_source), cell.latency_bias_s)})
              if cell.policy in ("bm", "plm") else cell for cell in chunk.cells]
     with single_threaded_inference():
         return run_cells(cells, chunk.checkpoints, batch_size=chunk.batch_size, preset=chunk.preset)

@@ -71,7 +71,7 @@ def compare_runs(logs: dict[str, RunLog], track, latency_spec: str, policy: str,
 
 
 def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps=None, checkpoints=None,
-             seeds=None, conditions: str = "ideal") -> tuple[dict, dict]:
+             seeds=None, conditions: str = "ideal", injection: str | None = None) -> tuple[dict, dict]:
     """Run the comparison; returns (result dict, {run name: RunLog}).
 
     ``seeds`` (a count N: seeds ``seed .. seed+N-1``, or a list): every run once per seed, each seed with its own
@@ -81,28 +81,33 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
 
     ``conditions`` (``ideal`` or ``paper``, as for ``reproduce``): the loop rate, pipeline, camera, latency
     injection, image noise and checkpoint preset of those conditions; under ``paper`` every run, single or
-    per seed, is driven as ``reproduce`` drives it (a seed above 0 also perturbs the start).
+    per seed, is driven as ``reproduce`` drives it (a seed above 0 also perturbs the start). ``injection``
+    (``--injection``) replaces the conditions' latency injection, as for ``reproduce``.
     """
-    from plm_highway.evaluation.run import CONDITIONS
+    from plm_highway.evaluation.run import CONDITIONS, with_injection
 
     if conditions not in CONDITIONS:
         raise BadInput(f"--conditions {conditions!r}: expected one of {list(CONDITIONS)}")
-    if conditions != "ideal" and policy == "ekf":
-        raise BadInput(f"--policy ekf with --conditions {conditions}: the EKF policy is built for the ideal "
-                       "conditions' car and loop; use --conditions ideal")
+    if (conditions != "ideal" or injection is not None) and policy == "ekf":
+        raise BadInput(f"--policy ekf with --conditions {conditions}"
+                       f"{'' if injection is None else f' --injection {injection}'}: the EKF policy is built for the "
+                       "ideal conditions' car, loop and latency injection; use --conditions ideal without --injection")
+    chosen = with_injection(CONDITIONS[conditions], injection)
     track_spec, latency_spec = check_inputs(track, latency, max_steps)
     max_steps = run_steps(track_spec, max_steps, conditions)
-    if seeds is not None or conditions != "ideal":
+    if seeds is not None or conditions != "ideal" or injection is not None:
         if policy == "ekf":  # each seed needs its own sensor-noise stream; compare over seeds with 'estimate compare'
             raise BadInput("--seeds with --policy ekf: not supported by evaluate; use 'plm-highway estimate compare'")
         seed_list = [seed] if seeds is None else _seed_list(seeds, seed)
         result, logs = _evaluate_seeds(track, track_spec, latency_spec, policy, seed_list, max_steps, checkpoints,
-                                       conditions)
+                                       chosen)
         if seeds is None:  # one run per role: no per-seed summary
             for key in ("seeds", "per_seed", "over_seeds"):
                 result.pop(key, None)
         if conditions != "ideal":
             result["conditions"] = conditions
+        if injection is not None:
+            result["injection"] = injection
         return result, logs
     if policy == "ekf":
         from plm_highway.estimation.policy import ekf_policy
@@ -131,12 +136,12 @@ def _seed_list(seeds, first_seed: int) -> list[int]:
 
 
 def _evaluate_seeds(track, track_spec: TrackSpec, latency_spec: str, policy: str, seeds: list[int],
-                    max_steps: int | None, checkpoints, conditions: str = "ideal") -> tuple[dict, dict]:
+                    max_steps: int | None, checkpoints, chosen) -> tuple[dict, dict]:
+    """The runs of every seed under the conditions ``chosen`` (a :class:`~plm_highway.evaluation.run.Conditions`)."""
     from plm_highway.evaluation import protocol
     from plm_highway.evaluation.cell_runner import drive_cells
-    from plm_highway.evaluation.run import CONDITIONS, Cell
+    from plm_highway.evaluation.run import Cell, baseline_latency
 
-    chosen = CONDITIONS[conditions]
     base_policy = "expert" if policy == "expert" else "bm"
     policies = {base_policy: make_policy(base_policy, checkpoints, preset=chosen.checkpoint_preset)}
     roles = {"reference": base_policy, "baseline": base_policy}
@@ -144,8 +149,8 @@ def _evaluate_seeds(track, track_spec: TrackSpec, latency_spec: str, policy: str
         policies["plm"] = make_policy("plm", checkpoints, latency_source=chosen.latency_source,
                                       preset=chosen.checkpoint_preset)
         roles["mitigated"] = "plm"
-    cells = [Cell(role, who, "const:0" if role == "reference" else latency_spec, seed)
-             for seed in seeds for role, who in roles.items()]
+    driven = {"reference": "const:0", "baseline": baseline_latency(latency_spec, chosen), "mitigated": latency_spec}
+    cells = [Cell(role, who, driven[role], seed, setting=latency_spec) for seed in seeds for role, who in roles.items()]
     # Batched (one forward pass per model and step); batch-invariant models: each run is its one-env run.
     logs = drive_cells(cells, track_spec, chosen, policies, checkpoints, max_steps)
     per_seed_logs = [dict(zip(roles, logs[k:k + len(roles)])) for k in range(0, len(logs), len(roles))]

@@ -37,6 +37,7 @@ class VisionPolicy:
             raise ValueError(f"latency_source {latency_source!r}: expected one of {list(LATENCY_SOURCES)}")
         self.model_policy = model_policy
         self.latency_bias_s = latency_bias_s
+        self.latency_source = latency_source
         self.info_key = LATENCY_SOURCES[latency_source]
 
     def reset(self) -> None:

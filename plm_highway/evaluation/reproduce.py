@@ -27,7 +27,6 @@ from plm_highway.errors import BadInput
 from plm_highway.evaluation import protocol
 from plm_highway.evaluation.batched import DEFAULT_BATCH_SIZE
 from plm_highway.evaluation.cell_runner import MAX_WORKERS, drive_cells, worker_pool
-from plm_highway.evaluation.closed_loop import drive
 from plm_highway.evaluation.evaluate import compare_runs
 from plm_highway.evaluation.policies import checkpoint_pair
 from plm_highway.evaluation.protocol import (  # noqa: F401  (the names earlier code imported from here)
@@ -38,7 +37,17 @@ from plm_highway.evaluation.protocol import (  # noqa: F401  (the names earlier 
     split_settings,
 )
 from plm_highway.evaluation.report import REPRODUCE_REPORT, Reproduction, write_report
-from plm_highway.evaluation.run import CONDITIONS, Cell, Conditions, check_env, make_policies, progress_bar, run_cells
+from plm_highway.evaluation.run import (
+    CONDITIONS,
+    Cell,
+    Conditions,
+    baseline_latency,
+    check_env,
+    make_policies,
+    progress_bar,
+    run_cells,
+    with_injection,
+)
 from plm_highway.io import check_target
 from plm_highway.road.track import TrackSpec, load_track
 
@@ -46,6 +55,7 @@ DEFAULT_SETTINGS = ("const:0.15", "const:0.2", "const:0.25", "const:0.3", "steps
 DEFAULT_OUT = Path("figures/reproduce")
 DEFAULT_GENERALISATION = {"test": ("unseen",)}  # main track -> tracks of the generalisation section
 DEFAULT_SEEDS = 5
+OTHER_INJECTION = {"time": "legacy-fifo", "legacy-fifo": "time"}  # what the time-varying settings are compared with
 MAX_BATCH_SIZE = 4096
 RUNS = ("reference", "baseline", "mitigated")
 
@@ -80,13 +90,15 @@ def conditions_named(name) -> Conditions:
 # ---------------------------------------------------------------------------------------------
 
 
-def plan_cells(specs: list[str], seeds: list[int], track_name: str) -> list[Cell]:
-    """Per seed: the reference, then per setting the BM and PLM-Net with that latency."""
+def plan_cells(specs: list[str], seeds: list[int], track_name: str, conditions: Conditions | None = None) -> list[Cell]:
+    """Per seed: the reference, then per setting the BM and PLM-Net with that latency (the BM at the constant
+    latency the legacy FIFO gives it, :func:`~plm_highway.evaluation.run.baseline_latency`, under ``conditions``)."""
     cells = []
     for seed in seeds:
         cells.append(Cell("reference", "bm", "const:0", seed, f"{track_name}: reference, seed {seed}"))
         for spec in specs:
-            cells.append(Cell("baseline", "bm", spec, seed, f"{track_name}: BM {spec}, seed {seed}"))
+            bm_latency = spec if conditions is None else baseline_latency(spec, conditions)
+            cells.append(Cell("baseline", "bm", bm_latency, seed, f"{track_name}: BM {bm_latency}, seed {seed}", spec))
             cells.append(Cell("mitigated", "plm", spec, seed, f"{track_name}: PLM-Net {spec}, seed {seed}"))
     return cells
 
@@ -99,12 +111,12 @@ def measure_track(track_spec: TrackSpec, specs: list[str], seeds: list[int], con
     the three runs), ``steering`` (:class:`~plm_highway.evaluation.protocol.Estimate` per error and run),
     ``trajectory`` (mean over seeds) and ``logs`` (seed ``seeds[0]``'s runs, for the figures).
     """
-    cells = plan_cells(specs, seeds, track_spec.name)
-    if runner is not None:  # batched / pooled: runner(cells, track_spec, conditions, max_steps, bar)
-        logs = runner(cells, track_spec, conditions, max_steps, bar)
+    cells = plan_cells(specs, seeds, track_spec.name, conditions)
+    if runner is not None:  # batched / pooled: runner(cells, track_spec, conditions, policies, max_steps, bar)
+        logs = runner(cells, track_spec, conditions, policies, max_steps, bar)
     else:
         logs = run_cells(cells, track_spec, conditions, policies, max_steps, bar, drive_fn)
-    by_cell = dict(zip(((c.role, c.latency, c.seed) for c in cells), logs))
+    by_cell = dict(zip((c.key for c in cells), logs))
     references = [by_cell[("reference", "const:0", seed)] for seed in seeds]
     settings = {}
     for spec in specs:
@@ -143,14 +155,17 @@ def run_track(track, specs: list[str], policies: dict, seed: int, max_steps: int
 
 def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=None, out=None, generalise=None,
               sweep=False, sweep_max=0.5, sweep_step=0.05, progress=True, command="", overwrite=False,
-              seeds=DEFAULT_SEEDS, conditions="ideal", workers=None, batch_size=DEFAULT_BATCH_SIZE) -> dict:
+              seeds=DEFAULT_SEEDS, conditions="ideal", workers=None, batch_size=DEFAULT_BATCH_SIZE,
+              injection=None) -> dict:
     """Validate everything, drive every cell, then write the report; returns the results dict (JSON-ready).
 
     ``seeds``: a count N (seeds ``seed .. seed+N-1``) or a list; ``settings`` None: :func:`default_settings`.
     The runs of each track are driven batched (``batch_size`` envs per forward pass) on a local pool
     of ``workers`` processes (None: one per CPU; 0: batched in this process); the results do not
     depend on either (batch-invariant models, :mod:`~plm_highway.evaluation.cell_runner`).
-    The ``--sweep`` runs are driven one at a time.
+    The ``--sweep`` runs are driven the same way, after the settings'. ``injection`` (``--injection``) replaces the conditions'
+    latency injection (:func:`~plm_highway.evaluation.run.with_injection`); the time-varying settings of the main
+    track are also driven under the other injection, for the report's comparison of the two.
     """
     from plm_highway.evaluation import sweep as sweep_module
     from plm_highway.sweep.backends import default_workers
@@ -161,9 +176,11 @@ def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=N
     if not 1 <= batch_size <= MAX_BATCH_SIZE:
         raise BadInput(f"--batch-size {batch_size}: must lie in [1, {MAX_BATCH_SIZE}]")
 
-    conditions = conditions_named(conditions)
+    conditions = with_injection(conditions_named(conditions), injection)
     seed_list = _seed_list(seeds, seed)
     specs = split_settings(settings if settings is not None else default_settings(conditions))
+    varying = [spec for spec in specs if not is_constant(spec)]
+    compared = with_injection(conditions, OTHER_INJECTION[conditions.injection]) if varying else None
     if max_steps is not None and max_steps < 1:
         raise BadInput(f"--max-steps {max_steps}: must be at least 1")
     main_spec = load_track(track)
@@ -173,34 +190,46 @@ def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=N
     for track_spec in (main_spec, *other_specs):
         for spec in specs:
             check_env(track_spec, spec, conditions)
+            check_env(track_spec, baseline_latency(spec, conditions), conditions)
+    for spec in varying:
+        check_env(main_spec, baseline_latency(spec, compared), compared)
     latencies = sweep_module.sweep_latencies(sweep_max, sweep_step) if sweep else []
     bm_path, tapm_path = checkpoint_pair(checkpoints, conditions.checkpoint_preset)
     policies = make_policies(checkpoints, conditions)
+    compared_policies = make_policies(checkpoints, compared) if compared else None
     grid_max_s = round(float(policies["plm"].model_policy.model.delta_ref_s[-1]), 6)  # the TAPM's last latency
     out = output_dir(out, track, main_spec.name, conditions.name)
     check_target(out, REPRODUCE_REPORT, overwrite=overwrite)
 
-    n_runs = len(seed_list) * (1 + 2 * len(specs)) * (1 + len(other_specs))
+    n_runs = len(seed_list) * ((1 + 2 * len(specs)) * (1 + len(other_specs)) + (1 + 2 * len(varying) if varying else 0))
     if sweep:
         n_runs += len(sweep_module.planned_runs(latencies, sweep_module.LATENCY_BIASES_S, grid_max_s))
     bar = progress_bar(n_runs, progress)
 
     pool = worker_pool(workers) if workers else None  # one pool for every track: workers load the models once
 
-    def runner(cells, track_spec, run_conditions, run_max_steps, run_bar):
-        return drive_cells(cells, track_spec, run_conditions, policies, checkpoints, run_max_steps, run_bar, workers,
-                           batch_size, pool=pool)
+    def runner(cells, track_spec, run_conditions, run_policies, run_max_steps, run_bar):
+        return drive_cells(cells, track_spec, run_conditions, run_policies, checkpoints, run_max_steps, run_bar,
+                           workers, batch_size, pool=pool)
 
     try:
         main = measure_track(main_spec, specs, seed_list, conditions, policies, max_steps, bar, runner=runner)
         others = {s.name: measure_track(s, specs, seed_list, conditions, policies, max_steps, bar, runner=runner)
                   for s in other_specs}
+        injection_comparison = None
+        if compared is not None:
+            injection_comparison = (compared, measure_track(main_spec, varying, seed_list, compared,
+                                                            compared_policies, max_steps, bar, runner=runner))
         sweep_result = None
         if sweep:
+            def drive_sweep(runs):
+                cells = [Cell("sweep", "bm" if key == "bm" else "plm", f"const:{latency_s:g}", seed_list[0],
+                              f"sweep: {key} {latency_s:.2f} s", latency_bias_s=bias_s) for key, latency_s, bias_s in runs]
+                return runner(cells, main_spec, conditions, policies, max_steps, bar)
+
             sweep_result = sweep_module.latency_sweep(
                 main_spec, policies["bm"], policies["plm"], main["references"][0], seed_list[0], None, latencies,
-                sweep_module.LATENCY_BIASES_S, grid_max_s, drive_fn=_sweep_drive(main_spec, conditions, max_steps,
-                                                                                  seed_list[0], bar))
+                sweep_module.LATENCY_BIASES_S, grid_max_s, drive_runs=drive_sweep)
     finally:
         bar.close()
         if pool is not None:
@@ -208,25 +237,9 @@ def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=N
     if progress:
         print(f"reproduce: all {n_runs} runs done; writing the tables, figures and report to {out}", file=sys.stderr)
     result = Reproduction.build(command or "plm-highway reproduce", conditions, seed_list, max_steps, main, others,
-                                sweep_result, _checkpoint_info(bm_path, tapm_path))
+                                sweep_result, _checkpoint_info(bm_path, tapm_path), injection_comparison)
     write_report(result, main, others, out, overwrite)
     return result.as_json()
-
-
-def _drive(*args, **kwargs):
-    return drive(*args, **kwargs)  # looked up at call time, so tests can replace this module's ``drive``
-
-
-def _sweep_drive(track_spec: TrackSpec, conditions: Conditions, max_steps, seed: int, bar):
-    """A ``drive_fn`` for :func:`sweep.latency_sweep` that runs under ``conditions`` and ticks the bar."""
-    def drive_one(name, policy, track, latency, run_seed, max_steps=None, _limit=max_steps):
-        bar.set_postfix_str(name, refresh=True)
-        [log] = run_cells([Cell(name, "policy", latency, run_seed, name)], track_spec, conditions, {"policy": policy},
-                          _limit, None, _drive)
-        bar.update(1)
-        return log
-
-    return drive_one
 
 
 def _seed_list(seeds, first_seed: int) -> list[int]:

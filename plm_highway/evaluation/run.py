@@ -27,12 +27,13 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from tqdm import tqdm
 
 from plm_highway.camera.pinhole import PAPER_CAMERA, CameraConfig
+from plm_highway.errors import BadInput
 from plm_highway.evaluation.closed_loop import Policy, RunLog, drive
 from plm_highway.road.track import TrackSpec
 
@@ -97,6 +98,28 @@ CONDITIONS = {
                         max_steering_rad=PAPER_MAX_STEERING_RAD),
 }
 CONDITION_NAMES = tuple(CONDITIONS)
+# What PLM-Net is told under each injection: the age of the frame it got (exact ages), or, as the original code
+# did with its FIFO, the latency requested of the FIFO (which differs from the age while the FIFO refills).
+INJECTION_LATENCY_SOURCE = {"time": "measured", "legacy-fifo": "requested"}
+
+
+def with_injection(conditions: Conditions, injection: str | None) -> Conditions:
+    """``conditions`` with latency ``injection`` (``--injection``; None: as they are): ``time`` delivers frames with
+    their exact age and tells PLM-Net that age; ``legacy-fifo`` is the original's FIFO, PLM-Net told the requested
+    latency and the BM baseline of a time-varying setting run at a constant one (:func:`baseline_latency`)."""
+    if injection is None or injection == conditions.injection:
+        return conditions
+    if injection not in INJECTION_LATENCY_SOURCE:
+        raise BadInput(f"--injection {injection!r}: expected one of {list(INJECTION_LATENCY_SOURCE)}")
+    return replace(conditions, injection=injection, latency_source=INJECTION_LATENCY_SOURCE[injection])
+
+
+def baseline_latency(spec: str, conditions: Conditions) -> str:
+    """The latency the BM baseline of setting ``spec`` runs at: ``spec``, except under the legacy FIFO, where the
+    original's BM saw a constant latency (:func:`~plm_highway.evaluation.protocol.legacy_baseline_spec`)."""
+    from plm_highway.evaluation.protocol import legacy_baseline_spec
+
+    return legacy_baseline_spec(spec) if conditions.injection == "legacy-fifo" else spec
 
 # (item, value here, source) for the report and README: what ``--conditions paper`` sets, and what it does not
 PAPER_CONDITION_ITEMS = (
@@ -148,9 +171,16 @@ class Cell:
 
     role: str  # reference, baseline or mitigated
     policy: str  # a key of the policies mapping given to run_cells: "bm", "plm", ...
-    latency: str  # latency spec ("const:0" for the reference)
+    latency: str  # latency spec driven ("const:0" for the reference)
     seed: int
     label: str = ""  # progress-bar text
+    setting: str = ""  # the setting this run belongs to, if not its latency (the legacy FIFO's constant BM baseline)
+    latency_bias_s: float = 0.0  # PLM-Net told its latency + this (the sweep's wrong estimates)
+
+    @property
+    def key(self) -> tuple[str, str, int]:
+        """(role, setting, seed): how a run is found among a track's runs."""
+        return self.role, self.setting or self.latency, self.seed
 
     @property
     def name(self) -> str:
@@ -217,11 +247,22 @@ def run_cells(cells: Sequence[Cell], track_spec: TrackSpec, conditions: Conditio
     for cell in cells:
         if progress is not None:
             progress.set_postfix_str(cell.label or f"{cell.role} {cell.latency} seed {cell.seed}", refresh=True)
-        logs.append(drive_fn(cell.name, policies[cell.policy], track_spec, cell.latency, cell.seed,
-                             **drive_options(cell, conditions, steps)))
+        logs.append(drive_fn(cell.name, biased(policies[cell.policy], cell.latency_bias_s), track_spec, cell.latency,
+                             cell.seed, **drive_options(cell, conditions, steps)))
         if progress is not None:
             progress.update(1)
     return logs
+
+
+def biased(policy: Policy, latency_bias_s: float) -> Policy:
+    """``policy``, told its latency + ``latency_bias_s`` if that is not 0 (a model policy; see :class:`Cell`)."""
+    if not latency_bias_s:
+        return policy
+    from plm_highway.evaluation.policies import VisionPolicy
+
+    if not isinstance(policy, VisionPolicy):
+        raise ValueError(f"a latency bias of {latency_bias_s} s needs a model policy, not a {type(policy).__name__}")
+    return VisionPolicy(policy.model_policy, latency_bias_s, policy.latency_source)
 
 
 def drive_options(cell: Cell, conditions: Conditions, steps: int | None) -> dict:
@@ -245,5 +286,6 @@ def make_policies(checkpoints, conditions: Conditions) -> dict[str, Policy]:
                                preset=conditions.checkpoint_preset)}
 
 
-__all__ = ["CONDITIONS", "CONDITION_NAMES", "Cell", "Conditions", "ROLES", "drive_options", "run_cells",
-           "scored_steps", "sight_m", "start_perturbation"]
+__all__ = ["CONDITIONS", "CONDITION_NAMES", "INJECTION_LATENCY_SOURCE", "Cell", "Conditions", "ROLES",
+           "baseline_latency", "drive_options", "run_cells", "scored_steps", "sight_m", "start_perturbation",
+           "with_injection"]
