@@ -214,7 +214,7 @@ def bench_reproduce(seeds: int = 5, max_steps: int | None = 100, workers: int = 
     load = os.getloadavg()[0]
     run_conditions = conditions_named(conditions)
     track_spec = load_track(track)
-    cells = plan_cells(list(default_settings(run_conditions)), list(range(seeds)), track_spec.name)
+    cells = plan_cells(list(default_settings(run_conditions)), list(range(seeds)), track_spec.name, run_conditions)
     policies = make_policies(None, run_conditions)
     sides: dict[str, dict] = {}
     logs = {}

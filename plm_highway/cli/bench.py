@@ -233,6 +233,7 @@ def run_sweep(args) -> int:
 
 def configure_reproduce(parser) -> None:
     from plm_highway.bench.sweep import bench_reproduce
+    from plm_highway.evaluation.run import CONDITION_NAMES
 
     d = defaults_of(bench_reproduce)
     parser.add_argument("--seeds", type=bounded_int(1, 1000), default=d["seeds"], help="seeds per setting")
@@ -241,6 +242,8 @@ def configure_reproduce(parser) -> None:
     parser.add_argument("--workers", type=bounded_int(1, 64), default=d["workers"], help="processes of the parallel side")
     parser.add_argument("--batch-size", type=bounded_int(1, 4096), default=d["batch_size"],
                         help="envs stepped together on the batched sides")
+    parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],
+                        help="the conditions reproduce's runs are driven under (paper: its 160x160 checkpoints)")
     parser.add_argument("--json", metavar="OUT.json", help="also write the figures to this JSON file")
     add_overwrite(parser)
 
@@ -252,7 +255,8 @@ def run_reproduce(args) -> int:
 
     if args.json:
         check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
-    result = bench_reproduce(args.seeds, args.max_steps, args.workers, batch_size=args.batch_size)
+    result = bench_reproduce(args.seeds, args.max_steps, args.workers, conditions=args.conditions,
+                             batch_size=args.batch_size)
     print("\n".join(reproduce_report_lines(result)))
     if args.json:
         write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)

@@ -76,7 +76,8 @@ def setting_label(spec: str) -> str:
         return paper.SETTINGS[key]["label"]
     match = re.fullmatch(r"const:([0-9.]+)", spec)
     if match:
-        return f"{float(match.group(1)):.2f} s"
+        value = float(match.group(1))
+        return f"{value:.2f} s" if round(value, 2) == value else f"{value:g} s"
     match = re.fullmatch(r"frames:(\d+)-(\d+):(\d+)@([0-9.]+)", spec)
     if match:
         low, high, every, rate = int(match.group(1)), int(match.group(2)), int(match.group(3)), float(match.group(4))
