@@ -14,11 +14,12 @@ Inside :func:`batch_invariant_ops` (one torch thread):
 - ``conv2d`` always runs oneDNN's direct convolution (``aten.mkldnn_convolution``), at every
   batch size: its per-output reduction order is set by the layer's shape, not by the batch size;
   a whole stack of convolutions (:func:`conv_stack`, which the Base Model's ``encode`` takes inside
-  the mode) keeps its activations in oneDNN's own blocked layout between layers: the same kernels
+  the mode and whenever no gradient is needed) keeps its activations in oneDNN's own blocked layout between layers: the same kernels
   and the same values bit for bit, without converting every activation to and from NCHW (12% of
   the stack's time at 16 frames of 66x200 px on an AVX-512 Xeon);
-- ``linear`` runs as products of exactly 8 rows (:data:`ROWS_PER_PRODUCT`; zero rows fill the last),
-  one shape whatever the batch size, with the inputs and weights padded by zero columns to a
+- ``linear`` runs as products of exactly 8 rows (:data:`ROWS_PER_PRODUCT`; zero rows fill the last;
+  on weights packed once for MKL, :data:`MKL_PACKED_PRODUCTS`), one shape whatever the batch size,
+  with the inputs and weights padded by zero columns (and the outputs to a multiple of 16) to a
   multiple of 16 values so that every row starts on a 64-byte boundary (MKL's path depends on
   alignment too). A row's sums then do not depend on its position in the product nor on the other rows.
 
