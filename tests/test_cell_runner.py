@@ -84,3 +84,22 @@ def test_a_latency_bias_is_what_plm_net_is_told(serial):
     [again] = run_cells([Cell("sweep", "plm", "const:0.2", 3, latency_bias_s=0.05)], track_spec, conditions, policies,
                         max_steps=18)
     np.testing.assert_array_equal(again.columns["steering"], biased_log.columns["steering"])
+
+
+def test_the_latency_sweep_driven_one_at_a_time_equals_it_driven_batched():
+    from plm_highway.evaluation import sweep
+
+    conditions, track_spec = CONDITIONS["ideal"], load_track("test")
+    policies = make_policies(None, conditions)
+    [reference] = run_cells([Cell("reference", "bm", "const:0", 0)], track_spec, conditions, policies, max_steps=20)
+
+    def batched(runs):
+        cells = [Cell("sweep", "bm" if key == "bm" else "plm", f"const:{latency_s:g}", 0, latency_bias_s=bias_s)
+                 for key, latency_s, bias_s in runs]
+        return drive_cells(cells, track_spec, conditions, policies, max_steps=20)
+
+    arguments = (track_spec, policies["bm"], policies["plm"], reference, 0, 20, [0.0, 0.2])
+    one_at_a_time, together = sweep.latency_sweep(*arguments), sweep.latency_sweep(*arguments, drive_runs=batched)
+    assert one_at_a_time == together
+    by_policy = {(row["policy"], row["latency_s"]): row["steering_mae"] for row in together["rows"]}
+    assert by_policy[("plm_bias+0.05", 0.2)] != by_policy[("plm", 0.2)]  # the bias reached PLM-Net

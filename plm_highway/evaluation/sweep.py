@@ -21,6 +21,7 @@ import numpy as np
 
 from plm_highway.evaluation.closed_loop import RunLog, drive
 from plm_highway.evaluation.policies import VisionPolicy
+from plm_highway.evaluation.run import biased
 from plm_highway.io import write_csv_into
 from plm_highway.metrics.steering import common_span, steering_mae
 
@@ -55,26 +56,22 @@ def bias_key(bias_s: float) -> str:
 def latency_sweep(track, bm_policy, plm_policy: VisionPolicy, reference: RunLog, seed: int = 0,
                   max_steps: int | None = None, latencies: list[float] | None = None,
                   biases: tuple[float, ...] = LATENCY_BIASES_S, grid_max_s: float = 0.35,
-                  drive_fn: Callable[..., RunLog] = drive,
                   drive_runs: Callable[[list[tuple[str, float, float]]], list[RunLog]] | None = None) -> dict:
     """Drive the sweep; returns ``{"rows": [...], "leaves_road_at_s": {policy: latency or None}, ...}``.
 
-    ``drive_fn(name, policy, track, latency, seed, max_steps=...)`` drives one run (default
-    :func:`~plm_highway.evaluation.closed_loop.drive`); ``drive_runs``, if given, drives them all at once
-    instead: it takes the :func:`planned_runs` (policy key, latency, bias) and returns their logs in order
-    (``reproduce`` drives them batched, on its pool).
+    ``drive_runs`` takes the :func:`planned_runs` (policy key, latency, bias) and returns their logs in order
+    (``reproduce`` drives them batched, on its pool); by default they are driven one at a time with
+    :func:`~plm_highway.evaluation.closed_loop.drive` and the given policies.
     """
     latencies = sweep_latencies() if latencies is None else latencies
     reference_steering = reference.columns["steering"]
     rows = [_row("bm", 0.0, 0.0, reference, reference_steering)]
     runs = planned_runs(latencies, biases, grid_max_s)
-    if drive_runs is not None:
-        logs = drive_runs(runs)
+    if drive_runs is None:
+        logs = [drive(f"sweep: {key} {latency_s:.2f} s", bm_policy if key == "bm" else biased(plm_policy, bias_s),
+                      track, f"const:{latency_s:g}", seed, max_steps=max_steps) for key, latency_s, bias_s in runs]
     else:
-        logs = [drive_fn(f"sweep: {key} {latency_s:.2f} s",
-                         bm_policy if key == "bm" else VisionPolicy(plm_policy.model_policy, bias_s,
-                                                                    plm_policy.latency_source),
-                         track, f"const:{latency_s:g}", seed, max_steps=max_steps) for key, latency_s, bias_s in runs]
+        logs = drive_runs(runs)
     for (key, latency_s, bias_s), log in zip(runs, logs):
         rows.append(_row(key, latency_s, bias_s, log, reference_steering))
     policies = ["bm", "plm", *(bias_key(b) for b in biases)]
