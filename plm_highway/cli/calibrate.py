@@ -7,13 +7,17 @@ from plm_highway.cli._common import Command, add_overwrite, bounded_int, default
 
 def configure(parser) -> None:
     from plm_highway.evaluation.calibration import DEFAULT_OUT, bm_calibration
-    from plm_highway.evaluation.run import CONDITION_NAMES
+    from plm_highway.evaluation.run import CONDITION_NAMES, SPEED_LOGICS
 
     d = defaults_of(bm_calibration)
     parser.add_argument("--out", default=str(DEFAULT_OUT),
                         help="figure to write (PNG); its numbers go beside it with the suffix .json")
     parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],
                         help="paper: the paper's loop, pipeline, camera and the `paper` checkpoints")
+    parser.add_argument("--speed-logic", choices=tuple(SPEED_LOGICS), default=d["speed_logic"],
+                        help="constant: the conditions' speed (the paper's text); original-braking: the original run "
+                             "scripts' full throttle up to 22 m/s, braking 1.7 s whenever |steering| > 0.25 in the "
+                             "paper's unit (its acceleration and braking assumed)")
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: the conditions' "
                                               "shipped pair)")
@@ -35,7 +39,7 @@ def run(args) -> int:
     check_target(args.out, FIGURE, overwrite=args.overwrite)
     with single_threaded_inference():
         result = bm_calibration(args.track, args.seeds, args.conditions, args.checkpoints, args.max_steps,
-                                not args.no_progress, args.workers)
+                                not args.no_progress, args.workers, speed_logic=args.speed_logic)
     result["command"] = args.command_line
     figure_path, json_path = write_calibration(result, args.out, overwrite=args.overwrite)
     for line in summary_lines(result):

@@ -6,6 +6,7 @@ with a :class:`~plm_highway.errors.BadInput` naming the key, the value and the r
 ===============================  ===============================================================
 ``start_lane``                   None (the middle lane) or an integer lane index of the track
 ``speed_mps``                    (0, 70] m/s, or a schedule (see :mod:`plm_highway.envs.speed`)
+``sharp_turn_braking``           None, or a dict of ``SharpTurnBraking`` fields (:mod:`plm_highway.envs.speed`)
 ``max_steering_rad``             (0, 1] rad at the front wheels
 ``steering_time_constant_s``     [0, 5] s
 ``processing_delay_steps``       integer 0..10 policy steps

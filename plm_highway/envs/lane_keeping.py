@@ -44,7 +44,7 @@ from plm_highway.camera.pinhole import PAPER_CAMERA, CameraConfig, PinholeCamera
 from plm_highway.camera.topdown import TopDownView
 from plm_highway.envs.config import check_env_config, check_start, check_unknown_keys
 from plm_highway.envs.ego_vehicle import TrackVehicle
-from plm_highway.envs.speed import SpeedSchedule, parse_speed
+from plm_highway.envs.speed import SharpTurnBraking, SpeedSchedule, parse_sharp_turn_braking, parse_speed
 from plm_highway.errors import BadInput
 from plm_highway.road.builder import BuiltRoad, build_road
 from plm_highway.road.geometry import SegmentLookup, reference_pose_at
@@ -190,6 +190,9 @@ class LaneKeepingCameraEnv(AbstractEnv):
             "track": "test",  # shipped name, path to a JSON spec, or a spec dict
             "start_lane": None,  # lane index (0 = leftmost); None = the middle lane
             "speed_mps": 16.7,  # about 60 km/h, the paper's test speed; or [[time_s, speed_mps], ...]
+            # None: the speed follows speed_mps. A dict of SharpTurnBraking fields ({}: the original's values): the
+            # original run scripts' throttle-and-brake logic, starting at speed_mps (a number).
+            "sharp_turn_braking": None,
             "max_steering_rad": 0.2,  # front-wheel angle at action +-1
             "steering_time_constant_s": 0.0,  # first-order steering actuator; 0 = the wheels follow at once
             # Policy steps between an action and the actuator receiving it (the original pipeline's 1-2 frames of
@@ -287,6 +290,10 @@ class LaneKeepingCameraEnv(AbstractEnv):
         position = np.array([x_m - lateral_m * math.sin(road_heading), y_m + lateral_m * math.cos(road_heading)])
         edge_index = max(i for i, edge in enumerate(self.built.edges) if edge.start_s_m <= arc_length_m + 1e-9)
         self.speed_schedule: SpeedSchedule = parse_speed(self.config["speed_mps"])
+        self.sharp_turn_braking: SharpTurnBraking | None = parse_sharp_turn_braking(self.config["sharp_turn_braking"])
+        if self.sharp_turn_braking is not None and not self.speed_schedule.constant:
+            raise BadInput("config['sharp_turn_braking']: needs a constant speed_mps (the start speed), not a schedule")
+        self._braking_until_s = -math.inf
         model = vehicle_model(self.config["vehicle_model"])
         vehicle = TrackVehicle(
             self.road, position, road_heading + float(start["start_heading_error_rad"]),
@@ -327,6 +334,9 @@ class LaneKeepingCameraEnv(AbstractEnv):
         if self._pending_commands_rad:
             self._pending_commands_rad.append(steering_rad)
             steering_rad = self._pending_commands_rad.popleft()
+        if self.sharp_turn_braking is not None:
+            self._braking_until_s = self.sharp_turn_braking.decide(self._braking_until_s, self.time,
+                                                                   self._ego.speed, steering_rad)
         self.time += self._policy_dt_s
         self._simulate(steering_rad)
         snapshot = self.latest_snapshot
@@ -360,8 +370,13 @@ class LaneKeepingCameraEnv(AbstractEnv):
         if steering_rad is not None:  # held over the policy step
             vehicle.steering_command_rad = steering_rad
         schedule = None if self.speed_schedule.constant else self.speed_schedule
+        braking_logic = self.sharp_turn_braking
         for _ in range(self._substeps):
-            vehicle.step(dt_s, None if schedule is None else schedule.speed_at((self.steps + 1) / self._sim_hz))
+            if braking_logic is not None:
+                braking = self.steps / self._sim_hz < self._braking_until_s
+                vehicle.step(dt_s, braking_logic.speed_after(vehicle.speed, braking, dt_s))
+            else:
+                vehicle.step(dt_s, None if schedule is None else schedule.speed_at((self.steps + 1) / self._sim_hz))
             self.steps += 1
             self._record_snapshot()
 

@@ -71,3 +71,76 @@ def _speed(value, where: str) -> float:
     if not (math.isfinite(speed) and 0.0 < speed <= MAX_SPEED_MPS):
         raise BadInput(f"{where}: speed {value!r} m/s outside (0, {MAX_SPEED_MPS:.0f}] m/s")
     return speed
+
+
+# ---------------------------------------------------------------------------------------------
+# the original run scripts' speed logic
+# ---------------------------------------------------------------------------------------------
+
+# 0.25 in the paper's steering unit (1 = 450 deg of steering wheel) at a 12:1 steering ratio, in front-wheel radians
+ORIGINAL_SHARP_TURN_RAD = 0.25 * math.radians(450.0) / 12.0
+
+
+@dataclass(frozen=True)
+class SharpTurnBraking:
+    """The speed logic of the original PLM-Net run scripts (AwsKhalil/oscar, ``run_neural`` with its
+    ``run_neural`` configuration; read for the behaviour only): full throttle, except that whenever the
+    commanded steering exceeds ``sharp_turn_rad`` or the speed exceeds ``max_speed_mps`` (and the car is not
+    below ``min_speed_mps``) it brakes, and keeps braking for ``brake_hold_s`` whatever it steers meanwhile.
+
+    The thresholds and the hold are the original's configuration (max_vel 22, sharp_turn_min 0.25, brake
+    1.7 s at brake value 0.5, velocity_0 5). How hard its Gazebo car accelerated at throttle 1.0 and slowed
+    at brake 0.5 is not recorded anywhere we have: ``throttle_accel_mps2`` and ``brake_decel_mps2`` are
+    assumptions (a mid-size saloon's full-throttle acceleration near 60 km/h; half of a firm 8 m/s^2 stop).
+    """
+
+    max_speed_mps: float = 22.0
+    min_speed_mps: float = 5.0
+    sharp_turn_rad: float = ORIGINAL_SHARP_TURN_RAD
+    brake_hold_s: float = 1.7
+    throttle_accel_mps2: float = 3.0
+    brake_decel_mps2: float = 4.0
+
+    def decide(self, braking_until_s: float, time_s: float, speed_mps: float, command_rad: float) -> float:
+        """The time until which the car brakes, after the loop iteration at ``time_s`` saw ``command_rad``."""
+        if time_s < braking_until_s:  # a brake already applied runs its course
+            return braking_until_s
+        if speed_mps >= self.min_speed_mps and (abs(command_rad) > self.sharp_turn_rad
+                                                or speed_mps > self.max_speed_mps):
+            return time_s + self.brake_hold_s
+        return braking_until_s
+
+    def speed_after(self, speed_mps: float, braking: bool, dt_s: float) -> float:
+        """The speed ``dt_s`` later, braking or at full throttle (never below 0)."""
+        if braking:
+            return max(0.0, speed_mps - self.brake_decel_mps2 * dt_s)
+        return speed_mps + self.throttle_accel_mps2 * dt_s
+
+
+SHARP_TURN_BRAKING_BOUNDS = {  # field: (low, high), low open
+    "max_speed_mps": (0.0, MAX_SPEED_MPS), "min_speed_mps": (0.0, MAX_SPEED_MPS), "sharp_turn_rad": (0.0, 1.0),
+    "brake_hold_s": (0.0, 60.0), "throttle_accel_mps2": (0.0, 20.0), "brake_decel_mps2": (0.0, 20.0),
+}
+
+
+def parse_sharp_turn_braking(value, where: str = "config['sharp_turn_braking']") -> SharpTurnBraking | None:
+    """None (the speed follows ``speed_mps``) or a dict of :class:`SharpTurnBraking` fields ({}: the original's)."""
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise BadInput(f"{where}: must be None or a dict of {sorted(SHARP_TURN_BRAKING_BOUNDS)}, got {value!r}")
+    unknown = sorted(set(value) - set(SHARP_TURN_BRAKING_BOUNDS))
+    if unknown:
+        raise BadInput(f"{where}: unknown keys {unknown}; allowed {sorted(SHARP_TURN_BRAKING_BOUNDS)}")
+    fields = {}
+    for key, raw in value.items():
+        low, high = SHARP_TURN_BRAKING_BOUNDS[key]
+        number = float(raw) if _is_number(raw) else math.nan
+        if not (low < number <= high):
+            raise BadInput(f"{where}[{key!r}] = {raw!r}: must be a number in ({low:g}, {high:g}]")
+        fields[key] = number
+    logic = SharpTurnBraking(**fields)
+    if logic.min_speed_mps >= logic.max_speed_mps:
+        raise BadInput(f"{where}: min_speed_mps {logic.min_speed_mps:g} must be below max_speed_mps "
+                       f"{logic.max_speed_mps:g}")
+    return logic

@@ -32,7 +32,7 @@ from plm_highway.evaluation.protocol import (
     noise_floor,
     parse_seeds,
 )
-from plm_highway.evaluation.run import CONDITIONS, Cell, progress_bar
+from plm_highway.evaluation.run import CONDITIONS, Cell, progress_bar, with_speed_logic
 from plm_highway.io import FIGURE, file_kind, json_text, pyplot, save_figure_into, write_outputs
 from plm_highway.metrics.steering import common_span, steering_errors
 
@@ -71,10 +71,13 @@ def judge(per_latency: dict[float, dict], floor: dict) -> dict:
 
 
 def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: str = "paper",
-                   checkpoints=None, max_steps: int | None = None, progress: bool = True, workers: int = 0) -> dict:
+                   checkpoints=None, max_steps: int | None = None, progress: bool = True, workers: int = 0,
+                   speed_logic: str = "constant") -> dict:
     """Drive the BM at :data:`LATENCIES_S` under ``seeds``; return the per-seed MAEs, their means with 95% CIs
     (front-wheel radians), the noise floor, the paper's numbers and the two rules judged. ``workers`` 0 drives
-    the runs batched in this process; >= 1 on that many processes (the same numbers, bit for bit)."""
+    the runs batched in this process; >= 1 on that many processes (the same numbers, bit for bit).
+    ``speed_logic`` (:data:`~plm_highway.evaluation.run.SPEED_LOGICS`): constant speed, or the original run
+    scripts' braking on sharp steering."""
     from plm_highway.evaluation.cell_runner import drive_cells
     from plm_highway.road.track import load_track
 
@@ -84,7 +87,7 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
 
         raise BadInput(f"--seeds {seeds!r}: the noise floor needs at least two seeds")
     spec = load_track(track)
-    chosen = CONDITIONS[conditions]
+    chosen = with_speed_logic(CONDITIONS[conditions], speed_logic)
     policies = None if workers else {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset)}
     cells = [Cell("reference" if latency_s == 0 else "baseline", "bm", f"const:{latency_s:g}", seed,
                   f"BM {latency_s:.2f} s seed {seed}") for seed in seed_list for latency_s in LATENCIES_S]
@@ -107,7 +110,7 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
                                   "paper_rad": paper_bm_mae_rad(latency_s)}
     floor_values = [value * chosen.max_steering_rad for value in noise_floor(references)]
     floor = {"mae_rad_per_pair": floor_values, "mae_rad": mean_ci(floor_values).as_dict()}
-    return {"track": spec.name, "conditions": conditions, "seeds": seed_list, "latencies_s": list(LATENCIES_S),
+    return {"track": spec.name, "conditions": conditions, "speed_logic": speed_logic, "seeds": seed_list, "latencies_s": list(LATENCIES_S),
             "steps": [log.steps for log in references], "reference_left_road": [r.left_road for r in references],
             "steering_ratio": PAPER_STEERING_RATIO, "max_steering_rad": chosen.max_steering_rad,
             "noise_floor": floor, "per_latency": {f"{k:.2f}": v for k, v in per_latency.items()},
@@ -146,8 +149,9 @@ def calibration_figure(result: dict):
     ax.set_xlabel("constant perception latency [s]")
     ax.set_ylabel("BM steering MAE vs. the BM without latency\n[rad at the front wheels]")
     rules = result["rules"]
-    ax.set_title(f"BM degradation, {result['conditions']} conditions, {result['track']} track: rise rule "
-                 f"{'met' if rules['rise']['met'] else 'missed'}, paper rule "
+    speed_text = "" if result.get("speed_logic", "constant") == "constant" else f", {result['speed_logic']} speed"
+    ax.set_title(f"BM degradation, {result['conditions']} conditions{speed_text}, {result['track']} track\n"
+                 f"rise rule {'met' if rules['rise']['met'] else 'missed'}, paper rule "
                  f"{'met' if rules['paper']['met'] else 'missed'}", fontsize=10)
     ax.set_xticks(all_x)
     ax.legend(fontsize=8, loc="upper left", framealpha=0.9)
@@ -172,7 +176,8 @@ def write_calibration(result: dict, out=DEFAULT_OUT, overwrite: bool = False) ->
 
 def summary_lines(result: dict) -> Sequence[str]:
     floor = result["noise_floor"]["mae_rad"]
-    lines = [f"noise floor (BM at 0 s, seed vs next seed): {floor['mean']:.4f} rad"]
+    lines = [f"speed: {result.get('speed_logic', 'constant')}",
+             f"noise floor (BM at 0 s, seed vs next seed): {floor['mean']:.4f} rad"]
     for key, row in result["per_latency"].items():
         est = row["mae_rad"]
         ci = f" [{est['low']:.4f}, {est['high']:.4f}]" if est["low"] is not None else ""

@@ -63,13 +63,16 @@ class Conditions:
     processing_delay_steps: int = 0  # policy steps between an action and the actuator (env config)
     demonstrator: str = "expert"  # who drove the training data of these conditions' checkpoints (collect)
     max_steering_rad: float = 0.2  # the car's front-wheel angle at steering +-1 (env config)
+    # None: constant speed_mps; a dict (env config "sharp_turn_braking"): the original run scripts' speed logic
+    sharp_turn_braking: dict | None = None
 
     def env_config(self, start_offset_m: float = 0.0, start_heading_error_rad: float = 0.0) -> dict:
         return {"policy_frequency": self.policy_frequency_hz, "simulation_frequency": self.simulation_frequency_hz,
                 "speed_mps": self.speed_mps, "start_offset_m": start_offset_m,
                 "start_heading_error_rad": start_heading_error_rad,
                 "steering_time_constant_s": self.steering_time_constant_s,
-                "processing_delay_steps": self.processing_delay_steps, "max_steering_rad": self.max_steering_rad}
+                "processing_delay_steps": self.processing_delay_steps, "max_steering_rad": self.max_steering_rad,
+                "sharp_turn_braking": self.sharp_turn_braking}
 
 
 # The original pipeline: the command computed from frame t reaches the car's steering at the earliest on the
@@ -112,6 +115,31 @@ def with_injection(conditions: Conditions, injection: str | None) -> Conditions:
     if injection not in INJECTION_LATENCY_SOURCE:
         raise BadInput(f"--injection {injection!r}: expected one of {list(INJECTION_LATENCY_SOURCE)}")
     return replace(conditions, injection=injection, latency_source=INJECTION_LATENCY_SOURCE[injection])
+
+
+# ``--speed-logic``: how the car's speed evolves. "constant" holds the conditions' speed_mps (the paper's text);
+# "original-braking" is the original run scripts' throttle-and-brake logic
+# (:class:`~plm_highway.envs.speed.SharpTurnBraking`, its thresholds from the original configuration, its
+# acceleration and braking assumed), starting at speed_mps.
+SPEED_LOGICS = {"constant": None, "original-braking": {}}
+
+
+def with_speed_logic(conditions: Conditions, speed_logic: str) -> Conditions:
+    """``conditions`` with the named speed logic (:data:`SPEED_LOGICS`)."""
+    if speed_logic not in SPEED_LOGICS:
+        raise BadInput(f"--speed-logic {speed_logic!r}: expected one of {list(SPEED_LOGICS)}")
+    return replace(conditions, sharp_turn_braking=SPEED_LOGICS[speed_logic])
+
+
+def top_speed_mps(conditions: Conditions) -> float:
+    """The fastest the car can drive under ``conditions``: speed_mps, or under the braking logic its speed limit
+    plus one policy step of full throttle (the brake is decided once per step)."""
+    if conditions.sharp_turn_braking is None:
+        return conditions.speed_mps
+    from plm_highway.envs.speed import parse_sharp_turn_braking
+
+    logic = parse_sharp_turn_braking(conditions.sharp_turn_braking)
+    return max(conditions.speed_mps, logic.max_speed_mps + logic.throttle_accel_mps2 / conditions.policy_frequency_hz)
 
 
 def baseline_latency(spec: str, conditions: Conditions) -> str:
@@ -158,7 +186,10 @@ PAPER_CONDITIONS_NOT_REPRODUCED = (
     "a human driver: the demonstrator is a model of one (delay, hand lag and rate limit, wander, motor noise)",
     "the original run scripts' speed logic: they throttled up to 22 m/s and braked (0.5 for 1.7 s) whenever "
     "|steering| exceeded 0.25 in the paper's unit, which slows a car whose BM oscillates; the paper states a constant "
-    "speed of about 60 km/h, and these conditions keep 16.7 m/s constant",
+    "speed of about 60 km/h, and these conditions keep 16.7 m/s constant. The logic can be run (`plm-highway "
+    "calibrate --speed-logic original-braking`, its throttle and braking assumed): it leaves the BM's calibration "
+    "missed (0.66/0.73/0.37/0.55x the paper's, off the road in 0/1/4/5 of 5 seeds; "
+    "figures/bm-calibration-original-braking.png)",
     "the BM's degradation with latency only in part: the `paper` BM's steering MAE at 0.15/0.20/0.25/0.30 s is "
     "0.54/0.88/0.44/0.60x the paper's in front-wheel radians (`plm-highway calibrate`, figures/bm-calibration.png), "
     "within the factor 2 except at 0.25 s; and at 0.25 and 0.30 s it leaves the road in every seed, where the "
@@ -211,8 +242,8 @@ def sight_m(camera: dict | None = None) -> float:
 def scored_steps(track_spec: TrackSpec, conditions: Conditions, max_steps: int | None = None,
                  start_arc_length_m: float = 0.0) -> int | None:
     """Policy steps each run drives: on an open track, until the camera could first see the road's end
-    (:func:`sight_m` before it); on a closed track one lap; never more than ``max_steps``."""
-    step_m = conditions.speed_mps / conditions.policy_frequency_hz
+    (:func:`sight_m` before it) at the car's top speed; on a closed track one lap; never more than ``max_steps``."""
+    step_m = top_speed_mps(conditions) / conditions.policy_frequency_hz
     if track_spec.closed:
         steps = math.ceil(track_spec.length_m / step_m) + 1
     else:
@@ -292,6 +323,6 @@ def make_policies(checkpoints, conditions: Conditions) -> dict[str, Policy]:
                                preset=conditions.checkpoint_preset)}
 
 
-__all__ = ["CONDITIONS", "CONDITION_NAMES", "INJECTION_LATENCY_SOURCE", "Cell", "Conditions", "ROLES",
+__all__ = ["CONDITIONS", "CONDITION_NAMES", "INJECTION_LATENCY_SOURCE", "SPEED_LOGICS", "Cell", "Conditions", "ROLES",
            "baseline_latency", "drive_options", "run_cells", "scored_steps", "sight_m", "start_perturbation",
-           "with_injection"]
+           "top_speed_mps", "with_injection", "with_speed_logic"]
