@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass
 
 from plm_highway.errors import BadInput
+from plm_highway.vehicle.paper_units import paper_unit_to_front_wheel_rad
 
 MAX_SPEED_MPS = 70.0  # 252 km/h
 MAX_SCHEDULE_POINTS = 10_000
@@ -77,8 +78,7 @@ def _speed(value, where: str) -> float:
 # the original run scripts' speed logic
 # ---------------------------------------------------------------------------------------------
 
-# 0.25 in the paper's steering unit (1 = 450 deg of steering wheel) at a 12:1 steering ratio, in front-wheel radians
-ORIGINAL_SHARP_TURN_RAD = 0.25 * math.radians(450.0) / 12.0
+ORIGINAL_SHARP_TURN_RAD = paper_unit_to_front_wheel_rad(0.25)  # the original's sharp_turn_min, 0.25 in the paper's unit
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,6 @@ import numpy as np
 from plm_highway.evaluation import paper_results as paper
 from plm_highway.evaluation.policies import make_policy
 from plm_highway.evaluation.protocol import (
-    PAPER_FULL_SCALE_DEG,
     PAPER_STEERING_RATIO,
     PAPER_TRACK,
     mean_ci,
@@ -35,17 +34,13 @@ from plm_highway.evaluation.protocol import (
 from plm_highway.evaluation.run import CONDITIONS, Cell, progress_bar, with_speed_logic
 from plm_highway.io import FIGURE, file_kind, json_text, pyplot, save_figure_into, write_outputs
 from plm_highway.metrics.steering import common_span, steering_errors
+from plm_highway.vehicle.paper_units import paper_unit_to_front_wheel_rad
 
 LATENCIES_S = (0.0, 0.15, 0.20, 0.25, 0.30)
 RISE_FACTOR = 5.0
 PAPER_FACTOR = 2.0
 CALIBRATION_JSON = file_kind("bm-calibration", "a plm-highway BM calibration result JSON file")
 DEFAULT_OUT = Path("figures") / "bm-calibration.png"
-
-
-def paper_unit_to_front_wheel_rad(value: float) -> float:
-    """The paper's steering unit (1 = 450 deg of steering wheel) in front-wheel radians."""
-    return value * math.radians(PAPER_FULL_SCALE_DEG) / PAPER_STEERING_RATIO
 
 
 def paper_bm_mae_rad(latency_s: float) -> float | None:

@@ -32,15 +32,12 @@ from scipy import stats
 from plm_highway.errors import BadInput
 from plm_highway.evaluation import paper_results as paper
 from plm_highway.metrics.steering import ERROR_NAMES, common_span, reduction_pct, steering_errors
+from plm_highway.vehicle.paper_units import PAPER_FULL_SCALE_DEG, PAPER_STEERING_RATIO
 
 CONFIDENCE = 0.95
 MAX_SEEDS = 1000
 OFF_ROAD_PENALTY = 1.0  # normalised steering error counted for each step a run missed after leaving the road
 MAX_STEERING_RAD = 0.2  # the env's front-wheel angle at steering 1 (envs.lane_keeping default config)
-PAPER_FULL_SCALE_DEG = 450.0  # the paper's unit: steering 1 = 450 deg of steering wheel
-# The papers state no steering ratio. Issue 9 converts the paper's 0.1714 to "about 0.11 rad at the front
-# wheels", i.e. 0.1714 * 450 deg / 0.11 rad = 12.2:1; we use 12.
-PAPER_STEERING_RATIO = 12.0
 PAPER_TRACK = "test"  # the paper's numbers are for its test track
 
 

@@ -34,8 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plm_highway.evaluation.protocol import PAPER_FULL_SCALE_DEG, PAPER_STEERING_RATIO
 from plm_highway.expert.controller import ExpertParams, expert_steering
+from plm_highway.vehicle.paper_units import PAPER_FULL_SCALE_DEG, PAPER_STEERING_RATIO
 
 
 @dataclass(frozen=True)

@@ -7,4 +7,6 @@
   (``Vehicle.step``), bit for bit; a step function and vectorised rollouts over time and batches.
 - :mod:`plm_highway.vehicle.single_track`: a dynamic single-track model with linear tires (the
   physics the kinematic bicycle leaves out), with a fine RK4 step and a replay-rate integrator.
+- :mod:`plm_highway.vehicle.paper_units`: the PLM-Net papers' steering unit (450 deg of steering
+  wheel) and the 12:1 steering ratio that turns it into front-wheel radians.
 """
