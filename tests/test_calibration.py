@@ -93,3 +93,41 @@ def test_a_calibration_on_worker_processes_gives_the_same_numbers():
     assert pooled["per_latency"] == in_process["per_latency"]
     assert pooled["noise_floor"] == in_process["noise_floor"]
     assert in_process["max_steering_rad"] == 0.4  # the paper conditions' range converts to radians
+
+
+def test_the_assumed_pipeline_can_be_replaced_and_is_recorded():
+    from plm_highway.evaluation.run import CONDITIONS, with_pipeline
+
+    paper = CONDITIONS["paper"]
+    assert with_pipeline(paper) == paper  # None keeps the conditions' values
+    changed = with_pipeline(paper, processing_delay_steps=1, steering_time_constant_s=0.05)
+    assert (changed.processing_delay_steps, changed.steering_time_constant_s) == (1, 0.05)
+    assert changed.env_config()["processing_delay_steps"] == 1
+    assert changed.env_config()["steering_time_constant_s"] == 0.05
+    for bad in ({"processing_delay_steps": -1}, {"processing_delay_steps": 11}, {"processing_delay_steps": 1.5},
+                {"processing_delay_steps": True}, {"steering_time_constant_s": -0.1},
+                {"steering_time_constant_s": math.nan}, {"steering_time_constant_s": 6.0}):
+        with pytest.raises(BadInput, match=next(iter(bad)).replace("_", "-")):
+            with_pipeline(paper, **bad)
+
+
+def test_a_calibration_with_another_pipeline_records_it_and_drives_differently(tmp_path, capsys):
+    out = tmp_path / "cal.png"
+    assert cli.main(["calibrate", "--conditions", "paper", "--seeds", "2", "--max-steps", "40", "--no-progress",
+                     "--processing-delay-steps", "0", "--steering-time-constant-s", "0", "--out", str(out)]) == 0
+    assert "0 steps of processing delay, 0.0 s steering actuator" in capsys.readouterr().out
+    changed = json.loads(out.with_suffix(".json").read_text())
+    assert (changed["processing_delay_steps"], changed["steering_time_constant_s"]) == (0, 0.0)
+    assert changed["pipeline_as_conditions"] is False
+    shipped = bm_calibration("test", seeds="0,1", conditions="paper", max_steps=40, progress=False)
+    assert (shipped["processing_delay_steps"], shipped["steering_time_constant_s"]) == (2, 0.1)
+    assert shipped["pipeline_as_conditions"] is True
+    # Without the processing delay and the actuator lag the delayed BM's steering differs from the shipped pipeline's.
+    assert changed["per_latency"]["0.25"]["mae_rad_per_seed"] != shipped["per_latency"]["0.25"]["mae_rad_per_seed"]
+
+
+def test_a_pipeline_out_of_range_is_refused_on_the_command_line(tmp_path, capsys):
+    out = tmp_path / "cal.png"
+    assert cli.main(["calibrate", "--steering-time-constant-s", "-1", "--out", str(out)]) == 2
+    assert "--steering-time-constant-s" in capsys.readouterr().err
+    assert not out.exists()

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_overwrite, bounded_int, defaults_of
+from plm_highway.cli._common import Command, add_overwrite, bounded_float, bounded_int, defaults_of
 
 
 def configure(parser) -> None:
+    from plm_highway.envs.config import MAX_PROCESSING_DELAY_STEPS, MAX_STEERING_TIME_CONSTANT_S
     from plm_highway.evaluation.calibration import DEFAULT_OUT, bm_calibration
     from plm_highway.evaluation.run import CONDITION_NAMES, SPEED_LOGICS
 
@@ -18,6 +19,12 @@ def configure(parser) -> None:
                         help="constant: the conditions' speed (the paper's text); original-braking: the original run "
                              "scripts' full throttle up to 22 m/s, braking 1.7 s whenever |steering| > 0.25 in the "
                              "paper's unit (its acceleration and braking assumed)")
+    parser.add_argument("--processing-delay-steps", type=bounded_int(0, MAX_PROCESSING_DELAY_STEPS),
+                        help="policy steps between an action and the actuator, replacing the conditions' (paper: 2, "
+                             "the upper end of the original's one to two frames; an assumption)")
+    parser.add_argument("--steering-time-constant-s", type=bounded_float(0.0, MAX_STEERING_TIME_CONSTANT_S),
+                        help="first-order steering actuator time constant [s], replacing the conditions' (paper: "
+                             "0.1, an assumption)")
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: the conditions' "
                                               "shipped pair)")
@@ -39,7 +46,9 @@ def run(args) -> int:
     check_target(args.out, FIGURE, overwrite=args.overwrite)
     with single_threaded_inference():
         result = bm_calibration(args.track, args.seeds, args.conditions, args.checkpoints, args.max_steps,
-                                not args.no_progress, args.workers, speed_logic=args.speed_logic)
+                                not args.no_progress, args.workers, speed_logic=args.speed_logic,
+                                processing_delay_steps=args.processing_delay_steps,
+                                steering_time_constant_s=args.steering_time_constant_s)
     result["command"] = args.command_line
     figure_path, json_path = write_calibration(result, args.out, overwrite=args.overwrite)
     for line in summary_lines(result):

@@ -34,6 +34,8 @@ import math
 from plm_highway.errors import BadInput
 
 MAX_FREQUENCY_HZ = 1000
+MAX_STEERING_TIME_CONSTANT_S = 5.0
+MAX_PROCESSING_DELAY_STEPS = 10
 
 
 def number_in(config: dict, key: str, low: float, high: float, open_low: bool = False, where: str = "config") -> float:
@@ -62,8 +64,8 @@ def check_unknown_keys(config: dict, defaults: dict) -> None:
 def check_env_config(config: dict) -> None:
     """Every scalar setting that does not need the track (those are checked by :func:`check_start`)."""
     number_in(config, "max_steering_rad", 0.0, 1.0, open_low=True)
-    number_in(config, "steering_time_constant_s", 0.0, 5.0)
-    integer_in(config, "processing_delay_steps", 0, 10)
+    number_in(config, "steering_time_constant_s", 0.0, MAX_STEERING_TIME_CONSTANT_S)
+    integer_in(config, "processing_delay_steps", 0, MAX_PROCESSING_DELAY_STEPS)
     policy_hz = integer_in(config, "policy_frequency", 1, MAX_FREQUENCY_HZ)
     sim_hz = integer_in(config, "simulation_frequency", 1, MAX_FREQUENCY_HZ)
     if sim_hz % policy_hz:

@@ -31,7 +31,7 @@ from plm_highway.evaluation.protocol import (
     noise_floor,
     parse_seeds,
 )
-from plm_highway.evaluation.run import CONDITIONS, Cell, progress_bar, with_speed_logic
+from plm_highway.evaluation.run import CONDITIONS, Cell, progress_bar, with_pipeline, with_speed_logic
 from plm_highway.io import FIGURE, file_kind, json_text, pyplot, save_figure_into, write_outputs
 from plm_highway.metrics.steering import common_span, steering_errors
 from plm_highway.vehicle.paper_units import paper_unit_to_front_wheel_rad
@@ -67,12 +67,14 @@ def judge(per_latency: dict[float, dict], floor: dict) -> dict:
 
 def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: str = "paper",
                    checkpoints=None, max_steps: int | None = None, progress: bool = True, workers: int = 0,
-                   speed_logic: str = "constant") -> dict:
+                   speed_logic: str = "constant", processing_delay_steps: int | None = None,
+                   steering_time_constant_s: float | None = None) -> dict:
     """Drive the BM at :data:`LATENCIES_S` under ``seeds``; return the per-seed MAEs, their means with 95% CIs
     (front-wheel radians), the noise floor, the paper's numbers and the two rules judged. ``workers`` 0 drives
     the runs batched in this process; >= 1 on that many processes (the same numbers, bit for bit).
     ``speed_logic`` (:data:`~plm_highway.evaluation.run.SPEED_LOGICS`): constant speed, or the original run
-    scripts' braking on sharp steering."""
+    scripts' braking on sharp steering. ``processing_delay_steps`` and ``steering_time_constant_s`` replace the
+    conditions' assumed pipeline (:func:`~plm_highway.evaluation.run.with_pipeline`; None keeps it)."""
     from plm_highway.evaluation.cell_runner import drive_cells
     from plm_highway.road.track import load_track
 
@@ -82,7 +84,8 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
 
         raise BadInput(f"--seeds {seeds!r}: the noise floor needs at least two seeds")
     spec = load_track(track)
-    chosen = with_speed_logic(CONDITIONS[conditions], speed_logic)
+    chosen = with_pipeline(with_speed_logic(CONDITIONS[conditions], speed_logic), processing_delay_steps,
+                           steering_time_constant_s)
     policies = None if workers else {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset)}
     cells = [Cell("reference" if latency_s == 0 else "baseline", "bm", f"const:{latency_s:g}", seed,
                   f"BM {latency_s:.2f} s seed {seed}") for seed in seed_list for latency_s in LATENCIES_S]
@@ -105,7 +108,11 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
                                   "paper_rad": paper_bm_mae_rad(latency_s)}
     floor_values = [value * chosen.max_steering_rad for value in noise_floor(references)]
     floor = {"mae_rad_per_pair": floor_values, "mae_rad": mean_ci(floor_values).as_dict()}
-    return {"track": spec.name, "conditions": conditions, "speed_logic": speed_logic, "seeds": seed_list, "latencies_s": list(LATENCIES_S),
+    return {"track": spec.name, "conditions": conditions, "speed_logic": speed_logic, "seeds": seed_list,
+            "processing_delay_steps": chosen.processing_delay_steps,
+            "steering_time_constant_s": chosen.steering_time_constant_s,
+            "pipeline_as_conditions": (chosen.processing_delay_steps, chosen.steering_time_constant_s)
+            == (CONDITIONS[conditions].processing_delay_steps, CONDITIONS[conditions].steering_time_constant_s), "latencies_s": list(LATENCIES_S),
             "steps": [log.steps for log in references], "reference_left_road": [r.left_road for r in references],
             "steering_ratio": PAPER_STEERING_RATIO, "max_steering_rad": chosen.max_steering_rad,
             "noise_floor": floor, "per_latency": {f"{k:.2f}": v for k, v in per_latency.items()},
@@ -145,6 +152,9 @@ def calibration_figure(result: dict):
     ax.set_ylabel("BM steering MAE vs. the BM without latency\n[rad at the front wheels]")
     rules = result["rules"]
     speed_text = "" if result.get("speed_logic", "constant") == "constant" else f", {result['speed_logic']} speed"
+    if not result.get("pipeline_as_conditions", True):
+        speed_text += (f", {result['processing_delay_steps']} steps of processing delay, "
+                       f"{result['steering_time_constant_s']:g} s actuator")
     ax.set_title(f"BM degradation, {result['conditions']} conditions{speed_text}, {result['track']} track\n"
                  f"rise rule {'met' if rules['rise']['met'] else 'missed'}, paper rule "
                  f"{'met' if rules['paper']['met'] else 'missed'}", fontsize=10)
@@ -172,6 +182,8 @@ def write_calibration(result: dict, out=DEFAULT_OUT, overwrite: bool = False) ->
 def summary_lines(result: dict) -> Sequence[str]:
     floor = result["noise_floor"]["mae_rad"]
     lines = [f"speed: {result.get('speed_logic', 'constant')}",
+             f"pipeline: {result.get('processing_delay_steps', '?')} steps of processing delay, "
+             f"{result.get('steering_time_constant_s', '?')} s steering actuator",
              f"noise floor (BM at 0 s, seed vs next seed): {floor['mean']:.4f} rad"]
     for key, row in result["per_latency"].items():
         est = row["mae_rad"]

@@ -33,6 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 from plm_highway.camera.pinhole import PAPER_CAMERA, CameraConfig
+from plm_highway.envs.config import MAX_PROCESSING_DELAY_STEPS, MAX_STEERING_TIME_CONSTANT_S
 from plm_highway.errors import BadInput
 from plm_highway.evaluation.closed_loop import Policy, RunLog, drive
 from plm_highway.road.track import TrackSpec
@@ -129,6 +130,27 @@ def with_speed_logic(conditions: Conditions, speed_logic: str) -> Conditions:
     if speed_logic not in SPEED_LOGICS:
         raise BadInput(f"--speed-logic {speed_logic!r}: expected one of {list(SPEED_LOGICS)}")
     return replace(conditions, sharp_turn_braking=SPEED_LOGICS[speed_logic])
+
+
+def with_pipeline(conditions: Conditions, processing_delay_steps: int | None = None,
+                  steering_time_constant_s: float | None = None) -> Conditions:
+    """``conditions`` with the assumed parts of its pipeline replaced (None keeps the conditions' value): the
+    policy steps between an action and the actuator, and the first-order actuator's time constant. Both are
+    assumptions under the paper conditions (no measured value in the papers or the notes), so a calibration can
+    vary them."""
+    if processing_delay_steps is not None:
+        if isinstance(processing_delay_steps, bool) or not isinstance(processing_delay_steps, int) \
+                or not 0 <= processing_delay_steps <= MAX_PROCESSING_DELAY_STEPS:
+            raise BadInput(f"--processing-delay-steps {processing_delay_steps!r}: expected an integer in "
+                           f"[0, {MAX_PROCESSING_DELAY_STEPS}]")
+        conditions = replace(conditions, processing_delay_steps=processing_delay_steps)
+    if steering_time_constant_s is not None:
+        if not (isinstance(steering_time_constant_s, (int, float)) and not isinstance(steering_time_constant_s, bool)
+                and 0.0 <= steering_time_constant_s <= MAX_STEERING_TIME_CONSTANT_S):
+            raise BadInput(f"--steering-time-constant-s {steering_time_constant_s!r}: expected seconds in "
+                           f"[0, {MAX_STEERING_TIME_CONSTANT_S:g}]")
+        conditions = replace(conditions, steering_time_constant_s=float(steering_time_constant_s))
+    return conditions
 
 
 def top_speed_mps(conditions: Conditions) -> float:
@@ -325,4 +347,4 @@ def make_policies(checkpoints, conditions: Conditions) -> dict[str, Policy]:
 
 __all__ = ["CONDITIONS", "CONDITION_NAMES", "INJECTION_LATENCY_SOURCE", "SPEED_LOGICS", "Cell", "Conditions", "ROLES",
            "baseline_latency", "drive_options", "run_cells", "scored_steps", "sight_m", "start_perturbation",
-           "top_speed_mps", "with_injection", "with_speed_logic"]
+           "top_speed_mps", "with_injection", "with_pipeline", "with_speed_logic"]
