@@ -108,11 +108,12 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
                                   "paper_rad": paper_bm_mae_rad(latency_s)}
     floor_values = [value * chosen.max_steering_rad for value in noise_floor(references)]
     floor = {"mae_rad_per_pair": floor_values, "mae_rad": mean_ci(floor_values).as_dict()}
+    pipeline = (chosen.processing_delay_steps, chosen.steering_time_constant_s)
+    as_conditions = pipeline == (CONDITIONS[conditions].processing_delay_steps,
+                                 CONDITIONS[conditions].steering_time_constant_s)
     return {"track": spec.name, "conditions": conditions, "speed_logic": speed_logic, "seeds": seed_list,
-            "processing_delay_steps": chosen.processing_delay_steps,
-            "steering_time_constant_s": chosen.steering_time_constant_s,
-            "pipeline_as_conditions": (chosen.processing_delay_steps, chosen.steering_time_constant_s)
-            == (CONDITIONS[conditions].processing_delay_steps, CONDITIONS[conditions].steering_time_constant_s), "latencies_s": list(LATENCIES_S),
+            "processing_delay_steps": pipeline[0], "steering_time_constant_s": pipeline[1],
+            "pipeline_as_conditions": as_conditions, "latencies_s": list(LATENCIES_S),
             "steps": [log.steps for log in references], "reference_left_road": [r.left_road for r in references],
             "steering_ratio": PAPER_STEERING_RATIO, "max_steering_rad": chosen.max_steering_rad,
             "noise_floor": floor, "per_latency": {f"{k:.2f}": v for k, v in per_latency.items()},
