@@ -8,9 +8,10 @@ from plm_highway.cli._common import Command, add_overwrite, bounded_float, bound
 def configure(parser) -> None:
     from plm_highway.envs.config import MAX_PROCESSING_DELAY_STEPS, MAX_STEERING_TIME_CONSTANT_S
     from plm_highway.evaluation.calibration import DEFAULT_OUT, bm_calibration
-    from plm_highway.evaluation.run import CONDITION_NAMES, SPEED_LOGICS
+    from plm_highway.evaluation.run import CONDITION_NAMES, CONDITIONS, SPEED_LOGICS
 
     d = defaults_of(bm_calibration)
+    paper = CONDITIONS["paper"]
     parser.add_argument("--out", default=str(DEFAULT_OUT),
                         help="figure to write (PNG); its numbers go beside it with the suffix .json")
     parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],
@@ -20,11 +21,11 @@ def configure(parser) -> None:
                              "scripts' full throttle up to 22 m/s, braking 1.7 s whenever |steering| > 0.25 in the "
                              "paper's unit (its acceleration and braking assumed)")
     parser.add_argument("--processing-delay-steps", type=bounded_int(0, MAX_PROCESSING_DELAY_STEPS),
-                        help="policy steps between an action and the actuator, replacing the conditions' (paper: 2, "
-                             "the upper end of the original's one to two frames; an assumption)")
+                        help="policy steps between an action and the actuator, replacing the conditions' (paper: "
+                             f"{paper.processing_delay_steps}, an assumption)")
     parser.add_argument("--steering-time-constant-s", type=bounded_float(0.0, MAX_STEERING_TIME_CONSTANT_S),
                         help="first-order steering actuator time constant [s], replacing the conditions' (paper: "
-                             "0.1, an assumption)")
+                             f"{paper.steering_time_constant_s:g}, an assumption)")
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: the conditions' "
                                               "shipped pair)")
