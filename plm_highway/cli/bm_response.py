@@ -1,0 +1,41 @@
+"""``plm-highway bm-response``: the BM's steering beside its demonstrator's law at posed starts (a calibration's why)."""
+
+from __future__ import annotations
+
+from plm_highway.cli._common import Command, add_overwrite, defaults_of
+
+
+def configure(parser) -> None:
+    from plm_highway.evaluation.response import DEFAULT_OUT, bm_response
+    from plm_highway.evaluation.run import CONDITION_NAMES
+
+    d = defaults_of(bm_response)
+    parser.add_argument("--out", default=str(DEFAULT_OUT),
+                        help="figure to write (PNG); its numbers go beside it with the suffix .json")
+    parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],
+                        help="whose camera, steering range, demonstrator and shipped BM")
+    parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path (its longest "
+                                                            "straight is where the car is posed)")
+    parser.add_argument("--checkpoints", help="directory with a bm/ checkpoint (default: the conditions' shipped BM)")
+    add_overwrite(parser)
+
+
+def run(args) -> int:
+    from plm_highway.evaluation.policies import single_threaded_inference
+    from plm_highway.evaluation.response import bm_response, ratio_lines, write_response
+    from plm_highway.io import FIGURE, check_target
+
+    check_target(args.out, FIGURE, overwrite=args.overwrite)
+    with single_threaded_inference():
+        result = bm_response(args.track, args.conditions, args.checkpoints)
+    result["command"] = args.command_line
+    figure_path, json_path = write_response(result, args.out, overwrite=args.overwrite)
+    for line in ratio_lines(result):
+        print(line)
+    print(f"figure: {figure_path}\nnumbers: {json_path}")
+    return 0
+
+
+COMMANDS = [Command("bm-response", "the BM's steering beside its demonstrator's tracking law at posed offsets and "
+                                 "heading errors, no latency (where the imitation follows, stiffens or saturates)",
+                    configure, run)]
