@@ -99,7 +99,7 @@ def bm_response(track: str = PAPER_TRACK, conditions: str = "paper", checkpoints
             "speed_mps": chosen.speed_mps, "max_steering_rad": chosen.max_steering_rad,
             "law": {"natural_frequency_radps": law.natural_frequency_radps, "damping_ratio": law.damping_ratio,
                     "demonstrator": chosen.demonstrator},
-            "checkpoint": str(bm_path), "sweeps": sweeps}
+            "checkpoint": f"shipped {bm_path.name}" if checkpoints is None else str(bm_path), "sweeps": sweeps}
 
 
 def ratio_lines(result: dict) -> list[str]:
