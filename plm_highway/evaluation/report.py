@@ -621,10 +621,10 @@ IDEAL_BM_LINE = ("It does not reproduce the paper's BM degradation: our BM imita
                  "0.15-0.30 s it is much closer to its own no-latency run than the paper's human-imitating BM, and a "
                  "reduction in % of a small error is a different quantity from the paper's (`--conditions paper` and "
                  "`plm-highway calibrate` are the like-for-like side).")
-PAPER_BM_LINE = ("Its BM imitates a human-like demonstrator calibrated so that the BM degrades with latency like the "
-                 "paper's (`plm-highway calibrate`, figures/bm-calibration.png: 0.44-0.88x the paper's BM MAE at "
-                 "0.15-0.30 s, and unlike the paper's it leaves the road at 0.25 and 0.30 s), so the percentages here "
-                 "are of a comparable error. PLM-Net's TAPM saw about 30,500 balanced training samples (the paper's "
+PAPER_BM_LINE = ("Its BM imitates a human-like demonstrator, and it degrades with latency less than the paper's "
+                 "(`plm-highway calibrate`, figures/bm-calibration.png: 0.44-0.88x the paper's BM MAE at 0.15-0.30 s, "
+                 "outside the factor 2 at 0.25 s), and unlike the paper's it leaves the road at 0.25 and 0.30 s, so "
+                 "the percentages here are of an error of the paper's order, not of the same error. PLM-Net's TAPM saw about 30,500 balanced training samples (the paper's "
                  "about 67,000); training it for twice the epochs on the same data left its validation error where it "
                  "was (0.0060 against 0.0059), which the demonstrator's unpredictable hand noise and wander bound.")
 

@@ -215,7 +215,11 @@ PAPER_CONDITIONS_NOT_REPRODUCED = (
     "the BM's degradation with latency only in part: the `paper` BM's steering MAE at 0.15/0.20/0.25/0.30 s is "
     "0.54/0.88/0.44/0.60x the paper's in front-wheel radians (`plm-highway calibrate`, figures/bm-calibration.png), "
     "within the factor 2 except at 0.25 s; and at 0.25 and 0.30 s it leaves the road in every seed, where the "
-    "paper's BM drove on",
+    "paper's BM drove on. Why (`plm-highway bm-response`, figures/bm-response.png): the BM steers like its driver's "
+    "law within 2.5 m of the lane centre but at 0.53-0.93x of it in heading error and saturates beyond 3 m, and at "
+    "0.25 s the weave reaches heading errors of 0.28-0.32 rad, where it damps at about 0.6x. The driver's own law "
+    "from the delayed true state holds that weave. Neither the assumed pipeline (processing delay 1-3 steps x "
+    "actuator 0.05-0.2 s) nor the exploratory drivers tried (README) meet the rule",
 )
 
 
