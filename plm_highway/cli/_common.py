@@ -69,3 +69,20 @@ def defaults_of(function: Callable) -> dict:
 
     return {name: p.default for name, p in inspect.signature(function).parameters.items()
             if p.default is not inspect.Parameter.empty}
+
+
+def publish_figure_and_numbers(args, compute: Callable[[], dict], write: Callable, summary: Callable) -> int:
+    """The body of a command that computes a result and publishes its figure (``args.out``) and numbers: the
+    target is checked before the work, the result records its command line, ``summary(result)`` lines print."""
+    from plm_highway.evaluation.policies import single_threaded_inference
+    from plm_highway.io import FIGURE, check_target
+
+    check_target(args.out, FIGURE, overwrite=args.overwrite)
+    with single_threaded_inference():
+        result = compute()
+    result["command"] = args.command_line
+    figure_path, json_path = write(result, args.out, overwrite=args.overwrite)
+    for line in summary(result):
+        print(line)
+    print(f"figure: {figure_path}\nnumbers: {json_path}")
+    return 0

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_overwrite, defaults_of
+from plm_highway.cli._common import Command, add_overwrite, defaults_of, publish_figure_and_numbers
 
 
 def configure(parser) -> None:
@@ -21,19 +21,10 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    from plm_highway.evaluation.policies import single_threaded_inference
     from plm_highway.evaluation.response import bm_response, ratio_lines, write_response
-    from plm_highway.io import FIGURE, check_target
 
-    check_target(args.out, FIGURE, overwrite=args.overwrite)
-    with single_threaded_inference():
-        result = bm_response(args.track, args.conditions, args.checkpoints)
-    result["command"] = args.command_line
-    figure_path, json_path = write_response(result, args.out, overwrite=args.overwrite)
-    for line in ratio_lines(result):
-        print(line)
-    print(f"figure: {figure_path}\nnumbers: {json_path}")
-    return 0
+    return publish_figure_and_numbers(args, lambda: bm_response(args.track, args.conditions, args.checkpoints),
+                                      write_response, ratio_lines)
 
 
 COMMANDS = [Command("bm-response", "the BM's steering beside its demonstrator's tracking law at posed offsets and "

@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_overwrite, bounded_float, bounded_int, defaults_of
+from plm_highway.cli._common import (
+    Command,
+    add_overwrite,
+    bounded_float,
+    bounded_int,
+    defaults_of,
+    publish_figure_and_numbers,
+)
 
 
 def configure(parser) -> None:
@@ -41,21 +48,14 @@ def configure(parser) -> None:
 
 def run(args) -> int:
     from plm_highway.evaluation.calibration import bm_calibration, summary_lines, write_calibration
-    from plm_highway.evaluation.policies import single_threaded_inference
-    from plm_highway.io import FIGURE, check_target
 
-    check_target(args.out, FIGURE, overwrite=args.overwrite)
-    with single_threaded_inference():
-        result = bm_calibration(args.track, args.seeds, args.conditions, args.checkpoints, args.max_steps,
-                                not args.no_progress, args.workers, speed_logic=args.speed_logic,
-                                processing_delay_steps=args.processing_delay_steps,
-                                steering_time_constant_s=args.steering_time_constant_s)
-    result["command"] = args.command_line
-    figure_path, json_path = write_calibration(result, args.out, overwrite=args.overwrite)
-    for line in summary_lines(result):
-        print(line)
-    print(f"figure: {figure_path}\nnumbers: {json_path}")
-    return 0
+    def calibrate() -> dict:
+        return bm_calibration(args.track, args.seeds, args.conditions, args.checkpoints, args.max_steps,
+                              not args.no_progress, args.workers, speed_logic=args.speed_logic,
+                              processing_delay_steps=args.processing_delay_steps,
+                              steering_time_constant_s=args.steering_time_constant_s)
+
+    return publish_figure_and_numbers(args, calibrate, write_calibration, summary_lines)
 
 
 COMMANDS = [Command("calibrate", "the BM's steering MAE vs latency under the paper's conditions beside the paper's "

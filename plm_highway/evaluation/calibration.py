@@ -32,7 +32,7 @@ from plm_highway.evaluation.protocol import (
     parse_seeds,
 )
 from plm_highway.evaluation.run import CONDITIONS, Cell, progress_bar, with_pipeline, with_speed_logic
-from plm_highway.io import FIGURE, file_kind, json_text, pyplot, save_figure_into, write_outputs
+from plm_highway.io import file_kind, pyplot, write_figure_and_numbers
 from plm_highway.metrics.steering import common_span, steering_errors
 from plm_highway.vehicle.paper_units import paper_unit_to_front_wheel_rad
 
@@ -168,16 +168,7 @@ def calibration_figure(result: dict):
 
 def write_calibration(result: dict, out=DEFAULT_OUT, overwrite: bool = False) -> tuple[Path, Path]:
     """The figure (``out``, PNG) and its numbers (same name, ``.json``), published together."""
-    figure_path = Path(out)
-    json_path = figure_path.with_suffix(".json")
-    fig = calibration_figure(result)
-    try:
-        with write_outputs([(figure_path, FIGURE), (json_path, CALIBRATION_JSON)], overwrite=overwrite) as staged:
-            save_figure_into(fig, staged[0], dpi=120)
-            staged[1].write_text(json_text(result, CALIBRATION_JSON), encoding="utf-8")
-    finally:
-        pyplot().close(fig)
-    return figure_path, json_path
+    return write_figure_and_numbers(calibration_figure(result), result, out, CALIBRATION_JSON, overwrite=overwrite)
 
 
 def summary_lines(result: dict) -> Sequence[str]:

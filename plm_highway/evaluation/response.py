@@ -27,7 +27,7 @@ from plm_highway.evaluation.protocol import PAPER_TRACK
 from plm_highway.evaluation.run import CONDITIONS, Conditions
 from plm_highway.expert.controller import ExpertParams, expert_steering
 from plm_highway.expert.human import HumanParams
-from plm_highway.io import FIGURE, file_kind, json_text, pyplot, save_figure_into, write_outputs
+from plm_highway.io import file_kind, pyplot, write_figure_and_numbers
 
 OFFSETS_M = tuple(round(float(x), 2) for x in np.arange(-5.0, 5.001, 0.5))
 HEADINGS_RAD = tuple(round(float(x), 2) for x in np.arange(-0.20, 0.2001, 0.04))
@@ -134,13 +134,4 @@ def response_figure(result: dict):
 
 def write_response(result: dict, out=DEFAULT_OUT, overwrite: bool = False) -> tuple[Path, Path]:
     """The figure (``out``, PNG) and its numbers (same name, ``.json``), published together."""
-    figure_path = Path(out)
-    json_path = figure_path.with_suffix(".json")
-    fig = response_figure(result)
-    try:
-        with write_outputs([(figure_path, FIGURE), (json_path, RESPONSE_JSON)], overwrite=overwrite) as staged:
-            save_figure_into(fig, staged[0], dpi=120)
-            staged[1].write_text(json_text(result, RESPONSE_JSON), encoding="utf-8")
-    finally:
-        pyplot().close(fig)
-    return figure_path, json_path
+    return write_figure_and_numbers(response_figure(result), result, out, RESPONSE_JSON, overwrite=overwrite)

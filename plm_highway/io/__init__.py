@@ -16,6 +16,7 @@ from plm_highway.io.formats import (
     save_figure_into,
     write_csv,
     write_csv_into,
+    write_figure_and_numbers,
     write_json,
     write_text,
 )
@@ -49,6 +50,7 @@ __all__ = [
     "save_figure_into",
     "write_csv",
     "write_csv_into",
+    "write_figure_and_numbers",
     "write_json",
     "write_output",
     "write_outputs",

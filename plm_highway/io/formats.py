@@ -14,7 +14,7 @@ import shlex
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
-from plm_highway.io.outputs import JSON_MARKER_KEY, PNG_SOFTWARE, OutputKind, file_kind, write_output
+from plm_highway.io.outputs import JSON_MARKER_KEY, PNG_SOFTWARE, OutputKind, file_kind, write_output, write_outputs
 
 FIGURE = file_kind("figure", "a figure (PNG)")
 
@@ -86,6 +86,21 @@ def save_figure(fig, path: str | os.PathLike, *, overwrite: bool = False, dpi: i
     with write_output(path, FIGURE, overwrite=overwrite) as tmp:
         save_figure_into(fig, tmp, dpi=dpi)
     return Path(path)
+
+
+def write_figure_and_numbers(fig, numbers: dict, out: str | os.PathLike, numbers_kind: OutputKind, *,
+                             overwrite: bool = False, dpi: int = 120) -> tuple[Path, Path]:
+    """A figure (``out``, PNG) and the numbers drawn in it (same name, ``.json``), published together; the
+    figure is closed either way."""
+    figure_path = Path(out)
+    json_path = figure_path.with_suffix(".json")
+    try:
+        with write_outputs([(figure_path, FIGURE), (json_path, numbers_kind)], overwrite=overwrite) as staged:
+            save_figure_into(fig, staged[0], dpi=dpi)
+            staged[1].write_text(json_text(numbers, numbers_kind), encoding="utf-8")
+    finally:
+        pyplot().close(fig)
+    return figure_path, json_path
 
 
 def pyplot():
