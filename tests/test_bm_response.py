@@ -54,6 +54,9 @@ def test_command_writes_the_figure_and_its_numbers_and_refuses_to_overwrite_them
     numbers = json.loads(out.with_suffix(".json").read_text())
     assert len(numbers["sweeps"]["offset"]["bm"]) == 21 and len(numbers["sweeps"]["heading"]["bm"]) == 11
     assert "BM / law along the offset sweep" in printed
+    # On a straight the law is odd in the pose: mirrored offsets and headings steer mirrored.
+    for sweep in numbers["sweeps"].values():
+        assert sweep["law"] == pytest.approx([-w for w in reversed(sweep["law"])], abs=1e-9)
     before = out.read_bytes()
     assert cli.main(["bm-response", "--conditions", "ideal", "--out", str(out)]) == 2
     assert "--overwrite" in capsys.readouterr().err and out.read_bytes() == before
