@@ -16,7 +16,8 @@ def configure(parser) -> None:
                         help="whose camera, steering range, demonstrator and shipped BM")
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path (its longest "
                                                             "straight is where the car is posed)")
-    parser.add_argument("--checkpoints", help="directory with a bm/ checkpoint (default: the conditions' shipped BM)")
+    parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints, of which only the BM is "
+                                              "used (default: the conditions' shipped BM)")
     add_overwrite(parser)
 
 
