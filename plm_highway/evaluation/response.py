@@ -26,7 +26,6 @@ from plm_highway.errors import BadInput
 from plm_highway.evaluation.protocol import PAPER_TRACK
 from plm_highway.evaluation.run import CONDITIONS, Conditions
 from plm_highway.expert.controller import ExpertParams, expert_steering
-from plm_highway.expert.human import HumanParams
 from plm_highway.io import file_kind, pyplot, write_figure_and_numbers
 
 OFFSETS_M = tuple(round(float(x), 2) for x in np.arange(-5.0, 5.001, 0.5))
@@ -36,11 +35,12 @@ DEFAULT_OUT = Path("figures") / "bm-response.png"
 
 
 def demonstrator_law(conditions: Conditions) -> ExpertParams:
-    """The tracking law the conditions' demonstrator steers by, told the conditions' steering range."""
-    if conditions.demonstrator == "human":
-        human = HumanParams()
-        return ExpertParams(human.natural_frequency_radps, human.damping_ratio, conditions.max_steering_rad)
-    return ExpertParams(max_steering_rad=conditions.max_steering_rad)
+    """The tracking law the conditions' demonstrator steers by, as ``collect`` builds that demonstrator."""
+    from plm_highway.data.collect import make_demonstrator
+
+    driver = make_demonstrator(conditions.demonstrator, conditions.policy_frequency_hz, np.random.default_rng(0),
+                               conditions.max_steering_rad)
+    return driver.tracking
 
 
 def longest_straight_middle_m(track) -> float:

@@ -58,6 +58,11 @@ class ExpertPolicy:
     def __init__(self, params: ExpertParams = ExpertParams()):
         self.params = params
 
+    @property
+    def tracking(self) -> ExpertParams:
+        """The law it steers by (the same attribute as the human-like demonstrator's)."""
+        return self.params
+
     def reset(self) -> None:
         """The expert is stateless."""
 

@@ -109,7 +109,8 @@ class HumanDemonstrator:
         self.params = params
         self.dt_s = 1.0 / policy_frequency_hz
         self.delay_steps = int(round(params.reaction_delay_s / self.dt_s))
-        self._tracking = ExpertParams(params.natural_frequency_radps, params.damping_ratio, params.max_steering_rad)
+        # The law it steers by (public: a Base Model imitating this driver is compared with it, bm-response).
+        self.tracking = ExpertParams(params.natural_frequency_radps, params.damping_ratio, params.max_steering_rad)
         self.reset(rng if rng is not None else np.random.default_rng(0))
 
     def reset(self, rng: np.random.Generator | None = None) -> None:
@@ -131,7 +132,7 @@ class HumanDemonstrator:
         perceived = dict(state, lateral_offset_m=state["lateral_offset_m"] + self.offset_wander_m,
                          heading_error_rad=state["heading_error_rad"] + self.heading_wander_rad)
         motor_noise = p.motor_noise_rad / p.max_steering_rad  # in normalised steering
-        return expert_steering(perceived, self._tracking) + motor_noise * float(self.rng.standard_normal())
+        return expert_steering(perceived, self.tracking) + motor_noise * float(self.rng.standard_normal())
 
     def __call__(self, frame, info: dict) -> float:
         self._pending.append(self.decide(info))
