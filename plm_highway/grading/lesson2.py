@@ -171,7 +171,10 @@ def _forward(heads, x: torch.Tensor) -> torch.Tensor:
 def check_tapm_heads_shapes(heads_class) -> None:
     """Parameter layout and count, output shape and range, gradients reach every parameter."""
     for n_heads in (5, 1):
-        heads = _make_heads(heads_class, n_heads)
+        # Seeded, so that a run of this check does not depend on what drew from torch's generator before it.
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(n_heads)
+            heads = _make_heads(heads_class, n_heads)
         n_params = sum(p.numel() for p in heads.parameters())
         expect_close(f"number of parameters with {n_heads} heads", n_heads * PARAMS_PER_HEAD, n_params, atol=0,
                      hint=f"each head has {PARAMS_PER_HEAD:,} = (700*200+200) + (200*100+100) + (100*50+50) + "
@@ -179,7 +182,11 @@ def check_tapm_heads_shapes(heads_class) -> None:
         for layer, (fan_in, weight) in enumerate(zip((HEAD_IN_FEATURES, *HEAD_WIDTHS[:-1]), heads.weights)):
             bound = 1 / np.sqrt(fan_in)
             values = torch.cat([weight.detach().ravel(), heads.biases[layer].detach().ravel()])
-            expect_true(bool(values.abs().max() <= bound + 1e-6) and float(values.std()) > 0.45 * bound,
+            # A uniform sample's std falls below 0.45 of the bound now and then when it is small (the last layer of
+            # one head holds 51 values), so the floor is also kept 5 standard errors below the expected std.
+            expected_std = bound / np.sqrt(3)
+            min_std = min(0.45 * bound, expected_std * (1 - 5 * np.sqrt(0.8 / (4 * values.numel()))))
+            expect_true(bool(values.abs().max() <= bound + 1e-6) and float(values.std()) > min_std,
                         f"initial weights and biases of layer {layer} with {n_heads} heads (fan-in {fan_in})",
                         "initialise like nn.Linear: uniform in [-1/sqrt(fan_in), 1/sqrt(fan_in)]",
                         expected=f"uniform in +-{format_number(bound)} (std {format_number(bound / np.sqrt(3))})",
