@@ -15,7 +15,13 @@ from hypothesis import strategies as st
 import plm_highway  # noqa: F401  (registers the env)
 from plm_highway.envs import ENV_ID
 from plm_highway.envs.speed import parse_speed
-from plm_highway.vehicle.models import VEHICLE_MODELS, VehicleState, dynamic_steady_state, vehicle_model
+from plm_highway.vehicle.models import (
+    VEHICLE_MODELS,
+    VehicleState,
+    dynamic_steady_state,
+    kinematic_car_with_friction,
+    vehicle_model,
+)
 from plm_highway.vehicle.single_track import SEED_PAPER_VEHICLE
 
 # The seed paper's Table 2 car, written out here (not read from the code under test).
@@ -104,7 +110,7 @@ def test_kinematic_table_entry_is_highway_env_vehicle_step():
 
 
 def test_unknown_model_and_parameters_are_refused():
-    with pytest.raises(ValueError, match=r"'bicycle'.*\['dynamic', 'kinematic'\]"):
+    with pytest.raises(ValueError, match=r"'bicycle'.*\['dynamic', 'kinematic', 'saturating'\]"):
         vehicle_model("bicycle")
     with pytest.raises(ValueError, match="vehicle_model"):
         gymnasium.make(ENV_ID, config={"track": STRAIGHT, "vehicle_model": "tank"})
@@ -195,3 +201,76 @@ def test_first_order_steering_actuator(model_name):
         assert info["steering"] == pytest.approx(expected / 0.2, rel=1e-9, abs=1e-15)
     # Instantaneous (the default): the wheels have the command after the first step.
     assert run_constant_steering({"vehicle_model": model_name}, 0.5, 1)[-1]["steering_angle_rad"] == command_rad
+
+
+# -- tires that saturate ---------------------------------------------------------------------------------
+
+G_MPS2 = 9.81
+
+
+def test_saturating_car_far_below_its_limit_has_the_linear_cars_closed_form_yaw_rate():
+    # The default is the Table 2 car on a dry road (mu 1.0); at 0.01 rad and 16.7 m/s it corners at ~1 m/s^2,
+    # where the magic formula is linear to about 0.4%.
+    speed_mps, steer_rad = 16.7, 0.01
+    _, state = settle("saturating", steer_rad, speed_mps)
+    expected_r = speed_mps * steer_rad / (L_M + K_US * speed_mps ** 2)
+    assert state.yaw_rate_radps == pytest.approx(expected_r, rel=1e-2)
+
+
+def test_kinematic_car_with_friction_turns_like_the_kinematic_bicycle_below_the_limit():
+    # highway-env's car: 5 m between the axles, reference point in the middle; kinematic yaw rate
+    # v sin(beta) / 2.5 with tan(beta) = tan(delta) / 2. At 0.02 rad and 16.7 m/s it corners at ~1.1 m/s^2.
+    speed_mps, steer_rad = 16.7, 0.02
+    model = vehicle_model("saturating")
+    params = kinematic_car_with_friction(1.0)
+    assert (params.cg_to_front_m, params.cg_to_rear_m, params.friction_coefficient) == (2.5, 2.5, 1.0)
+    state = model.initial_state(0.0, 0.0, 0.0, 0.0, speed_mps, params)
+    for _ in range(300):
+        state = model.step(state, steer_rad, steer_rad, speed_mps, speed_mps, 1 / 30, params)
+    kinematic_r = speed_mps * math.sin(math.atan(0.5 * math.tan(steer_rad))) / 2.5
+    assert state.yaw_rate_radps == pytest.approx(kinematic_r, rel=2e-2)
+
+
+@settings(max_examples=40, deadline=None)
+@given(mu=st.floats(0.3, 1.2), speed_mps=st.floats(5.0, 30.0),
+       steering=st.lists(st.floats(-0.6, 0.6), min_size=5, max_size=40))
+def test_a_saturating_car_never_corners_harder_than_mu_g(mu, speed_mps, steering):
+    """The axle forces peak at mu times the axle loads, which add up to the car's weight: whatever the steering
+    asks, the lateral acceleration stays within mu g."""
+    model = vehicle_model("saturating")
+    params = kinematic_car_with_friction(mu)
+    state = model.initial_state(0.0, 0.0, 0.0, steering[0], speed_mps, params)
+    for start_rad, end_rad in zip(steering, steering[1:]):
+        for _ in range(3):  # a tenth of a second per command
+            state = model.step(state, start_rad, end_rad, speed_mps, speed_mps, 1 / 30, params)
+            start_rad = end_rad
+            sensed = model.sensors(state, end_rad, speed_mps, params)
+            assert abs(sensed.lateral_acceleration_mps2) <= mu * G_MPS2 * (1 + 1e-9)
+            assert all(math.isfinite(v) for v in state)
+
+
+def test_a_friction_limit_caps_a_hard_turn_that_the_kinematic_car_takes():
+    # 0.3 rad at 16.7 m/s asks a kinematic car of 5 m for v^2 sin(beta) / 2.5 = 16.5 m/s^2.
+    speed_mps, steer_rad = 16.7, 0.3
+    kinematic_accel = speed_mps ** 2 * math.sin(math.atan(0.5 * math.tan(steer_rad))) / 2.5
+    assert kinematic_accel > 16.0
+    model = vehicle_model("saturating")
+    for mu, expected_ratio in ((0.9, None), (3.0, 1.0)):
+        params = kinematic_car_with_friction(mu)
+        state = model.initial_state(0.0, 0.0, 0.0, 0.0, speed_mps, params)
+        for _ in range(90):
+            state = model.step(state, steer_rad, steer_rad, speed_mps, speed_mps, 1 / 30, params)
+        accel = model.sensors(state, steer_rad, speed_mps, params).lateral_acceleration_mps2
+        if expected_ratio is None:  # at 0.9 g the tires hold less than half of what the turn asks
+            assert 0.5 * 0.9 * G_MPS2 < accel <= 0.9 * G_MPS2 * (1 + 1e-9)
+        else:  # at 3 g the limit does not bind: the kinematic car's lateral acceleration, within 3%
+            assert accel == pytest.approx(kinematic_accel, rel=3e-2)
+
+
+def test_env_drives_the_saturating_car_and_checks_its_friction_coefficient():
+    infos = run_constant_steering({"vehicle_model": "saturating", "vehicle_params": {"friction_coefficient": 0.5},
+                                   "max_steering_rad": 0.4}, 1.0, 20)
+    assert max(abs(i["lateral_acceleration_mps2"]) for i in infos) <= 0.5 * G_MPS2 * (1 + 1e-9)
+    with pytest.raises(ValueError, match=r"\['friction_coefficient'\] = 0: must be a number in \[0.05, 3\]"):
+        gymnasium.make(ENV_ID, config={"track": STRAIGHT, "vehicle_model": "saturating",
+                                       "vehicle_params": {"friction_coefficient": 0}})

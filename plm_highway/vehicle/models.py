@@ -21,6 +21,10 @@ and at the end of the step (speed is an input: the models are lateral).
                ``alpha_r = -(vy - b r)/u``; (vy, r) by the trapezoidal rule
                (:func:`~plm_highway.vehicle.single_track.single_track_tustin_step`, A-stable), the
                pose by the midpoint rule. Default parameters: the paper's Table 2 car.
+``saturating`` The same equations with magic-formula axle forces that peak at ``friction_coefficient``
+               times the axle load (:mod:`plm_highway.vehicle.tires`, the physics of sim2real's
+               ``tire_saturation``); RK4 sub-steps. Default parameters: the Table 2 car on a dry
+               road (1.0); :func:`kinematic_car_with_friction` puts the kinematic car on stiff tires.
 =============  ================================================================================
 
 Adding a model is one :class:`VehicleModel` entry in :data:`VEHICLE_MODELS` plus its tests.
@@ -43,6 +47,13 @@ from plm_highway.vehicle.single_track import (
     single_track_matrices,
     single_track_tustin_step,
 )
+from plm_highway.vehicle.tires import (
+    axle_force,
+    axle_peaks_per_kg,
+    saturating_single_track_derivatives,
+    saturating_single_track_pose_step,
+    saturating_single_track_settled,
+)
 
 # Plausible range of each parameter field of the models' dataclasses (closed intervals, units in the
 # names): a car, from a go-kart to a truck. Outside them the integrators' step sizes lose meaning
@@ -54,6 +65,7 @@ PARAM_RANGES: dict[str, tuple[float, float]] = {
     "yaw_inertia_kgm2": (10.0, 1e6),
     "cornering_stiffness_front": (1_000.0, 2e6),  # N/rad per axle
     "cornering_stiffness_rear": (1_000.0, 2e6),
+    "friction_coefficient": (0.05, 3.0),  # peak lateral force over axle load: ice to racing slicks
 }
 
 # Below this speed the tire model's slip angles are not defined; the integrator holds it here.
@@ -196,6 +208,79 @@ def _dynamic_settled(x_m, y_m, heading_rad, steer_rad, speed_mps, params: Single
     return VehicleState(x_m, y_m, heading_rad, vy, r)
 
 
+# -- dynamic single track with saturating tires ---------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TireSingleTrackParams(SingleTrackParams):
+    """A single-track car whose axle forces saturate at ``friction_coefficient`` times the axle load."""
+
+    friction_coefficient: float = 1.0  # dry asphalt
+
+
+SEED_PAPER_VEHICLE_DRY = TireSingleTrackParams(**dataclasses.asdict(SEED_PAPER_VEHICLE))
+
+# Tires this stiff (cornering stiffness per axle over the car's mass [1/s^2 per rad]) make the single-track car's
+# lateral modes settle within about 6 ms at 16.7 m/s, so below the friction limit it steers like a kinematic
+# bicycle of the same geometry (whose wheels cannot slip at all).
+STIFF_TIRE_PER_KG = 1400.0
+CAR_DEMO_MASS_KG = 1356.0  # OSRF car_demo's Prius chassis (the PLM-Net papers' simulated car)
+
+
+def kinematic_car_with_friction(friction_coefficient: float,
+                                geometry: KinematicBicycleParams = HIGHWAY_ENV_VEHICLE) -> TireSingleTrackParams:
+    """The kinematic bicycle ``geometry`` with stiff tires that saturate at ``friction_coefficient`` g: close to the
+    kinematic car below the friction limit, and unable to turn harder beyond it. The yaw inertia m a b makes the
+    axles independent (a dumbbell), as in the kinematic model. Close, not identical: its RK4 sub-steps lag less
+    than highway-env's forward Euler (the inputs at the start of each 1/30 s step), which matters to a closed
+    loop near its stability limit."""
+    a_m, b_m = geometry.cg_to_front_m, geometry.cg_to_rear_m
+    return TireSingleTrackParams(cg_to_front_m=a_m, cg_to_rear_m=b_m, mass_kg=CAR_DEMO_MASS_KG,
+                                 yaw_inertia_kgm2=CAR_DEMO_MASS_KG * a_m * b_m,
+                                 cornering_stiffness_front=STIFF_TIRE_PER_KG * CAR_DEMO_MASS_KG,
+                                 cornering_stiffness_rear=STIFF_TIRE_PER_KG * CAR_DEMO_MASS_KG,
+                                 friction_coefficient=float(friction_coefficient))
+
+
+def _tire_args(params: TireSingleTrackParams) -> tuple[float, ...]:
+    cf, cr, k2 = params_per_kg(params)
+    return cf, cr, params.cg_to_front_m, params.cg_to_rear_m, k2, params.friction_coefficient
+
+
+def saturating_step(state: VehicleState, steer_start_rad: float, steer_end_rad: float, speed_start_mps: float,
+                    speed_end_mps: float, dt_s: float, params: TireSingleTrackParams) -> VehicleState:
+    """Magic-formula tires (:mod:`plm_highway.vehicle.tires`) over one step: RK4 sub-steps of at most 10 ms."""
+    return VehicleState(*saturating_single_track_pose_step(
+        state[0], state[1], state[2], state[3], state[4], speed_start_mps, speed_end_mps, steer_start_rad,
+        steer_end_rad, dt_s, *_tire_args(params), 0.0, TIRE_MIN_SPEED_MPS))
+
+
+def saturating_sensors(state: VehicleState, steer_rad: float, speed_mps: float,
+                       params: TireSingleTrackParams) -> Sensors:
+    cf, cr, a_m, b_m, _, mu = _tire_args(params)
+    u_mps = max(speed_mps, TIRE_MIN_SPEED_MPS)
+    vy, r = state.lateral_velocity_mps, state.yaw_rate_radps
+    peak_f, peak_r = axle_peaks_per_kg(mu, a_m, b_m)
+    front_per_kg, _ = axle_force(steer_rad - math.atan2(vy + a_m * r, u_mps), cf, peak_f)
+    rear_per_kg, _ = axle_force(-math.atan2(vy - b_m * r, u_mps), cr, peak_r)
+    return Sensors(r, front_per_kg * math.cos(steer_rad) + rear_per_kg, math.atan2(vy, u_mps))
+
+
+def saturating_derivatives(state: VehicleState, steer_rad: float, speed_mps: float,
+                           params: TireSingleTrackParams) -> VehicleState:
+    vy_dot, r_dot = saturating_single_track_derivatives(state.lateral_velocity_mps, state.yaw_rate_radps,
+                                                        max(speed_mps, TIRE_MIN_SPEED_MPS), steer_rad,
+                                                        *_tire_args(params), 0.0)
+    c, s = math.cos(state.heading_rad), math.sin(state.heading_rad)
+    vy = state.lateral_velocity_mps
+    return VehicleState(speed_mps * c - vy * s, speed_mps * s + vy * c, state.yaw_rate_radps, vy_dot, r_dot)
+
+
+def _saturating_settled(x_m, y_m, heading_rad, steer_rad, speed_mps, params: TireSingleTrackParams) -> VehicleState:
+    vy, r = saturating_single_track_settled(max(speed_mps, TIRE_MIN_SPEED_MPS), steer_rad, *_tire_args(params), 0.0)
+    return VehicleState(x_m, y_m, heading_rad, vy, r)
+
+
 # -- the table ------------------------------------------------------------------------------------------
 
 VEHICLE_MODELS: dict[str, VehicleModel] = {
@@ -206,6 +291,10 @@ VEHICLE_MODELS: dict[str, VehicleModel] = {
     "dynamic": VehicleModel(
         "dynamic", "single-track model with linear tires, seed paper Eq. (1); Table 2 car by default",
         SEED_PAPER_VEHICLE, dynamic_step, dynamic_sensors, dynamic_derivatives, _dynamic_settled,
+    ),
+    "saturating": VehicleModel(
+        "saturating", "single-track model with magic-formula tires that saturate at mu times the axle load",
+        SEED_PAPER_VEHICLE_DRY, saturating_step, saturating_sensors, saturating_derivatives, _saturating_settled,
     ),
 }
 
