@@ -131,3 +131,38 @@ def test_a_pipeline_out_of_range_is_refused_on_the_command_line(tmp_path, capsys
     assert cli.main(["calibrate", "--steering-time-constant-s", "-1", "--out", str(out)]) == 2
     assert "--steering-time-constant-s" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_friction_limit_is_added_to_the_kinematic_car_only_and_checked():
+    from dataclasses import replace
+
+    from plm_highway.evaluation.run import CONDITIONS, with_friction_limit
+
+    paper = CONDITIONS["paper"]
+    assert with_friction_limit(paper) is paper  # None: the conditions' car
+    limited = with_friction_limit(paper, 0.9)
+    config = limited.env_config()
+    assert config["vehicle_model"] == "saturating"
+    assert config["vehicle_params"]["friction_coefficient"] == 0.9
+    # The kinematic car's geometry: highway-env's 5 m car with its reference point in the middle.
+    assert (config["vehicle_params"]["cg_to_front_m"], config["vehicle_params"]["cg_to_rear_m"]) == (2.5, 2.5)
+    assert paper.env_config()["vehicle_model"] == "kinematic"  # the shipped conditions are unchanged
+    for bad in (0.0, 3.5, math.nan, True, "0.9"):
+        with pytest.raises(BadInput, match="--friction-coefficient"):
+            with_friction_limit(paper, bad)
+    with pytest.raises(BadInput, match="kinematic car only"):
+        with_friction_limit(replace(paper, vehicle_model="dynamic"), 0.9)
+
+
+def test_a_calibration_with_a_friction_limit_records_it_and_drives_differently(tmp_path, capsys):
+    out = tmp_path / "cal.png"
+    assert cli.main(["calibrate", "--conditions", "paper", "--seeds", "2", "--max-steps", "40", "--no-progress",
+                     "--friction-coefficient", "0.3", "--out", str(out)]) == 0
+    assert "car: tires saturating at 0.3 g" in capsys.readouterr().out
+    limited = json.loads(out.with_suffix(".json").read_text())
+    assert limited["friction_coefficient"] == 0.3
+    shipped = bm_calibration("test", seeds="0,1", conditions="paper", max_steps=40, progress=False)
+    assert shipped["friction_coefficient"] is None
+    assert limited["per_latency"]["0.25"]["mae_rad_per_seed"] != shipped["per_latency"]["0.25"]["mae_rad_per_seed"]
+    assert cli.main(["calibrate", "--friction-coefficient", "0", "--out", str(tmp_path / "bad.png")]) == 2
+    assert "--friction-coefficient" in capsys.readouterr().err

@@ -15,7 +15,7 @@ from plm_highway.cli._common import (
 def configure(parser) -> None:
     from plm_highway.envs.config import MAX_PROCESSING_DELAY_STEPS, MAX_STEERING_TIME_CONSTANT_S
     from plm_highway.evaluation.calibration import DEFAULT_OUT, bm_calibration
-    from plm_highway.evaluation.run import CONDITION_NAMES, CONDITIONS, SPEED_LOGICS
+    from plm_highway.evaluation.run import CONDITION_NAMES, CONDITIONS, FRICTION_RANGE, SPEED_LOGICS
 
     d = defaults_of(bm_calibration)
     paper = CONDITIONS["paper"]
@@ -33,6 +33,10 @@ def configure(parser) -> None:
     parser.add_argument("--steering-time-constant-s", type=bounded_float(0.0, MAX_STEERING_TIME_CONSTANT_S),
                         help="first-order steering actuator time constant [s], replacing the conditions' (paper: "
                              f"{paper.steering_time_constant_s:g}, an assumption)")
+    parser.add_argument("--friction-coefficient", type=bounded_float(*FRICTION_RANGE),
+                        help="give the car tires that saturate at this many g (the papers' Gazebo Prius: 0.9): the "
+                             "kinematic car's geometry on stiff magic-formula tires, the same car below the limit "
+                             "(default: the conditions' kinematic bicycle, no limit)")
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: the conditions' "
                                               "shipped pair)")
@@ -53,7 +57,8 @@ def run(args) -> int:
         return bm_calibration(args.track, args.seeds, args.conditions, args.checkpoints, args.max_steps,
                               not args.no_progress, args.workers, speed_logic=args.speed_logic,
                               processing_delay_steps=args.processing_delay_steps,
-                              steering_time_constant_s=args.steering_time_constant_s)
+                              steering_time_constant_s=args.steering_time_constant_s,
+                              friction_coefficient=args.friction_coefficient)
 
     return publish_figure_and_numbers(args, calibrate, write_calibration, summary_lines)
 

@@ -94,7 +94,8 @@ def recording_setup(config: CollectConfig) -> tuple[dict, str]:
                   "policy_frequency": conditions.policy_frequency_hz,
                   "simulation_frequency": conditions.simulation_frequency_hz,
                   "steering_time_constant_s": conditions.steering_time_constant_s,
-                  "max_steering_rad": conditions.max_steering_rad}
+                  "max_steering_rad": conditions.max_steering_rad, "vehicle_model": conditions.vehicle_model,
+                  "vehicle_params": dict(conditions.vehicle_params)}
     return env_config, config.demonstrator or conditions.demonstrator
 
 

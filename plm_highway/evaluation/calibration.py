@@ -31,7 +31,14 @@ from plm_highway.evaluation.protocol import (
     noise_floor,
     parse_seeds,
 )
-from plm_highway.evaluation.run import CONDITIONS, Cell, progress_bar, with_pipeline, with_speed_logic
+from plm_highway.evaluation.run import (
+    CONDITIONS,
+    Cell,
+    progress_bar,
+    with_friction_limit,
+    with_pipeline,
+    with_speed_logic,
+)
 from plm_highway.io import file_kind, pyplot, write_figure_and_numbers
 from plm_highway.metrics.steering import common_span, steering_errors
 from plm_highway.vehicle.paper_units import paper_unit_to_front_wheel_rad
@@ -68,13 +75,15 @@ def judge(per_latency: dict[float, dict], floor: dict) -> dict:
 def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: str = "paper",
                    checkpoints=None, max_steps: int | None = None, progress: bool = True, workers: int = 0,
                    speed_logic: str = "constant", processing_delay_steps: int | None = None,
-                   steering_time_constant_s: float | None = None) -> dict:
+                   steering_time_constant_s: float | None = None, friction_coefficient: float | None = None) -> dict:
     """Drive the BM at :data:`LATENCIES_S` under ``seeds``; return the per-seed MAEs, their means with 95% CIs
     (front-wheel radians), the noise floor, the paper's numbers and the two rules judged. ``workers`` 0 drives
     the runs batched in this process; >= 1 on that many processes (the same numbers, bit for bit).
     ``speed_logic`` (:data:`~plm_highway.evaluation.run.SPEED_LOGICS`): constant speed, or the original run
     scripts' braking on sharp steering. ``processing_delay_steps`` and ``steering_time_constant_s`` replace the
-    conditions' assumed pipeline (:func:`~plm_highway.evaluation.run.with_pipeline`; None keeps it)."""
+    conditions' assumed pipeline (:func:`~plm_highway.evaluation.run.with_pipeline`; None keeps it).
+    ``friction_coefficient`` gives the car tires that saturate at that many g
+    (:func:`~plm_highway.evaluation.run.with_friction_limit`; None: the conditions' car)."""
     from plm_highway.evaluation.cell_runner import drive_cells
     from plm_highway.road.track import load_track
 
@@ -84,8 +93,8 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
 
         raise BadInput(f"--seeds {seeds!r}: the noise floor needs at least two seeds")
     spec = load_track(track)
-    chosen = with_pipeline(with_speed_logic(CONDITIONS[conditions], speed_logic), processing_delay_steps,
-                           steering_time_constant_s)
+    chosen = with_friction_limit(with_pipeline(with_speed_logic(CONDITIONS[conditions], speed_logic),
+                                               processing_delay_steps, steering_time_constant_s), friction_coefficient)
     policies = None if workers else {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset)}
     cells = [Cell("reference" if latency_s == 0 else "baseline", "bm", f"const:{latency_s:g}", seed,
                   f"BM {latency_s:.2f} s seed {seed}") for seed in seed_list for latency_s in LATENCIES_S]
@@ -113,7 +122,8 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
                                  CONDITIONS[conditions].steering_time_constant_s)
     return {"track": spec.name, "conditions": conditions, "speed_logic": speed_logic, "seeds": seed_list,
             "processing_delay_steps": pipeline[0], "steering_time_constant_s": pipeline[1],
-            "pipeline_as_conditions": as_conditions, "latencies_s": list(LATENCIES_S),
+            "pipeline_as_conditions": as_conditions, "friction_coefficient": friction_coefficient,
+            "latencies_s": list(LATENCIES_S),
             "steps": [log.steps for log in references], "reference_left_road": [r.left_road for r in references],
             "steering_ratio": PAPER_STEERING_RATIO, "max_steering_rad": chosen.max_steering_rad,
             "noise_floor": floor, "per_latency": {f"{k:.2f}": v for k, v in per_latency.items()},
@@ -156,6 +166,8 @@ def calibration_figure(result: dict):
     if not result.get("pipeline_as_conditions", True):
         speed_text += (f", {result['processing_delay_steps']} steps of processing delay, "
                        f"{result['steering_time_constant_s']:g} s actuator")
+    if result.get("friction_coefficient") is not None:
+        speed_text += f", tires saturating at {result['friction_coefficient']:g} g"
     ax.set_title(f"BM degradation, {result['conditions']} conditions{speed_text}, {result['track']} track\n"
                  f"rise rule {'met' if rules['rise']['met'] else 'missed'}, paper rule "
                  f"{'met' if rules['paper']['met'] else 'missed'}", fontsize=10)
@@ -176,6 +188,8 @@ def summary_lines(result: dict) -> Sequence[str]:
     lines = [f"speed: {result.get('speed_logic', 'constant')}",
              f"pipeline: {result.get('processing_delay_steps', '?')} steps of processing delay, "
              f"{result.get('steering_time_constant_s', '?')} s steering actuator",
+             "car: " + ("the conditions' kinematic bicycle" if result.get("friction_coefficient") is None
+                        else f"tires saturating at {result['friction_coefficient']:g} g"),
              f"noise floor (BM at 0 s, seed vs next seed): {floor['mean']:.4f} rad"]
     for key, row in result["per_latency"].items():
         est = row["mae_rad"]
