@@ -142,7 +142,7 @@ def test_the_command_line_refuses_a_binary_track_file_with_exit_2(tmp_path):
     ({"camera": "wide"}, ["camera config", "dict"]),
     ({"vehicle_model": "dynamic", "vehicle_params": {"cg_to_front_m": 1e-9}}, ["'cg_to_front_m'", "[0.1, 10]"]),
     ({"vehicle_model": "dynamic", "vehicle_params": {"mass_kg": NAN}}, ["'mass_kg'", "nan"]),
-    ({"vehicle_model": 3}, ["vehicle_model", "['dynamic', 'kinematic']"]),
+    ({"vehicle_model": 3}, ["vehicle_model", "['dynamic', 'kinematic', 'saturating']"]),
     ({"speed": 20}, ["unknown keys", "'speed'"]),
     ({"track": {**STRAIGHT, "name": 7}}, ["'name'", "string"]),
     ({"track": spec(straight(50), arc(60, 360), straight(50))}, ["overlaps itself"]),
