@@ -35,7 +35,7 @@ def configure(parser) -> None:
                              f"{paper.steering_time_constant_s:g}, an assumption)")
     parser.add_argument("--friction-coefficient", type=bounded_float(*FRICTION_RANGE),
                         help="give the car tires that saturate at this many g (the papers' Gazebo Prius: 0.9): the "
-                             "kinematic car's geometry on stiff magic-formula tires, the same car below the limit "
+                             "kinematic car's geometry on stiff magic-formula tires, close to that car below the limit "
                              "(default: the conditions' kinematic bicycle, no limit)")
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: the conditions' "

@@ -9,8 +9,8 @@ Built like highway-env's own environments: ``default_config`` declares every set
   The latency wrapper serves old snapshots from these; without it, the newest is observed.
 - The ego car is a model from the vehicle-model table (``vehicle_model``: ``kinematic``, highway-env's
   bicycle and the default, ``dynamic``, a single-track car with linear tires, or ``saturating``, with tires that
-  reach a friction limit; ``vehicle_params`` overrides fields of its parameter set). Its speed is a constant or a schedule (``speed_mps``, see
-  :mod:`plm_highway.envs.speed`). The action is normalised steering in [-1, 1], positive turns left,
+  reach a friction limit; ``vehicle_params`` overrides fields of its parameter set). Its speed is a constant
+  or a schedule (``speed_mps``, see :mod:`plm_highway.envs.speed`). The action is normalised steering in [-1, 1], positive turns left,
   mapped linearly to a front-wheel angle command in +-``max_steering_rad`` that reaches the wheels
   through a first-order actuator (``steering_time_constant_s``, 0 = at once).
 - ``info`` and ``state()`` carry what a car's sensors measure (yaw rate, lateral acceleration,

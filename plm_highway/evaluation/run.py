@@ -166,7 +166,7 @@ FRICTION_RANGE = PARAM_RANGES["friction_coefficient"]
 def with_friction_limit(conditions: Conditions, friction_coefficient: float | None = None) -> Conditions:
     """``conditions`` with a car whose tires saturate at ``friction_coefficient`` g (None: as they are): the
     kinematic car's geometry on stiff magic-formula tires (:func:`~plm_highway.vehicle.models.kinematic_car_with_friction`),
-    which steers like the kinematic bicycle below the limit."""
+    which steers close to the kinematic bicycle below the limit."""
     if friction_coefficient is None:
         return conditions
     low, high = FRICTION_RANGE

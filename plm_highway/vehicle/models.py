@@ -221,7 +221,7 @@ class TireSingleTrackParams(SingleTrackParams):
 SEED_PAPER_VEHICLE_DRY = TireSingleTrackParams(**dataclasses.asdict(SEED_PAPER_VEHICLE))
 
 # Tires this stiff (cornering stiffness per axle over the car's mass [1/s^2 per rad]) make the single-track car's
-# lateral modes settle within about 6 ms at 16.7 m/s, so below the friction limit it steers like a kinematic
+# lateral modes settle within about 6 ms at 16.7 m/s, so below the friction limit it steers close to a kinematic
 # bicycle of the same geometry (whose wheels cannot slip at all).
 STIFF_TIRE_PER_KG = 1400.0
 CAR_DEMO_MASS_KG = 1356.0  # OSRF car_demo's Prius chassis (the PLM-Net papers' simulated car)
