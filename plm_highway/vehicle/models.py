@@ -48,8 +48,7 @@ from plm_highway.vehicle.single_track import (
     single_track_tustin_step,
 )
 from plm_highway.vehicle.tires import (
-    axle_force,
-    axle_peaks_per_kg,
+    saturating_axle_forces,
     saturating_single_track_derivatives,
     saturating_single_track_pose_step,
     saturating_single_track_settled,
@@ -260,9 +259,7 @@ def saturating_sensors(state: VehicleState, steer_rad: float, speed_mps: float,
     cf, cr, a_m, b_m, _, mu = _tire_args(params)
     u_mps = max(speed_mps, TIRE_MIN_SPEED_MPS)
     vy, r = state.lateral_velocity_mps, state.yaw_rate_radps
-    peak_f, peak_r = axle_peaks_per_kg(mu, a_m, b_m)
-    front_per_kg, _ = axle_force(steer_rad - math.atan2(vy + a_m * r, u_mps), cf, peak_f)
-    rear_per_kg, _ = axle_force(-math.atan2(vy - b_m * r, u_mps), cr, peak_r)
+    front_per_kg, rear_per_kg = saturating_axle_forces(vy, r, u_mps, steer_rad, cf, cr, a_m, b_m, mu)
     return Sensors(r, front_per_kg * math.cos(steer_rad) + rear_per_kg, math.atan2(vy, u_mps))
 
 

@@ -61,14 +61,19 @@ def axle_peaks_per_kg(mu, a_m, b_m):
 
 
 @numba.njit(cache=True, nogil=True)
+def saturating_axle_forces(vy, r, u_mps, delta_rad, cf_per_kg, cr_per_kg, a_m, b_m, mu):
+    """Front and rear axle forces per unit mass (magic formula, exact slip geometry)."""
+    peak_f, peak_r = axle_peaks_per_kg(mu, a_m, b_m)
+    fyf, _ = axle_force(delta_rad - math.atan2(vy + a_m * r, u_mps), cf_per_kg, peak_f)
+    fyr, _ = axle_force(-math.atan2(vy - b_m * r, u_mps), cr_per_kg, peak_r)
+    return fyf, fyr
+
+
+@numba.njit(cache=True, nogil=True)
 def saturating_single_track_derivatives(vy, r, u_mps, delta_rad, cf_per_kg, cr_per_kg, a_m, b_m, k2_m2, mu,
                                         bank_accel_mps2):
     """(vy', r') with magic-formula axle forces, exact slip geometry and a lateral disturbance."""
-    peak_f, peak_r = axle_peaks_per_kg(mu, a_m, b_m)
-    alpha_f = delta_rad - math.atan2(vy + a_m * r, u_mps)
-    alpha_r = -math.atan2(vy - b_m * r, u_mps)
-    fyf, _ = axle_force(alpha_f, cf_per_kg, peak_f)
-    fyr, _ = axle_force(alpha_r, cr_per_kg, peak_r)
+    fyf, fyr = saturating_axle_forces(vy, r, u_mps, delta_rad, cf_per_kg, cr_per_kg, a_m, b_m, mu)
     cos_delta = math.cos(delta_rad)
     vy_dot = fyf * cos_delta + fyr - u_mps * r + bank_accel_mps2
     r_dot = (a_m * fyf * cos_delta - b_m * fyr) / k2_m2
