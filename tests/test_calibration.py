@@ -166,3 +166,21 @@ def test_a_calibration_with_a_friction_limit_records_it_and_drives_differently(t
     assert limited["per_latency"]["0.25"]["mae_rad_per_seed"] != shipped["per_latency"]["0.25"]["mae_rad_per_seed"]
     assert cli.main(["calibrate", "--friction-coefficient", "0", "--out", str(tmp_path / "bad.png")]) == 2
     assert "--friction-coefficient" in capsys.readouterr().err
+
+
+def test_a_foreign_numbers_file_is_refused_before_any_run(tmp_path, capsys, monkeypatch):
+    import functools
+
+    import plm_highway.evaluation.calibration as calibration
+
+    @functools.wraps(calibration.bm_calibration)  # the parser reads its defaults from the signature
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("the calibration ran although its output would be refused")
+
+    monkeypatch.setattr(calibration, "bm_calibration", must_not_run)
+    (tmp_path / "cal.json").write_text('{"mine": 1}')
+    code = cli.main(["calibrate", "--conditions", "ideal", "--seeds", "2", "--max-steps", "5", "--no-progress",
+                     "--overwrite", "--out", str(tmp_path / "cal.png")])
+    assert code == 2
+    assert "cal.json" in capsys.readouterr().err
+    assert (tmp_path / "cal.json").read_text() == '{"mine": 1}' and not (tmp_path / "cal.png").exists()

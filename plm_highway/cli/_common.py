@@ -71,13 +71,18 @@ def defaults_of(function: Callable) -> dict:
             if p.default is not inspect.Parameter.empty}
 
 
-def publish_figure_and_numbers(args, compute: Callable[[], dict], write: Callable, summary: Callable) -> int:
-    """The body of a command that computes a result and publishes its figure (``args.out``) and numbers: the
-    target is checked before the work, the result records its command line, ``summary(result)`` lines print."""
+def publish_figure_and_numbers(args, compute: Callable[[], dict], write: Callable, summary: Callable,
+                               numbers_kind) -> int:
+    """The body of a command that computes a result and publishes its figure (``args.out``) and numbers (beside
+    it, ``.json``, of ``numbers_kind``): both targets are checked before the work, the result records its command
+    line, ``summary(result)`` lines print."""
+    from pathlib import Path
+
     from plm_highway.evaluation.policies import single_threaded_inference
     from plm_highway.io import FIGURE, check_target
 
     check_target(args.out, FIGURE, overwrite=args.overwrite)
+    check_target(Path(args.out).with_suffix(".json"), numbers_kind, overwrite=args.overwrite)
     with single_threaded_inference():
         result = compute()
     result["command"] = args.command_line

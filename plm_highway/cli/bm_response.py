@@ -22,10 +22,10 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    from plm_highway.evaluation.response import bm_response, ratio_lines, write_response
+    from plm_highway.evaluation.response import RESPONSE_JSON, bm_response, ratio_lines, write_response
 
     return publish_figure_and_numbers(args, lambda: bm_response(args.track, args.conditions, args.checkpoints),
-                                      write_response, ratio_lines)
+                                      write_response, ratio_lines, RESPONSE_JSON)
 
 
 COMMANDS = [Command("bm-response", "the BM's steering beside its demonstrator's tracking law at posed offsets and "

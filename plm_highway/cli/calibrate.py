@@ -51,7 +51,7 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    from plm_highway.evaluation.calibration import bm_calibration, summary_lines, write_calibration
+    from plm_highway.evaluation.calibration import CALIBRATION_JSON, bm_calibration, summary_lines, write_calibration
 
     def calibrate() -> dict:
         return bm_calibration(args.track, args.seeds, args.conditions, args.checkpoints, args.max_steps,
@@ -60,7 +60,7 @@ def run(args) -> int:
                               steering_time_constant_s=args.steering_time_constant_s,
                               friction_coefficient=args.friction_coefficient)
 
-    return publish_figure_and_numbers(args, calibrate, write_calibration, summary_lines)
+    return publish_figure_and_numbers(args, calibrate, write_calibration, summary_lines, CALIBRATION_JSON)
 
 
 COMMANDS = [Command("calibrate", "the BM's steering MAE vs latency under the paper's conditions beside the paper's "
