@@ -147,7 +147,23 @@ def test_targets_are_the_papers_reductions_on_its_test_track_only():
     assert off[0]["met"] is False and "left the road in 2 of 2 seeds" in off[0]["detail"]
     assert "the mean reaches the paper's number" in off[0]["detail"]  # 90% >= 62.1%: the road is what misses
     below = protocol.judge_targets({"const:0.2": _entry([0.1, 0.1], [0.05, 0.05])}, "test")  # 50% < 62.1%
-    assert "the paper's BM 0.192" in below[0]["detail"] and "reaches" not in below[0]["detail"]
+    assert "the BM 0.031 (the paper's 0.192, 0.16x)" in below[0]["detail"] and "reaches" not in below[0]["detail"]
+
+
+def test_a_missed_target_names_the_side_of_the_reduction_that_is_off():
+    # At 0.2 s the paper's BM is 0.1915 and its PLM-Net 0.0726 (paper's unit). With the default 0.2 rad car one
+    # normalised unit is 0.2 * 12 / radians(450) = 0.30558 of the paper's unit.
+    unit = 0.2 * 12 / math.radians(450)
+    bm_like_papers = 0.1915 / unit  # our BM as far off as the paper's ...
+    twice_papers_plm = 2 * 0.0726 / unit  # ... and our PLM-Net twice the paper's: 24% < 62.1%
+    plm_side = protocol.judge_targets({"const:0.2": _entry([bm_like_papers] * 2, [twice_papers_plm] * 2)}, "test")
+    assert plm_side[0]["met"] is False
+    assert "PLM-Net 0.145 (the paper's 0.073, 2.00x) and the BM 0.192 (the paper's 0.192, 1.00x)" in plm_side[0]["detail"]
+    assert "mainly because our PLM-Net's own error is larger" in plm_side[0]["detail"]
+    # Our PLM-Net exactly the paper's, our BM at half the paper's: the reduction is 24% again, now from the BM side.
+    bm_side = protocol.judge_targets({"const:0.2": _entry([bm_like_papers / 2] * 2, [0.0726 / unit] * 2)}, "test")
+    assert "(the paper's 0.073, 1.00x)" in bm_side[0]["detail"] and "(the paper's 0.192, 0.50x)" in bm_side[0]["detail"]
+    assert "mainly because our BM degrades less than the paper's" in bm_side[0]["detail"]
 
 
 def test_where_plm_is_worse_is_said_in_words():

@@ -1,0 +1,71 @@
+"""The open-loop check of PLM-Net along the reference run (plm_highway.evaluation.open_loop)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from plm_highway.evaluation import open_loop
+from plm_highway.evaluation.run import CONDITIONS
+
+
+def test_holding_and_predicting_on_a_ramp():
+    steering = np.arange(10, dtype=float) * 0.1  # the action grows 0.1 per step
+    exact = steering + 0.3  # from frame k, the action 3 steps later
+    holding, predicted = open_loop.open_loop_errors(steering, exact, 3)
+    assert holding == pytest.approx(0.3) and predicted == pytest.approx(0.0)
+    # Predicting the present (what holding does) is as good as holding; predicting twice the change, as bad.
+    assert open_loop.open_loop_errors(steering, steering, 3) == pytest.approx((0.3, 0.3))
+    assert open_loop.open_loop_errors(steering, steering + 0.6, 3)[1] == pytest.approx(0.3)
+
+
+def test_only_steps_with_a_frame_lag_steps_earlier_count():
+    steering = np.array([0.0, 0.0, 1.0, 1.0])
+    predicted = np.array([9.0, 0.0, 0.0, 5.0])  # the last prediction has no later action to be judged by
+    holding, error = open_loop.open_loop_errors(steering, predicted, 1)
+    assert holding == pytest.approx(1 / 3)  # |0-0|, |0-1|, |1-1|
+    assert error == pytest.approx((9 + 1 + 1) / 3)  # |9-0|, |0-1|, |0-1|
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-1, 1), min_size=2, max_size=40), st.integers(1, 5))
+def test_a_predictor_that_knows_the_future_has_no_error(values, lag):
+    steering = np.asarray(values)
+    if lag >= len(steering):
+        lag = len(steering) - 1
+    future = np.concatenate([steering[lag:], np.zeros(lag)])
+    holding, predicted = open_loop.open_loop_errors(steering, future, lag)
+    assert predicted == 0.0 and holding >= 0.0
+
+
+def test_bad_inputs_are_refused():
+    with pytest.raises(ValueError, match="equal 1-D shapes"):
+        open_loop.open_loop_errors(np.zeros(5), np.zeros(4), 1)
+    with pytest.raises(ValueError, match="lag 5 steps"):
+        open_loop.open_loop_errors(np.zeros(5), np.zeros(5), 5)
+    with pytest.raises(ValueError, match="whole number"):
+        open_loop.lag_steps(0.21, 30)
+    assert open_loop.lag_steps(0.2, 30) == 6 and open_loop.lag_steps(0.15, 20) == 3
+
+
+def test_measured_on_a_short_reference_run_with_the_shipped_models():
+    from plm_highway.evaluation.run import make_policies
+    from plm_highway.road.track import load_track
+
+    conditions = CONDITIONS["ideal"]
+    policies = make_policies(None, conditions)
+    track = load_track("test")
+    recording = open_loop.record_reference(policies["bm"], track, conditions, 0, 40)
+    assert recording.frames.shape[0] == 40 == len(recording.steering) and recording.frames.dtype == np.uint8
+    # The BM run again on the recorded frames gives the actions it took: the frames are what it saw.
+    again = policies["bm"].model_policy.steer_batch(recording.frames, recording.speeds_mps)
+    np.testing.assert_array_equal(again, recording.steering)
+    result = open_loop.measure_open_loop(track, conditions, policies, [0, 1], [0.15, 0.25], max_steps=40)
+    assert set(result) == {0.15, 0.25}
+    assert result[0.15]["lag_steps"] == 3 and result[0.25]["lag_steps"] == 5
+    first = result[0.15]["per_seed"][0]
+    predicted = open_loop.predict(policies["plm"].model_policy, recording, 0.15)
+    assert (first["holding_mae"], first["plm_mae"]) == open_loop.open_loop_errors(recording.steering, predicted, 3)
+    assert result[0.15]["holding_mae"].n == 2
