@@ -134,6 +134,15 @@ def test_reproduce_writes_report_tables_and_figures(checkpoints, tmp_path, capsy
         trajectory_rows = list(csv.DictReader(handle))
     assert len([r for r in trajectory_rows if r["track"] == "test"]) == 5 * 4 * 4 * 6  # settings x parts x rows x metrics
     assert list(tmp_path.joinpath("figures").iterdir()) == [out]  # no temporary directory left behind
+    # PLM-Net in open loop along the reference runs: the four constant latencies (20 Hz: 3-6 steps), two seeds each
+    open_loop = results["open_loop"]
+    assert list(open_loop) == ["0.15", "0.2", "0.25", "0.3"]
+    assert [e["lag_steps"] for e in open_loop.values()] == [3, 4, 5, 6]
+    assert all(len(e["per_seed"]) == 2 and e["holding_mae"]["n"] == 2 for e in open_loop.values())
+    section = report.split("### Open loop: PLM-Net along the reference run")[1].split("\n## ")[0]
+    assert sum(line.startswith("| 0.") for line in section.splitlines()) == 4 and "reduction, closed loop (Summary)" in section
+    assert all(line.startswith(("0.15 s:", "0.20 s:", "0.25 s:", "0.30 s:", "Where PLM-Net loses"))
+               for line in (row[2:] for row in section.splitlines() if row.startswith("- ")))
 
 
 def test_the_legacy_fifo_is_compared_with_exact_ages(checkpoints, tmp_path):

@@ -72,10 +72,23 @@ def record_reference(bm_policy, track_spec: TrackSpec, conditions: Conditions, s
 
 def lag_steps(latency_s: float, policy_frequency_hz: float) -> int:
     """Policy steps in ``latency_s``; the latency must be a whole number of steps of at least one."""
-    steps = latency_s * policy_frequency_hz
-    if round(steps) < 1 or abs(steps - round(steps)) > 1e-6:
+    if latency_s not in whole_step_latencies([f"const:{latency_s!r}"], policy_frequency_hz):
         raise ValueError(f"latency {latency_s} s is not a whole number (>= 1) of {policy_frequency_hz:g} Hz steps")
-    return int(round(steps))
+    return int(round(latency_s * policy_frequency_hz))
+
+
+def whole_step_latencies(specs: Sequence[str], policy_frequency_hz: float) -> list[float]:
+    """The constant latencies among ``specs`` (``const:X``, X > 0) that are a whole number of policy steps."""
+    latencies = []
+    for spec in specs:
+        kind, _, value = spec.partition(":")
+        if kind != "const":
+            continue
+        latency_s = float(value)
+        steps = latency_s * policy_frequency_hz
+        if round(steps) >= 1 and abs(steps - round(steps)) <= 1e-6:
+            latencies.append(latency_s)
+    return latencies
 
 
 def open_loop_errors(steering: np.ndarray, predicted: np.ndarray, lag: int) -> tuple[float, float]:

@@ -89,10 +89,12 @@ class Reproduction:
     checkpoints: dict
     # The time-varying settings of the main track under the other latency injection: (its conditions, settings)
     injection_comparison: InjectionComparison | None = None
+    # PLM-Net in open loop along the reference runs (plm_highway.evaluation.open_loop): {latency_s: entry}
+    open_loop: dict | None = None
 
     @classmethod
     def build(cls, command, conditions, seeds, max_steps, main: dict, others: dict, sweep, checkpoints,
-              injection_comparison: tuple[Conditions, dict] | None = None):
+              injection_comparison: tuple[Conditions, dict] | None = None, open_loop: dict | None = None):
         def track_result(measured: dict) -> TrackResult:
             spec = measured["track_spec"]
             return TrackResult(spec.name, spec, measured["settings"],
@@ -105,7 +107,7 @@ class Reproduction:
             compared_conditions, measured = injection_comparison
             compared = InjectionComparison(compared_conditions, measured["settings"])
         return cls(command, conditions, list(seeds), max_steps, track_result(main),
-                   {name: track_result(m) for name, m in others.items()}, sweep, checkpoints, compared)
+                   {name: track_result(m) for name, m in others.items()}, sweep, checkpoints, compared, open_loop)
 
     def as_json(self) -> dict:
         def settings_json(track: TrackResult) -> dict:
@@ -123,6 +125,8 @@ class Reproduction:
             "generalisation": {name: {"settings": settings_json(t), "targets": t.targets, "worse": t.worse}
                                for name, t in self.generalisation.items()},
             "sweep": self.sweep,
+            "open_loop": None if self.open_loop is None else {
+                f"{latency_s:g}": protocol.estimates_as_dict(entry) for latency_s, entry in self.open_loop.items()},
             "injection_comparison": None if self.injection_comparison is None else {
                 "injection": self.injection_comparison.conditions.injection,
                 "latency_source": self.injection_comparison.conditions.latency_source,
@@ -418,6 +422,20 @@ or below the BM's.
 - {{ line }}
 {% endfor %}
 {%- endif %}
+{% if open_loop_rows %}
+### Open loop: PLM-Net along the reference run
+
+Closed loop mixes how well the TAPM predicts the BM's action `delta` ahead with how the mitigated car's own
+trajectory then differs from the delayed BM's. Along each seed's reference run (the BM without latency) only the
+first remains: at each step, holding the action the BM took `delta` earlier (what the delayed BM would send had it
+stayed on that trajectory) and PLM-Net's action from that same earlier frame, told `delta`, are both compared with the
+action the BM took (normalised steering; `plm_highway/evaluation/open_loop.py`). Mean and 95% CI over the seeds.
+
+{{ table(open_loop_rows) }}
+{% for line in open_loop_lines -%}
+- {{ line }}
+{% endfor %}
+{%- endif %}
 {% if injection_rows %}
 ## The legacy FIFO against exact ages
 
@@ -568,11 +586,57 @@ def render_report(r: Reproduction, figure_files: dict, other_figures: dict) -> s
         noise_floor=est(r.track.noise_floor), off_road=off_road_rows(r.track), sections=sections,
         generalisation=generalisation, sweep_lines=sweep_lines,
         injection_rows=injection_table(r) if r.injection_comparison is not None else None,
+        open_loop_rows=open_loop_table(r) if r.open_loop else None, open_loop_lines=open_loop_lines(r),
         sweep_max=f"{max(r.sweep['latencies_s']):.2f}" if r.sweep else "",
         grid_max=f"{r.sweep['tapm_grid_max_s']:.2f}" if r.sweep else "",
         max_steer=c.max_steering_rad, ratio=f"{protocol.PAPER_STEERING_RATIO:g}",
         protocol_lines=protocol_lines(r), method_lines=method_lines(r.track.track_spec, c), notes=paper.NOTES,
         shows=shows_lines(r, met))
+
+
+def open_loop_table(r: Reproduction) -> tuple[list[str], list[list[str]]]:
+    header = ["latency", "holding the BM's earlier action", "PLM-Net from the earlier frame", "reduction, open loop",
+              "reduction, closed loop (Summary)"]
+    rows = []
+    for latency_s, entry in r.open_loop.items():
+        closed = _constant_setting(r.track.settings, latency_s)
+        rows.append([f"{latency_s:.2f} s ({entry['lag_steps']} steps)", est(entry["holding_mae"]),
+                     est(entry["plm_mae"]), est_pct(entry["reduction_pct"]),
+                     est_pct(closed["steering"]["mae_reduction_pct"]) if closed else "—"])
+    return header, rows
+
+
+def _constant_setting(settings: dict, latency_s: float) -> dict | None:
+    """The entry of the constant-latency setting at ``latency_s`` among ``settings``, if driven."""
+    for spec, entry in settings.items():
+        kind, _, value = spec.partition(":")
+        if kind == "const" and abs(float(value) - latency_s) < 1e-9:
+            return entry
+    return None
+
+
+def open_loop_lines(r: Reproduction) -> list[str]:
+    """What the open-loop table says, in words, per latency: does PLM-Net predict better than holding?"""
+    if not r.open_loop:
+        return []
+    lines = []
+    for latency_s, entry in r.open_loop.items():
+        reduction = entry["reduction_pct"]
+        closed = _constant_setting(r.track.settings, latency_s)
+        closed_text = (f"; in closed loop it reduces the BM's error by {closed['steering']['mae_reduction_pct'].mean:.1f}%"
+                       if closed else "")
+        if reduction.high is not None and reduction.high < 0:
+            verdict = "PLM-Net predicts the BM's action worse than holding the earlier one (the CI is below 0)"
+        elif reduction.low is not None and reduction.low > 0:
+            verdict = "PLM-Net predicts the BM's action better than holding the earlier one (the CI is above 0)"
+        else:
+            verdict = "PLM-Net and holding the earlier action are not told apart (the CI spans 0, or one seed)"
+        lines.append(f"{latency_s:.2f} s: {verdict}{closed_text}.")
+    if any(e["reduction_pct"].mean < 0 for e in r.open_loop.values()):
+        lines.append("Where PLM-Net loses in open loop but gains in closed loop, its gain is not prediction of the "
+                     "BM's action: the TAPM was trained on the demonstrator's future actions, and what it adds damps "
+                     "the weave the delayed BM drives itself into.")
+    return lines
 
 
 def protocol_lines(r: Reproduction) -> list[str]:

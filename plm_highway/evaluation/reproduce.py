@@ -28,6 +28,7 @@ from plm_highway.evaluation import protocol
 from plm_highway.evaluation.batched import DEFAULT_BATCH_SIZE
 from plm_highway.evaluation.cell_runner import MAX_WORKERS, drive_cells, worker_pool
 from plm_highway.evaluation.evaluate import compare_runs
+from plm_highway.evaluation.open_loop import measure_open_loop, whole_step_latencies
 from plm_highway.evaluation.policies import checkpoint_pair
 from plm_highway.evaluation.protocol import (  # noqa: F401  (the names earlier code imported from here)
     is_constant,
@@ -204,6 +205,8 @@ def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=N
     n_runs = len(seed_list) * ((1 + 2 * len(specs)) * (1 + len(other_specs)) + (1 + 2 * len(varying) if varying else 0))
     if sweep:
         n_runs += len(sweep_module.planned_runs(latencies, sweep_module.LATENCY_BIASES_S, grid_max_s))
+    open_loop_latencies = whole_step_latencies(specs, conditions.policy_frequency_hz)
+    n_runs += len(seed_list) if open_loop_latencies else 0  # one more reference run per seed, its frames kept
     bar = progress_bar(n_runs, progress)
 
     pool = worker_pool(workers) if workers else None  # one pool for every track: workers load the models once
@@ -216,6 +219,7 @@ def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=N
         main = measure_track(main_spec, specs, seed_list, conditions, policies, max_steps, bar, runner=runner)
         others = {s.name: measure_track(s, specs, seed_list, conditions, policies, max_steps, bar, runner=runner)
                   for s in other_specs}
+        open_loop = measure_open_loop(main_spec, conditions, policies, seed_list, open_loop_latencies, max_steps, bar)
         injection_comparison = None
         if compared is not None:
             injection_comparison = (compared, measure_track(main_spec, varying, seed_list, compared,
@@ -237,7 +241,8 @@ def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=N
     if progress:
         print(f"reproduce: all {n_runs} runs done; writing the tables, figures and report to {out}", file=sys.stderr)
     result = Reproduction.build(command or "plm-highway reproduce", conditions, seed_list, max_steps, main, others,
-                                sweep_result, _checkpoint_info(bm_path, tapm_path), injection_comparison)
+                                sweep_result, _checkpoint_info(bm_path, tapm_path), injection_comparison,
+                                open_loop)
     write_report(result, main, others, out, overwrite)
     return result.as_json()
 
