@@ -702,6 +702,16 @@ def shows_lines(r: Reproduction, met: int) -> list[str]:
     if r.track.targets:
         lines.append(f"{met} of {len(r.track.targets)} of the paper's MAE-reduction targets are met by our mean over "
                      f"{len(r.seeds)} seeds (see Targets for the CIs).")
+    if r.open_loop:
+        worse = [latency_s for latency_s, e in r.open_loop.items()
+                 if e["reduction_pct"].high is not None and e["reduction_pct"].high < 0]
+        gaining = [latency_s for latency_s in worse if (closed := _constant_setting(r.track.settings, latency_s))
+                   and closed["steering"]["mae_reduction_pct"].mean > 0]
+        if gaining:
+            lines.append(f"Along the reference run PLM-Net predicts the BM's action worse than holding the earlier "
+                         f"action at {', '.join(f'{x:.2f}' for x in gaining)} s (Open loop), where in closed loop it "
+                         "reduces the BM's error: there its gain is damping the delayed BM's weave, not predicting the "
+                         "BM's action.")
     if r.conditions.injection == "legacy-fifo":
         lines.append("The paper's time-varying baseline was effectively a constant latency: the original's BM buffer "
                      "kept its configured constant delta while PLM-Net's followed the random one, and PLM-Net was told "
