@@ -69,3 +69,37 @@ def test_measured_on_a_short_reference_run_with_the_shipped_models():
     predicted = open_loop.predict(policies["plm"].model_policy, recording, 0.15)
     assert (first["holding_mae"], first["plm_mae"]) == open_loop.open_loop_errors(recording.steering, predicted, 3)
     assert result[0.15]["holding_mae"].n == 2
+
+
+def _reproduction(open_loop_reduction, closed_loop_reduction):
+    from types import SimpleNamespace
+
+    from plm_highway.evaluation.protocol import Estimate
+
+    def estimate(mean, half_width=5.0):
+        return Estimate(mean, mean - half_width, mean + half_width, 5)
+
+    entry = {"lag_steps": 6, "holding_mae": estimate(0.02, 0.001), "plm_mae": estimate(0.03, 0.002),
+             "reduction_pct": estimate(open_loop_reduction)}
+    settings = {"const:0.20": {"steering": {"mae_reduction_pct": estimate(closed_loop_reduction)}}}
+    return SimpleNamespace(open_loop={0.2: entry}, track=SimpleNamespace(settings=settings, targets=[]),
+                           conditions=CONDITIONS["paper"], seeds=[0, 1, 2, 3, 4])
+
+
+def test_the_report_says_when_the_closed_loop_gain_is_not_prediction():
+    from plm_highway.evaluation import report
+
+    damping = _reproduction(-50.0, 40.0)  # open loop worse than holding (CI -55..-45), closed loop better
+    lines = report.open_loop_lines(damping)
+    assert lines[0] == ("0.20 s: PLM-Net predicts the BM's action worse than holding the earlier one (the CI is below "
+                        "0); in closed loop it reduces the BM's error by 40.0%.")
+    assert "its gain is not prediction" in lines[1]
+    assert any("at 0.20 s (Open loop)" in line for line in report.shows_lines(damping, 0))
+    predicting = _reproduction(30.0, 40.0)
+    assert "better than holding" in report.open_loop_lines(predicting)[0]
+    assert len(report.open_loop_lines(predicting)) == 1
+    assert not any("(Open loop)" in line for line in report.shows_lines(predicting, 0))
+    undecided = _reproduction(2.0, 40.0)  # CI -3..7
+    assert "not told apart" in report.open_loop_lines(undecided)[0]
+    table = report.open_loop_table(damping)
+    assert table[1] == [["0.20 s (6 steps)", "0.0200 ± 0.0010", "0.0300 ± 0.0020", "-50.0 ± 5.0%", "40.0 ± 5.0%"]]
