@@ -45,9 +45,30 @@ def test_bad_inputs_are_refused():
         open_loop.open_loop_errors(np.zeros(5), np.zeros(4), 1)
     with pytest.raises(ValueError, match="lag 5 steps"):
         open_loop.open_loop_errors(np.zeros(5), np.zeros(5), 5)
-    with pytest.raises(ValueError, match="whole number"):
-        open_loop.lag_steps(0.21, 30)
-    assert open_loop.lag_steps(0.2, 30) == 6 and open_loop.lag_steps(0.15, 20) == 3
+    with pytest.raises(ValueError, match="less than one 30 Hz step"):
+        open_loop.lag_steps(0.0, 30)
+
+
+def test_the_lag_is_the_age_of_the_frame_the_env_serves():
+    # At 30 Hz, 0.15 s is 4.5 steps: the wrapper serves the newest frame at least that old, 5 steps (0.167 s).
+    assert open_loop.lag_steps(0.2, 30) == 6 and open_loop.lag_steps(0.15, 30) == 5
+    assert open_loop.lag_steps(0.25, 30) == 8 and open_loop.lag_steps(0.15, 20) == 3
+    assert open_loop.constant_latencies(["const:0.15", "steps:0.0-0.35:1.0", "const:0", "const:0.3"], 30) == [0.15, 0.3]
+    from plm_highway.evaluation.closed_loop import make_env
+
+    env = make_env("test", "const:0.12", None, {"policy_frequency": 20, "simulation_frequency": 20})
+    try:
+        env.reset(seed=0)
+        for _ in range(6):
+            _, _, _, _, info = env.step(np.array([0.0], np.float32))
+    finally:
+        env.close()
+    assert info["observation_age_s"] == pytest.approx(open_loop.lag_steps(0.12, 20) / 20) == pytest.approx(0.15)
+
+
+def test_plm_net_is_told_what_the_conditions_tell_it():
+    assert open_loop.told_latency_s(0.15, 5, CONDITIONS["paper"]) == 0.15  # the requested latency (legacy FIFO)
+    assert open_loop.told_latency_s(0.12, 3, CONDITIONS["ideal"]) == pytest.approx(0.15)  # the frame's age at 20 Hz
 
 
 def test_measured_on_a_short_reference_run_with_the_shipped_models():

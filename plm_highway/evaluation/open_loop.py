@@ -4,14 +4,15 @@ A closed-loop reduction mixes two things: how well the TAPM predicts the action 
 ``delta`` later, and how the mitigated car's own trajectory then differs from the delayed BM's (the
 delayed BM weaves; PLM-Net's anticipation damps or feeds that weave). Along the reference run, the BM
 driving the same seed without latency, only the first remains: at step t, the delayed BM would act on
-the frame of step t - n (n = delta x the policy rate) and send the action that frame gave, while
-PLM-Net would send its prediction from that same frame for latency delta. Both are compared with the
+the frame of step t - n (the frame the latency wrapper serves: n = ceil(delta x the policy rate)) and send
+the action that frame gave, while PLM-Net would send its prediction from that same frame, told the
+latency the conditions tell it (delta requested, or the frame's age n / rate). Both are compared with the
 action the BM took at t. No second run is driven, so neither side's errors feed back.
 
 The two errors, over every step t >= n of the reference run:
 
     holding  = mean |a[t - n] - a[t]|          the delayed BM, had it stayed on the reference trajectory
-    PLM-Net  = mean |p_delta[t - n] - a[t]|    p_delta[k]: PLM-Net's action from frame k, told delta
+    PLM-Net  = mean |p_delta[t - n] - a[t]|    p_delta[k]: PLM-Net's action from frame k
 
 A TAPM that beats holding here predicts the BM's future; one that does not can still reduce the
 closed-loop error, by damping the weave the delayed BM drives itself into, but then its gain is not
@@ -28,6 +29,7 @@ import numpy as np
 from plm_highway.evaluation import protocol
 from plm_highway.evaluation.closed_loop import drive
 from plm_highway.evaluation.run import Cell, Conditions, drive_options, scored_steps
+from plm_highway.latency.wrapper import served_steps
 from plm_highway.metrics.steering import reduction_pct
 from plm_highway.road.track import TrackSpec
 
@@ -71,24 +73,27 @@ def record_reference(bm_policy, track_spec: TrackSpec, conditions: Conditions, s
 
 
 def lag_steps(latency_s: float, policy_frequency_hz: float) -> int:
-    """Policy steps in ``latency_s``; the latency must be a whole number of steps of at least one."""
-    if latency_s not in whole_step_latencies([f"const:{latency_s!r}"], policy_frequency_hz):
-        raise ValueError(f"latency {latency_s} s is not a whole number (>= 1) of {policy_frequency_hz:g} Hz steps")
-    return int(round(latency_s * policy_frequency_hz))
+    """Policy steps between the frame served for ``latency_s`` and now, as the latency wrapper serves it (at 30 Hz,
+    0.15 s is 5 steps: the newest frame at least 0.15 s old)."""
+    lag = served_steps(latency_s, 1.0 / policy_frequency_hz)
+    if lag < 1:
+        raise ValueError(f"latency {latency_s} s is less than one {policy_frequency_hz:g} Hz step")
+    return lag
 
 
-def whole_step_latencies(specs: Sequence[str], policy_frequency_hz: float) -> list[float]:
-    """The constant latencies among ``specs`` (``const:X``, X > 0) that are a whole number of policy steps."""
+def constant_latencies(specs: Sequence[str], policy_frequency_hz: float) -> list[float]:
+    """The constant latencies among ``specs`` (``const:X``) of at least one policy step."""
     latencies = []
     for spec in specs:
         kind, _, value = spec.partition(":")
-        if kind != "const":
-            continue
-        latency_s = float(value)
-        steps = latency_s * policy_frequency_hz
-        if round(steps) >= 1 and abs(steps - round(steps)) <= 1e-6:
-            latencies.append(latency_s)
+        if kind == "const" and served_steps(float(value), 1.0 / policy_frequency_hz) >= 1:
+            latencies.append(float(value))
     return latencies
+
+
+def told_latency_s(latency_s: float, lag: int, conditions: Conditions) -> float:
+    """What PLM-Net is told in the closed loop: the requested latency, or the age of the frame it got."""
+    return latency_s if conditions.latency_source == "requested" else lag / conditions.policy_frequency_hz
 
 
 def open_loop_errors(steering: np.ndarray, predicted: np.ndarray, lag: int) -> tuple[float, float]:
@@ -129,7 +134,7 @@ def measure_open_loop(track_spec: TrackSpec, conditions: Conditions, policies: d
     for seed in seeds:
         recording = record_reference(policies["bm"], track_spec, conditions, seed, steps)
         for latency_s, lag in lags.items():
-            predicted = predict(policies["plm"].model_policy, recording, latency_s)
+            predicted = predict(policies["plm"].model_policy, recording, told_latency_s(latency_s, lag, conditions))
             per_seed[latency_s].append(open_loop_errors(recording.steering, predicted, lag))
         if progress is not None:
             progress.update(1)

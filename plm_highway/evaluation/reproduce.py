@@ -28,7 +28,7 @@ from plm_highway.evaluation import protocol
 from plm_highway.evaluation.batched import DEFAULT_BATCH_SIZE
 from plm_highway.evaluation.cell_runner import MAX_WORKERS, drive_cells, worker_pool
 from plm_highway.evaluation.evaluate import compare_runs
-from plm_highway.evaluation.open_loop import measure_open_loop, whole_step_latencies
+from plm_highway.evaluation.open_loop import constant_latencies, measure_open_loop
 from plm_highway.evaluation.policies import checkpoint_pair
 from plm_highway.evaluation.protocol import (  # noqa: F401  (the names earlier code imported from here)
     is_constant,
@@ -205,7 +205,7 @@ def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=N
     n_runs = len(seed_list) * ((1 + 2 * len(specs)) * (1 + len(other_specs)) + (1 + 2 * len(varying) if varying else 0))
     if sweep:
         n_runs += len(sweep_module.planned_runs(latencies, sweep_module.LATENCY_BIASES_S, grid_max_s))
-    open_loop_latencies = whole_step_latencies(specs, conditions.policy_frequency_hz)
+    open_loop_latencies = constant_latencies(specs, conditions.policy_frequency_hz)
     n_runs += len(seed_list) if open_loop_latencies else 0  # one more reference run per seed, its frames kept
     bar = progress_bar(n_runs, progress)
 

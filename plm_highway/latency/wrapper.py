@@ -65,6 +65,15 @@ class TimeLookup:
             self._snapshots.popleft()
 
 
+def served_steps(latency_s: float, policy_dt_s: float) -> int:
+    """How many policy steps old the frame served for ``latency_s`` is (both injections).
+
+    The time look-up serves the newest frame at least ``latency_s`` old, ceil(latency / step) steps; the legacy FIFO
+    counts its frames the same way.
+    """
+    return max(0, math.ceil(latency_s / policy_dt_s - 1e-6))
+
+
 class LegacyFifo:
     """The original PLM-Net FIFO (ROS loop of ``run_neural..._delay_mitig_rand``), frame for frame.
 
@@ -92,8 +101,7 @@ class LegacyFifo:
         self._fifo.clear()
 
     def delta_frames(self, latency_s: float) -> int:
-        # The time look-up serves ceil(latency / step) steps old: count frames the same way.
-        return max(0, math.ceil(latency_s / self.policy_dt_s - 1e-6))
+        return served_steps(latency_s, self.policy_dt_s)
 
     def serve(self, new_snapshots, now_s: float, latency_s: float):
         current = new_snapshots[-1]  # the loop saw one (the newest) frame per iteration
