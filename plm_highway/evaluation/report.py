@@ -623,8 +623,11 @@ def open_loop_lines(r: Reproduction) -> list[str]:
     for latency_s, entry in r.open_loop.items():
         reduction = entry["reduction_pct"]
         closed = _constant_setting(r.track.settings, latency_s)
-        closed_text = (f"; in closed loop it reduces the BM's error by {closed['steering']['mae_reduction_pct'].mean:.1f}%"
-                       if closed else "")
+        closed_text = ""
+        if closed:
+            closed_pct = closed["steering"]["mae_reduction_pct"].mean
+            closed_text = (f"; in closed loop it reduces the BM's error by {closed_pct:.1f}%" if closed_pct >= 0
+                           else f"; in closed loop it makes the BM's error {-closed_pct:.1f}% larger")
         if reduction.high is not None and reduction.high < 0:
             verdict = "PLM-Net predicts the BM's action worse than holding the earlier one (the CI is below 0)"
         elif reduction.low is not None and reduction.low > 0:
