@@ -83,12 +83,8 @@ def lag_steps(latency_s: float, policy_frequency_hz: float) -> int:
 
 def constant_latencies(specs: Sequence[str], policy_frequency_hz: float) -> list[float]:
     """The constant latencies among ``specs`` (``const:X``) of at least one policy step."""
-    latencies = []
-    for spec in specs:
-        kind, _, value = spec.partition(":")
-        if kind == "const" and served_steps(float(value), 1.0 / policy_frequency_hz) >= 1:
-            latencies.append(float(value))
-    return latencies
+    latencies = [protocol.constant_latency_s(spec) for spec in specs if protocol.is_constant(spec)]
+    return [latency_s for latency_s in latencies if served_steps(latency_s, 1.0 / policy_frequency_hz) >= 1]
 
 
 def told_latency_s(latency_s: float, lag: int, conditions: Conditions) -> float:

@@ -609,8 +609,8 @@ def open_loop_table(r: Reproduction) -> tuple[list[str], list[list[str]]]:
 def _constant_setting(settings: dict, latency_s: float) -> dict | None:
     """The entry of the constant-latency setting at ``latency_s`` among ``settings``, if driven."""
     for spec, entry in settings.items():
-        kind, _, value = spec.partition(":")
-        if kind == "const" and abs(float(value) - latency_s) < 1e-9:
+        value = protocol.constant_latency_s(spec)
+        if value is not None and abs(value - latency_s) < 1e-9:
             return entry
     return None
 
