@@ -427,9 +427,10 @@ or below the BM's.
 
 Closed loop mixes how well the TAPM predicts the BM's action `delta` ahead with how the mitigated car's own
 trajectory then differs from the delayed BM's. Along each seed's reference run (the BM without latency) only the
-first remains: at each step, holding the action the BM took `delta` earlier (what the delayed BM would send had it
-stayed on that trajectory) and PLM-Net's action from that same earlier frame, told `delta`, are both compared with the
-action the BM took (normalised steering; `plm_highway/evaluation/open_loop.py`). Mean and 95% CI over the seeds.
+first remains: at each step, holding the action the BM took on the frame the latency wrapper would serve for `delta`
+(its age in steps is in the table; what the delayed BM would send had it stayed on that trajectory) and PLM-Net's
+action from that same frame, told the latency these conditions tell it, are both compared with the action the BM took
+(normalised steering; `plm_highway/evaluation/open_loop.py`). Mean and 95% CI over the seeds.
 
 {{ table(open_loop_rows) }}
 {% for line in open_loop_lines -%}
