@@ -120,7 +120,10 @@ def test_the_report_says_when_the_closed_loop_gain_is_not_prediction():
     assert "better than holding" in report.open_loop_lines(predicting)[0]
     assert len(report.open_loop_lines(predicting)) == 1
     assert not any("(Open loop)" in line for line in report.shows_lines(predicting, 0))
-    assert report.open_loop_lines(_reproduction(-50.0, -4.7))[0].endswith("it makes the BM's error 4.7% larger.")
+    both_worse = _reproduction(-50.0, -4.7)  # worse than holding and worse than the BM: no damping gain to explain
+    assert report.open_loop_lines(both_worse)[0].endswith("it makes the BM's error 4.7% larger.")
+    assert len(report.open_loop_lines(both_worse)) == 1
+    assert not any("(Open loop)" in line for line in report.shows_lines(both_worse, 0))
     undecided = _reproduction(2.0, 40.0)  # CI -3..7
     assert "not told apart" in report.open_loop_lines(undecided)[0]
     table = report.open_loop_table(damping)

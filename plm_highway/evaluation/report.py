@@ -616,6 +616,30 @@ def _constant_setting(settings: dict, latency_s: float) -> dict | None:
     return None
 
 
+OPEN_LOOP_VERDICTS = {
+    "worse": "PLM-Net predicts the BM's action worse than holding the earlier one (the CI is below 0)",
+    "better": "PLM-Net predicts the BM's action better than holding the earlier one (the CI is above 0)",
+    "undecided": "PLM-Net and holding the earlier action are not told apart (the CI spans 0, or one seed)",
+}
+
+
+def _open_loop_verdict(reduction: Estimate) -> str:
+    """``worse`` or ``better`` than holding when the open-loop reduction's CI excludes 0, else ``undecided``."""
+    if reduction.high is not None and reduction.high < 0:
+        return "worse"
+    if reduction.low is not None and reduction.low > 0:
+        return "better"
+    return "undecided"
+
+
+def _gain_without_prediction(r: Reproduction) -> list[float]:
+    """Latencies where PLM-Net predicts worse than holding in open loop yet reduces the BM's error in closed loop."""
+    return [latency_s for latency_s, e in (r.open_loop or {}).items()
+            if _open_loop_verdict(e["reduction_pct"]) == "worse"
+            and (closed := _constant_setting(r.track.settings, latency_s))
+            and closed["steering"]["mae_reduction_pct"].mean > 0]
+
+
 def open_loop_lines(r: Reproduction) -> list[str]:
     """What the open-loop table says, in words, per latency: does PLM-Net predict better than holding?"""
     if not r.open_loop:
@@ -629,14 +653,9 @@ def open_loop_lines(r: Reproduction) -> list[str]:
             closed_pct = closed["steering"]["mae_reduction_pct"].mean
             closed_text = (f"; in closed loop it reduces the BM's error by {closed_pct:.1f}%" if closed_pct >= 0
                            else f"; in closed loop it makes the BM's error {-closed_pct:.1f}% larger")
-        if reduction.high is not None and reduction.high < 0:
-            verdict = "PLM-Net predicts the BM's action worse than holding the earlier one (the CI is below 0)"
-        elif reduction.low is not None and reduction.low > 0:
-            verdict = "PLM-Net predicts the BM's action better than holding the earlier one (the CI is above 0)"
-        else:
-            verdict = "PLM-Net and holding the earlier action are not told apart (the CI spans 0, or one seed)"
+        verdict = OPEN_LOOP_VERDICTS[_open_loop_verdict(reduction)]
         lines.append(f"{latency_s:.2f} s: {verdict}{closed_text}.")
-    if any(e["reduction_pct"].mean < 0 for e in r.open_loop.values()):
+    if _gain_without_prediction(r):
         lines.append("Where PLM-Net loses in open loop but gains in closed loop, its gain is not prediction of the "
                      "BM's action: the TAPM was trained on the demonstrator's future actions, and what it adds damps "
                      "the weave the delayed BM drives itself into.")
@@ -707,10 +726,7 @@ def shows_lines(r: Reproduction, met: int) -> list[str]:
         lines.append(f"{met} of {len(r.track.targets)} of the paper's MAE-reduction targets are met by our mean over "
                      f"{len(r.seeds)} seeds (see Targets for the CIs).")
     if r.open_loop:
-        worse = [latency_s for latency_s, e in r.open_loop.items()
-                 if e["reduction_pct"].high is not None and e["reduction_pct"].high < 0]
-        gaining = [latency_s for latency_s in worse if (closed := _constant_setting(r.track.settings, latency_s))
-                   and closed["steering"]["mae_reduction_pct"].mean > 0]
+        gaining = _gain_without_prediction(r)
         if gaining:
             lines.append(f"Along the reference run PLM-Net predicts the BM's action worse than holding the earlier "
                          f"action at {', '.join(f'{x:.2f}' for x in gaining)} s (Open loop), where in closed loop it "
