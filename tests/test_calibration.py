@@ -11,6 +11,7 @@ from plm_highway import cli
 from plm_highway.errors import BadInput
 from plm_highway.evaluation.calibration import (
     bm_calibration,
+    injected_latency_s,
     judge,
     paper_bm_mae_rad,
     paper_unit_to_front_wheel_rad,
@@ -166,6 +167,35 @@ def test_a_calibration_with_a_friction_limit_records_it_and_drives_differently(t
     assert limited["per_latency"]["0.25"]["mae_rad_per_seed"] != shipped["per_latency"]["0.25"]["mae_rad_per_seed"]
     assert cli.main(["calibrate", "--friction-coefficient", "0", "--out", str(tmp_path / "bad.png")]) == 2
     assert "--friction-coefficient" in capsys.readouterr().err
+
+
+def test_the_loop_frames_reading_injects_the_originals_frame_counts_at_its_30_hz_loop():
+    # The original's 9, 12, 15, 18 frames (the stated seconds at 60 fps), filled once per 30 Hz loop iteration.
+    assert [injected_latency_s(s, "loop-frames") for s in (0.15, 0.20, 0.25, 0.30)] == [9 / 30, 12 / 30, 15 / 30,
+                                                                                          18 / 30]
+    assert [injected_latency_s(s) for s in (0.0, 0.15, 0.30)] == [0.0, 0.15, 0.30]
+    assert injected_latency_s(0.0, "loop-frames") == 0.0  # the reference stays without latency
+    with pytest.raises(BadInput, match="--reading 'frames'"):
+        injected_latency_s(0.15, "frames")
+
+
+def test_under_the_loop_frames_reading_the_papers_0_15_s_row_is_our_bm_at_0_30_s(tmp_path, capsys):
+    stated = bm_calibration("test", seeds="0,1", conditions="ideal", max_steps=40, progress=False)
+    out = tmp_path / "cal.png"
+    assert cli.main(["calibrate", "--conditions", "ideal", "--seeds", "2", "--max-steps", "40", "--no-progress",
+                     "--reading", "loop-frames", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "0.15 s (injected 0.30 s)" in printed and "30 Hz loop" in printed
+    frames = json.loads(out.with_suffix(".json").read_text())
+    assert frames["reading"] == "loop-frames" and stated["reading"] == "stated"
+    assert frames["per_latency"]["0.15"]["injected_s"] == 0.30
+    # The same runs: the paper's 0.15 s row read as 9 loop frames is the stated reading's 0.30 s row, seed by seed,
+    # and is still compared with the paper's 0.15 s number.
+    assert frames["per_latency"]["0.15"]["mae_rad_per_seed"] == stated["per_latency"]["0.30"]["mae_rad_per_seed"]
+    assert frames["per_latency"]["0.15"]["paper_rad"] == stated["per_latency"]["0.15"]["paper_rad"]
+    assert frames["per_latency"]["0.25"]["mae_rad_per_seed"] != stated["per_latency"]["0.25"]["mae_rad_per_seed"]
+    assert frames["noise_floor"] == stated["noise_floor"]
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_a_foreign_numbers_file_is_refused_before_any_run(tmp_path, capsys, monkeypatch):

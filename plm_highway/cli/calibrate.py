@@ -14,7 +14,7 @@ from plm_highway.cli._common import (
 
 def configure(parser) -> None:
     from plm_highway.envs.config import MAX_PROCESSING_DELAY_STEPS, MAX_STEERING_TIME_CONSTANT_S
-    from plm_highway.evaluation.calibration import DEFAULT_OUT, bm_calibration
+    from plm_highway.evaluation.calibration import DEFAULT_OUT, READINGS, bm_calibration
     from plm_highway.evaluation.run import CONDITION_NAMES, CONDITIONS, FRICTION_RANGE, SPEED_LOGICS
 
     d = defaults_of(bm_calibration)
@@ -37,6 +37,10 @@ def configure(parser) -> None:
                         help="give the car tires that saturate at this many g (the papers' Gazebo Prius: 0.9): the "
                              "kinematic car's geometry on stiff magic-formula tires, close to that car below the limit "
                              "(default: the conditions' kinematic bicycle, no limit)")
+    parser.add_argument("--reading", choices=tuple(READINGS), default=d["reading"],
+                        help="stated: the paper's latencies as it states them (0.15-0.30 s); loop-frames: as the "
+                             "original counted them, 9/12/15/18 frames of its 30 Hz loop (0.30-0.60 s), the 2x "
+                             "timebase ambiguity")
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: the conditions' "
                                               "shipped pair)")
@@ -58,7 +62,7 @@ def run(args) -> int:
                               not args.no_progress, args.workers, speed_logic=args.speed_logic,
                               processing_delay_steps=args.processing_delay_steps,
                               steering_time_constant_s=args.steering_time_constant_s,
-                              friction_coefficient=args.friction_coefficient)
+                              friction_coefficient=args.friction_coefficient, reading=args.reading)
 
     return publish_figure_and_numbers(args, calibrate, write_calibration, summary_lines, CALIBRATION_JSON)
 
