@@ -202,13 +202,14 @@ def calibration_figure(result: dict):
     if result.get("friction_coefficient") is not None:
         speed_text += f", tires saturating at {result['friction_coefficient']:g} g"
     if reading != "stated":
-        speed_text += f", latencies read as {reading}"
+        speed_text += ", latencies as the original's 30 Hz loop frames"
     ax.set_title(f"BM degradation, {result['conditions']} conditions{speed_text}, {result['track']} track\n"
                  f"rise rule {'met' if rules['rise']['met'] else 'missed'}, paper rule "
                  f"{'met' if rules['paper']['met'] else 'missed'}", fontsize=10)
     ax.set_xticks(all_x)
     if reading != "stated":
-        ax.set_xticklabels(["0"] + [f"{x:.2f}\n(paper {key} s)" for x, key in zip(latencies, result["per_latency"])])
+        ax.set_xticklabels(["0"] + [f"{x:.2f}\npaper's\n{key} s" for x, key in zip(latencies, result["per_latency"])],
+                           fontsize=8)
     ax.legend(fontsize=8, loc="upper left", framealpha=0.9)
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
