@@ -51,8 +51,9 @@ from plm_highway.vehicle.paper_units import paper_unit_to_front_wheel_rad
 
 LATENCIES_S = (0.0, 0.15, 0.20, 0.25, 0.30)  # as the paper states them
 READINGS = {
-    "stated": "the latencies as the paper states them",
-    "loop-frames": "the original's frame counts (the stated seconds at 60 fps: 9, 12, 15, 18) in its 30 Hz loop",
+    "stated": "as the paper states them (0.15-0.30 s)",
+    "loop-frames": "as the original counted them: 9, 12, 15, 18 frames (the stated seconds at 60 fps) of its 30 Hz "
+                   "loop (0.30-0.60 s)",
 }
 ORIGINAL_FRAME_COUNT_FPS = 60  # how the original's comments and the paper turn its frame counts into seconds
 ORIGINAL_LOOP_HZ = 30  # the rate its FIFO was filled at (notes: a FIFO counted in loop iterations)
@@ -101,9 +102,9 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
                    steering_time_constant_s: float | None = None, friction_coefficient: float | None = None,
                    reading: str = "stated") -> dict:
     """Drive the BM at :data:`LATENCIES_S` (as ``reading`` injects them, :func:`injected_latency_s`) under
-    ``seeds``; return the per-seed MAEs, their means with 95% CIs
-    (front-wheel radians), the noise floor, the paper's numbers and the two rules judged. ``workers`` 0 drives
-    the runs batched in this process; >= 1 on that many processes (the same numbers, bit for bit).
+    ``seeds``; return the per-seed MAEs, their means with 95% CIs (front-wheel radians), the noise floor, the
+    paper's numbers and the two rules judged. ``workers`` 0 drives the runs batched in this process; >= 1 on
+    that many processes (the same numbers, bit for bit).
     ``speed_logic`` (:data:`~plm_highway.evaluation.run.SPEED_LOGICS`): constant speed, or the original run
     scripts' braking on sharp steering. ``processing_delay_steps`` and ``steering_time_constant_s`` replace the
     conditions' assumed pipeline (:func:`~plm_highway.evaluation.run.with_pipeline`; None keeps it).
