@@ -711,7 +711,10 @@ IDEAL_BM_LINE = ("It does not reproduce the paper's BM degradation: our BM imita
 PAPER_BM_LINE = ("Its BM imitates a human-like demonstrator, and it degrades with latency less than the paper's "
                  "(`plm-highway calibrate`, figures/bm-calibration.png: 0.44-0.88x the paper's BM MAE at 0.15-0.30 s, "
                  "outside the factor 2 at 0.25 s), and unlike the paper's it leaves the road at 0.25 and 0.30 s, so "
-                 "the percentages here are of an error of the paper's order, not of the same error. PLM-Net's TAPM saw about 30,500 balanced training samples (the paper's "
+                 "the percentages here are of an error of the paper's order, not of the same error. How far it "
+                 "degrades depends on the training run as well: four BMs retrained with the same data and recipe "
+                 "(training seeds 0-3) give 0.51-0.83x the paper's BM MAE at 0.15 s and 0.37-0.50x at 0.25 s (README, "
+                 "'How much of this is the training run'). PLM-Net's TAPM saw about 30,500 balanced training samples (the paper's "
                  "about 67,000); training it for twice the epochs on the same data left its validation error where it "
                  "was (0.0060 against 0.0059), which the demonstrator's unpredictable hand noise and wander bound.")
 
