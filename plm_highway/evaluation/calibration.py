@@ -39,6 +39,8 @@ from plm_highway.evaluation.protocol import (
 )
 from plm_highway.evaluation.run import (
     CONDITIONS,
+    ORIGINAL_FRAME_READING_FPS,
+    ORIGINAL_LOOP_HZ,
     Cell,
     progress_bar,
     with_friction_limit,
@@ -55,8 +57,6 @@ READINGS = {
     "loop-frames": "as the original counted them: 9, 12, 15, 18 frames (the stated seconds at 60 fps) of its 30 Hz "
                    "loop (0.30-0.60 s)",
 }
-ORIGINAL_FRAME_COUNT_FPS = 60  # how the original's comments and the paper turn its frame counts into seconds
-ORIGINAL_LOOP_HZ = 30  # the rate its FIFO was filled at (notes: a FIFO counted in loop iterations)
 RISE_FACTOR = 5.0
 PAPER_FACTOR = 2.0
 CALIBRATION_JSON = file_kind("bm-calibration", "a plm-highway BM calibration result JSON file")
@@ -74,7 +74,7 @@ def injected_latency_s(paper_latency_s: float, reading: str = "stated") -> float
     if reading == "stated":
         return paper_latency_s
     if reading == "loop-frames":
-        return round(paper_latency_s * ORIGINAL_FRAME_COUNT_FPS) / ORIGINAL_LOOP_HZ
+        return round(paper_latency_s * ORIGINAL_FRAME_READING_FPS) / ORIGINAL_LOOP_HZ
     from plm_highway.errors import BadInput
 
     raise BadInput(f"--reading {reading!r}: expected one of {', '.join(READINGS)}")

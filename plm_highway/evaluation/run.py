@@ -94,13 +94,17 @@ PAPER_STEERING_TIME_CONSTANT_S = 0.1
 # (at 0.2 rad it saturates below the paper's 0.25-s MAE, 0.22 rad) while keeping the car on the road.
 PAPER_MAX_STEERING_RAD = 0.4
 TIME_VARYING_PAPER_TEXT = "steps:0.0-0.35:1.0"  # uniform in [0, 0.35] s, redrawn every 1 s (the paper's text)
-TIME_VARYING_ORIGINAL = "frames:9-21:60@30"  # the original code: 9..21 frames of its 30 Hz loop, every 60 frames
-TIME_VARYING_PAPER_READING = "frames:9-21:60@60"  # the same frames read at 60 fps, as the paper states the range
+ORIGINAL_LOOP_HZ = 30  # the original's ROS loop (paper Sec. 4.6); its latency FIFO took one frame per iteration
+ORIGINAL_FRAME_READING_FPS = 60  # how its comments and the paper turn its frame counts into seconds (the 2x ambiguity)
+# the original code: 9..21 frames of its 30 Hz loop, every 60 frames; the same frames read at 60 fps, as the paper
+# states the range
+TIME_VARYING_ORIGINAL = f"frames:9-21:60@{ORIGINAL_LOOP_HZ}"
+TIME_VARYING_PAPER_READING = f"frames:9-21:60@{ORIGINAL_FRAME_READING_FPS}"
 
 CONDITIONS = {
     "ideal": Conditions("ideal", 20, 20, 16.7, "time", "measured", 0.0, 0.2, 0.01, (TIME_VARYING_PAPER_TEXT,),
                         "default"),
-    "paper": Conditions("paper", 30, 30, 16.7, "legacy-fifo", "requested", 3.0, 0.2, 0.01,
+    "paper": Conditions("paper", ORIGINAL_LOOP_HZ, ORIGINAL_LOOP_HZ, 16.7, "legacy-fifo", "requested", 3.0, 0.2, 0.01,
                         (TIME_VARYING_PAPER_TEXT, TIME_VARYING_ORIGINAL, TIME_VARYING_PAPER_READING), "paper",
                         camera=PAPER_CAMERA, steering_time_constant_s=PAPER_STEERING_TIME_CONSTANT_S,
                         processing_delay_steps=PAPER_PROCESSING_DELAY_STEPS, demonstrator="human",
