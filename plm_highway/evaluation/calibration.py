@@ -165,8 +165,8 @@ def calibration_figure(result: dict):
     fig, ax = plt.subplots(figsize=(7.5, 4.8))
     rows = list(result["per_latency"].values())
     # Plotted at the latency injected; under the loop-frames reading the paper's rows sit at twice their stated value.
-    latencies = [row.get("injected_s", float(key)) for key, row in result["per_latency"].items()]
-    reading = result.get("reading", "stated")
+    latencies = [row["injected_s"] for row in rows]
+    reading = result["reading"]
     means = [row["mae_rad"]["mean"] for row in rows]
     lows = [row["mae_rad"]["mean"] - (row["mae_rad"]["low"] if row["mae_rad"]["low"] is not None
                                       else row["mae_rad"]["mean"]) for row in rows]
@@ -229,15 +229,14 @@ def summary_lines(result: dict) -> Sequence[str]:
              f"{result.get('steering_time_constant_s', '?')} s steering actuator",
              "car: " + ("the conditions' kinematic bicycle" if result.get("friction_coefficient") is None
                         else f"tires saturating at {result['friction_coefficient']:g} g"),
-             f"latencies: {READINGS[result.get('reading', 'stated')]}",
+             f"latencies: {READINGS[result['reading']]}",
              f"noise floor (BM at 0 s, seed vs next seed): {floor['mean']:.4f} rad"]
     for key, row in result["per_latency"].items():
         est = row["mae_rad"]
         ci = f" [{est['low']:.4f}, {est['high']:.4f}]" if est["low"] is not None else ""
         paper_text = f", paper {row['paper_rad']:.4f} rad (x{est['mean'] / row['paper_rad']:.2f})" \
             if row["paper_rad"] else ""
-        injected = row.get("injected_s", float(key))
-        at_text = f"{key} s" if injected == float(key) else f"{key} s (injected {injected:.2f} s)"
+        at_text = f"{key} s" if result["reading"] == "stated" else f"{key} s (injected {row['injected_s']:.2f} s)"
         lines.append(f"{at_text}: BM MAE {est['mean']:.4f} rad{ci}{paper_text}; left the road in "
                      f"{int(np.sum(row['left_road']))}/{len(row['left_road'])} seeds")
     for rule in result["rules"].values():
