@@ -114,6 +114,7 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
     from plm_highway.road.track import load_track
 
     injected_s = {latency_s: injected_latency_s(latency_s, reading) for latency_s in LATENCIES_S}
+    spec_of = {latency_s: f"const:{injected:g}" for latency_s, injected in injected_s.items()}
     seed_list = parse_seeds(seeds)
     if len(seed_list) < 2:
         from plm_highway.errors import BadInput
@@ -123,7 +124,7 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
     chosen = with_friction_limit(with_pipeline(with_speed_logic(CONDITIONS[conditions], speed_logic),
                                                processing_delay_steps, steering_time_constant_s), friction_coefficient)
     policies = None if workers else {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset)}
-    cells = [Cell("reference" if latency_s == 0 else "baseline", "bm", f"const:{injected_s[latency_s]:g}", seed,
+    cells = [Cell("reference" if latency_s == 0 else "baseline", "bm", spec_of[latency_s], seed,
                   f"BM {injected_s[latency_s]:.2f} s seed {seed}") for seed in seed_list for latency_s in LATENCIES_S]
     bar = progress_bar(len(cells), progress, desc="calibration")
     try:
@@ -131,18 +132,17 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
     finally:
         bar.close()
     by_cell = {(cell.seed, cell.latency): log for cell, log in zip(cells, logs)}
-    references = [by_cell[(seed, "const:0")] for seed in seed_list]
+    references = [by_cell[(seed, spec_of[0.0])] for seed in seed_list]
     per_latency: dict[float, dict] = {}
     for latency_s in LATENCIES_S[1:]:
-        spec_text = f"const:{injected_s[latency_s]:g}"
         maes = []
         for seed, reference in zip(seed_list, references):
-            delayed = by_cell[(seed, spec_text)]
+            delayed = by_cell[(seed, spec_of[latency_s])]
             maes.append(steering_errors(*common_span(reference.columns["steering"],
                                                      delayed.columns["steering"]))["mae"] * chosen.max_steering_rad)
         per_latency[latency_s] = {"injected_s": injected_s[latency_s],
                                   "mae_rad_per_seed": maes, "mae_rad": mean_ci(maes).as_dict(),
-                                  "left_road": [by_cell[(s, spec_text)].left_road for s in seed_list],
+                                  "left_road": [by_cell[(s, spec_of[latency_s])].left_road for s in seed_list],
                                   "paper_rad": paper_bm_mae_rad(latency_s)}
     floor_values = [value * chosen.max_steering_rad for value in noise_floor(references)]
     floor = {"mae_rad_per_pair": floor_values, "mae_rad": mean_ci(floor_values).as_dict()}
