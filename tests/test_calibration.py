@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from plm_highway import cli
@@ -55,6 +56,45 @@ def test_paper_rule_is_a_factor_two_at_every_latency(ratios, met):
     verdict = judge(rows(ratios), {"mae_rad": estimate(1e-4)})
     assert verdict["paper"]["met"] is met
     assert verdict["paper"]["ours_over_paper"]["0.15"] == pytest.approx(ratios[0.15])
+
+
+def test_the_paper_rule_is_judged_again_on_the_penalised_mae_when_rows_carry_it():
+    per_latency = rows({0.15: 1.0, 0.20: 1.0, 0.25: 0.44, 0.30: 0.6})
+    for latency_s, ratio in {0.15: 1.0, 0.20: 1.0, 0.25: 1.6, 0.30: 2.45}.items():
+        per_latency[latency_s]["mae_penalised_rad"] = estimate(ratio * paper_bm_mae_rad(latency_s))
+    verdict = judge(per_latency, {"mae_rad": estimate(1e-4)})
+    assert verdict["paper"]["met"] is False and verdict["paper_penalised"]["met"] is False
+    assert verdict["paper_penalised"]["ours_over_paper"]["0.25"] == pytest.approx(1.6)
+    assert verdict["paper"]["ours_over_paper"]["0.25"] == pytest.approx(0.44)
+    assert "paper_penalised" not in judge(rows({0.15: 1.0, 0.20: 1.0, 0.25: 1.0, 0.30: 1.0}),
+                                          {"mae_rad": estimate(1e-4)})
+
+
+def test_a_bm_that_left_the_road_is_penalised_for_every_step_it_missed(monkeypatch):
+    from plm_highway.evaluation import cell_runner
+    from plm_highway.evaluation.closed_loop import RunLog
+
+    def log(steering: list[float], left_road: bool) -> RunLog:
+        n = len(steering)
+        return RunLog("run", {"t_s": np.arange(n) / 30, "steering": np.asarray(steering),
+                              "lateral_offset_m": np.zeros(n)}, left_road, n / 100)
+
+    def fake_drive_cells(cells, *args, **kwargs):
+        # 100 reference steps at 0; every delayed run steers 0.1 (normalised) and the 0.25 s one leaves after 40.
+        return [log([0.0] * 100, False) if cell.role == "reference"
+                else log([0.1] * (40 if cell.latency == "const:0.25" else 100), cell.latency == "const:0.25")
+                for cell in cells]
+
+    monkeypatch.setattr(cell_runner, "drive_cells", fake_drive_cells)
+    result = bm_calibration("test", seeds="0,1", conditions="paper", progress=False, workers=1)
+    on_road, off_road = result["per_latency"]["0.20"], result["per_latency"]["0.25"]
+    # 0.1 normalised on the paper conditions' 0.4 rad car is 0.04 rad, over whatever span both runs reached.
+    assert on_road["mae_rad"]["mean"] == pytest.approx(0.04)
+    assert on_road["mae_penalised_rad"]["mean"] == pytest.approx(0.04)
+    assert off_road["mae_rad"]["mean"] == pytest.approx(0.04)
+    # 40 steps at 0.1 and 60 missed at the penalty of 1.0, over the reference's 100, at 0.4 rad: 0.256 rad.
+    assert off_road["mae_penalised_rad_per_seed"] == pytest.approx([0.256, 0.256])
+    assert off_road["left_road"] == [True, True]
 
 
 def test_a_short_calibration_run_measures_every_latency_and_the_floor():

@@ -13,6 +13,12 @@ The two rules (issue 9):
 - **like the paper**: at 0.15, 0.20, 0.25 and 0.30 s the mean MAE is within a factor :data:`PAPER_FACTOR`
   of the paper's (``paper / 2 <= ours <= 2 paper``).
 
+A BM that leaves the road has no steering to compare after it, so the rule is judged twice, as the protocol
+counts such runs: over the common span (until it left) and penalised (every step it missed counted as
+:data:`~plm_highway.evaluation.protocol.OFF_ROAD_PENALTY`). The paper's runs went on to the end of its track
+(it says its BM left the track only beyond about 0.30-0.35 s), so neither is its protocol: the first leaves out
+the weave's largest swings, the second counts the rest of the track as a fixed error.
+
 Which latency stands for the paper's "0.15 s" depends on the reading (:data:`READINGS`): the paper states
 seconds, but the original code counted its constant latencies in frames (9, 12, 15, 18: the stated seconds at
 60 fps) in a FIFO filled once per iteration of its 30 Hz loop, so the latency it injected may have been twice
@@ -36,6 +42,7 @@ from plm_highway.evaluation.protocol import (
     mean_ci,
     noise_floor,
     parse_seeds,
+    penalised_mae,
 )
 from plm_highway.evaluation.run import (
     CONDITIONS,
@@ -82,18 +89,25 @@ def injected_latency_s(paper_latency_s: float, reading: str = "stated") -> float
 
 def judge(per_latency: dict[float, dict], floor: dict) -> dict:
     """The two rules on measured means; ``per_latency[latency_s]["mae_rad"]`` and ``floor["mae_rad"]`` are
-    :class:`~plm_highway.evaluation.protocol.Estimate` dicts."""
+    :class:`~plm_highway.evaluation.protocol.Estimate` dicts. The paper rule is judged on the common-span MAE
+    and, where the rows carry it, again on the penalised MAE (the protocol's second variant)."""
     rise = per_latency[0.15]["mae_rad"]["mean"] / floor["mae_rad"]["mean"] if floor["mae_rad"]["mean"] > 0 \
         else math.inf
-    ratios = {f"{latency_s:.2f}": per_latency[latency_s]["mae_rad"]["mean"] / per_latency[latency_s]["paper_rad"]
-              for latency_s in per_latency if per_latency[latency_s].get("paper_rad")}
-    return {
-        "rise": {"rule": f"BM MAE at 0.15 s >= {RISE_FACTOR:g}x its noise floor at 0 s", "factor": rise,
-                 "met": rise >= RISE_FACTOR},
-        "paper": {"rule": f"BM MAE at 0.15/0.20/0.25/0.30 s within a factor {PAPER_FACTOR:g} of the paper's",
-                  "ours_over_paper": ratios,
-                  "met": all(1.0 / PAPER_FACTOR <= ratio <= PAPER_FACTOR for ratio in ratios.values())},
-    }
+    verdict = {"rise": {"rule": f"BM MAE at 0.15 s >= {RISE_FACTOR:g}x its noise floor at 0 s", "factor": rise,
+                        "met": rise >= RISE_FACTOR},
+               "paper": _paper_rule(per_latency, "mae_rad", "BM MAE")}
+    if all("mae_penalised_rad" in row for row in per_latency.values()):
+        verdict["paper_penalised"] = _paper_rule(per_latency, "mae_penalised_rad",
+                                                 "BM MAE, leaving the road penalised,")
+    return verdict
+
+
+def _paper_rule(per_latency: dict[float, dict], metric: str, what: str) -> dict:
+    ratios = {f"{latency_s:.2f}": row[metric]["mean"] / row["paper_rad"]
+              for latency_s, row in per_latency.items() if row.get("paper_rad")}
+    return {"rule": f"{what} at 0.15/0.20/0.25/0.30 s within a factor {PAPER_FACTOR:g} of the paper's",
+            "ours_over_paper": ratios,
+            "met": all(1.0 / PAPER_FACTOR <= ratio <= PAPER_FACTOR for ratio in ratios.values())}
 
 
 def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: str = "paper",
@@ -135,13 +149,17 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
     references = [by_cell[(seed, spec_of[0.0])] for seed in seed_list]
     per_latency: dict[float, dict] = {}
     for latency_s in LATENCIES_S[1:]:
-        maes = []
+        maes, penalised = [], []
         for seed, reference in zip(seed_list, references):
             delayed = by_cell[(seed, spec_of[latency_s])]
             maes.append(steering_errors(*common_span(reference.columns["steering"],
                                                      delayed.columns["steering"]))["mae"] * chosen.max_steering_rad)
+            penalised.append(penalised_mae(reference.columns["steering"], delayed.columns["steering"])
+                             * chosen.max_steering_rad)
         per_latency[latency_s] = {"injected_s": injected_s[latency_s],
                                   "mae_rad_per_seed": maes, "mae_rad": mean_ci(maes).as_dict(),
+                                  "mae_penalised_rad_per_seed": penalised,
+                                  "mae_penalised_rad": mean_ci(penalised).as_dict(),
                                   "left_road": [by_cell[(s, spec_of[latency_s])].left_road for s in seed_list],
                                   "paper_rad": paper_bm_mae_rad(latency_s)}
     floor_values = [value * chosen.max_steering_rad for value in noise_floor(references)]
@@ -183,6 +201,10 @@ def calibration_figure(result: dict):
                 alpha=0.4)
     paper_x = [x for x, row in zip(latencies, rows) if row["paper_rad"]]
     paper_y = [row["paper_rad"] for row in rows if row["paper_rad"]]
+    penalised = [row["mae_penalised_rad"]["mean"] for row in rows]
+    if any(p != m for p, m in zip(penalised, means)):
+        ax.plot(latencies, penalised, "v:", color="tab:blue", mfc="none",
+                label="ours: BM, mean with leaving the road penalised (protocol's second variant)")
     ax.plot(paper_x, paper_y, "s--", color="tab:red", label=f"paper: BM (Tables 3, A1, A3, A5), at "
                                                             f"{result['steering_ratio']:g}:1 steering ratio")
     ax.fill_between(paper_x, [y / PAPER_FACTOR for y in paper_y], [y * PAPER_FACTOR for y in paper_y],
@@ -206,12 +228,13 @@ def calibration_figure(result: dict):
         speed_text += ", latencies as the original's 30 Hz loop frames"
     ax.set_title(f"BM degradation, {result['conditions']} conditions{speed_text}, {result['track']} track\n"
                  f"rise rule {'met' if rules['rise']['met'] else 'missed'}, paper rule "
-                 f"{'met' if rules['paper']['met'] else 'missed'}", fontsize=10)
+                 f"{'met' if rules['paper']['met'] else 'missed'} (penalised: "
+                 f"{'met' if rules['paper_penalised']['met'] else 'missed'})", fontsize=10)
     ax.set_xticks(all_x)
     if reading != "stated":
         ax.set_xticklabels(["0"] + [f"{x:.2f}\npaper's\n{key} s" for x, key in zip(latencies, result["per_latency"])],
                            fontsize=8)
-    ax.legend(fontsize=8, loc="upper left", framealpha=0.9)
+    ax.legend(fontsize=8, loc="lower right", framealpha=0.9)
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     return fig
@@ -237,8 +260,11 @@ def summary_lines(result: dict) -> Sequence[str]:
         paper_text = f", paper {row['paper_rad']:.4f} rad (x{est['mean'] / row['paper_rad']:.2f})" \
             if row["paper_rad"] else ""
         at_text = f"{key} s" if result["reading"] == "stated" else f"{key} s (injected {row['injected_s']:.2f} s)"
+        penalised = row["mae_penalised_rad"]["mean"]
+        penalised_text = "" if not any(row["left_road"]) else (
+            f"; penalised {penalised:.4f} rad" + (f" (x{penalised / row['paper_rad']:.2f})" if row["paper_rad"] else ""))
         lines.append(f"{at_text}: BM MAE {est['mean']:.4f} rad{ci}{paper_text}; left the road in "
-                     f"{int(np.sum(row['left_road']))}/{len(row['left_road'])} seeds")
+                     f"{int(np.sum(row['left_road']))}/{len(row['left_road'])} seeds{penalised_text}")
     for rule in result["rules"].values():
         lines.append(f"{'met   ' if rule['met'] else 'MISSED'} {rule['rule']}")
     return lines
