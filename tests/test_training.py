@@ -277,3 +277,9 @@ def test_train_config_defaults_are_the_command_line_defaults():
     args = cli.build_parser(argv).parse_args(argv)
     assert (args.epochs, args.seed, args.balance_max_per_bin) == (
         TrainConfig.epochs, TrainConfig.seed, TrainConfig.balance_max_per_bin)
+
+
+@pytest.mark.parametrize(("flag", "quiet"), [("--quiet", True), ("--no-progress", True), (None, False)])
+def test_train_takes_no_progress_as_the_other_commands_spell_it(flag, quiet):
+    argv = ["train", "bm", "--data", "ds", "--out", "out", *([flag] if flag else [])]
+    assert cli.build_parser(argv).parse_args(argv).quiet is quiet

@@ -35,7 +35,8 @@ def _common_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-augment", action="store_true", help="disable flip and brightness augmentation")
     parser.add_argument("--threads", type=int,
                         help="torch intra-op threads (default: the CPUs this process may use)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars or per-epoch lines")
+    parser.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
+                        help="no progress bars or per-epoch lines (--no-progress, as the other commands spell it)")
     add_overwrite(parser)
 
 
