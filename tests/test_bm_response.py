@@ -41,6 +41,34 @@ def test_the_paper_bm_follows_its_driver_near_the_centre_and_saturates_beyond_th
     assert all(0.0 < bm / law < 0.75 for bm, law in zip(heading["bm"], heading["law"]))
 
 
+@pytest.mark.parametrize(("segment", "curvature_1pm"), [("left", 1 / 110), ("right", -1 / 90)])
+def test_on_a_turn_the_car_is_posed_in_the_longest_one_and_the_law_steers_its_curve(segment, curvature_1pm):
+    # The test track's longest left arc has a radius of 110 m and its longest right arc 90 m (both 172.8 m long).
+    # Posed on the lane centre along the road, the law steers the curve less its heading term: it counts the
+    # bicycle's steady slip angle, asin((L/2) kappa) = asin(2.5 kappa), as course error.
+    result = bm_response("test", "ideal", offsets_m=(0.0,), headings_rad=(0.0,), segment=segment)
+    assert result["segment"] == segment
+    k_heading = 2 * 0.9 * 3.0 / 16.7
+    expected = law_by_hand(curvature_1pm - k_heading * 2.5 * curvature_1pm, 0.2)
+    assert result["sweeps"]["offset"]["law"][0] == pytest.approx(expected, abs=1e-3)
+    assert result["sweeps"]["offset"]["bm"][0] * curvature_1pm > 0  # the BM turns the same way
+    straight = bm_response("test", "ideal", offsets_m=(0.0,), headings_rad=(0.0,))
+    assert straight["segment"] == "straight" and straight["sweeps"]["offset"]["law"][0] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_a_track_without_such_a_segment_is_refused():
+    from plm_highway.evaluation.response import longest_segment_middle_m
+    from plm_highway.road.track import parse_track
+
+    only_left = parse_track({"name": "ring", "lanes": 3, "lane_width_m": 4.0, "closed": False, "segments": [
+        {"type": "straight", "length_m": 50}, {"type": "arc", "radius_m": 60, "angle_deg": 90, "direction": "left"},
+        {"type": "straight", "length_m": 80}]})
+    assert longest_segment_middle_m(only_left, "straight") == pytest.approx(50 + 60 * math.pi / 2 + 40)
+    assert longest_segment_middle_m(only_left, "left") == pytest.approx(50 + 30 * math.pi / 2)
+    with pytest.raises(BadInput, match="track 'ring' has no right turn segment"):
+        longest_segment_middle_m(only_left, "right")
+
+
 def test_a_pose_off_the_road_is_refused():
     with pytest.raises(BadInput, match=r"offsets \[7\.0\] m would pose the car off the road"):
         bm_response("test", "ideal", offsets_m=(0.0, 7.0), headings_rad=(0.0,))

@@ -6,7 +6,7 @@ from plm_highway.cli._common import Command, add_overwrite, defaults_of, publish
 
 
 def configure(parser) -> None:
-    from plm_highway.evaluation.response import DEFAULT_OUT, bm_response
+    from plm_highway.evaluation.response import DEFAULT_OUT, SEGMENTS, bm_response
     from plm_highway.evaluation.run import CONDITION_NAMES
 
     d = defaults_of(bm_response)
@@ -14,8 +14,9 @@ def configure(parser) -> None:
                         help="figure to write (PNG); its numbers go beside it with the suffix .json")
     parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],
                         help="whose camera, steering range, demonstrator and shipped BM")
-    parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path (its longest "
-                                                            "straight is where the car is posed)")
+    parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
+    parser.add_argument("--segment", choices=SEGMENTS, default=d["segment"],
+                        help="pose the car in the middle of the track's longest straight, left turn or right turn")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints, of which only the BM is "
                                               "used (default: the conditions' shipped BM)")
     add_overwrite(parser)
@@ -24,7 +25,8 @@ def configure(parser) -> None:
 def run(args) -> int:
     from plm_highway.evaluation.response import RESPONSE_JSON, bm_response, ratio_lines, write_response
 
-    return publish_figure_and_numbers(args, lambda: bm_response(args.track, args.conditions, args.checkpoints),
+    return publish_figure_and_numbers(args, lambda: bm_response(args.track, args.conditions, args.checkpoints,
+                                                                        segment=args.segment),
                                       write_response, ratio_lines, RESPONSE_JSON)
 
 

@@ -2,9 +2,9 @@
 
 A Base Model learns its demonstrator's steering only where the demonstrations went. Under latency the car
 weaves further from the lane centre than any demonstration did, and what the BM does there decides whether
-the weave stays bounded or grows until the car leaves the road. This probe places the car on a straight
-stretch of a track at a lateral offset (heading along the road) or at a heading error (on the lane centre),
-with no latency and nothing moving yet, and records two steerings for the first frame:
+the weave stays bounded or grows until the car leaves the road. This probe places the car in the middle of
+a track's longest straight (or left or right turn) at a lateral offset (heading along the road) or at a heading
+error (on the lane centre), with no latency and nothing moving yet, and records two steerings for the first frame:
 
 - the BM's, from the camera image (the conditions' camera and checkpoints, as ``calibrate`` drives them);
 - the demonstrator's tracking law from the true state (:func:`~plm_highway.expert.controller.expert_steering`
@@ -43,22 +43,29 @@ def demonstrator_law(conditions: Conditions) -> ExpertParams:
     return driver.tracking
 
 
-def longest_straight_middle_m(track) -> float:
-    """Arc length [m] at the middle of the track's longest straight segment (curvature 0 ahead and behind)."""
+SEGMENTS = ("straight", "left", "right")  # where the car can be posed: the middle of the longest of that kind
+SEGMENT_TITLES = {"straight": "straight", "left": "left turn", "right": "right turn"}
+
+
+def longest_segment_middle_m(track, segment: str = "straight") -> float:
+    """Arc length [m] at the middle of the track's longest ``segment`` (straight, left or right arc)."""
     arc_m, best = 0.0, None
-    for segment in track.segments:
-        if segment.kind == "straight" and (best is None or segment.length_m > best[1]):
-            best = (arc_m + 0.5 * segment.length_m, segment.length_m)
-        arc_m += segment.length_m
+    for part in track.segments:
+        if part.direction == segment and (best is None or part.length_m > best[1]):
+            best = (arc_m + 0.5 * part.length_m, part.length_m)
+        arc_m += part.length_m
     if best is None:
-        raise BadInput(f"track {track.name!r} has no straight segment to pose the car on")
+        raise BadInput(f"track {track.name!r} has no {SEGMENT_TITLES.get(segment, segment)} segment to pose the "
+                       "car on")
     return best[0]
 
 
 def bm_response(track: str = PAPER_TRACK, conditions: str = "paper", checkpoints=None,
-                offsets_m: Sequence[float] = OFFSETS_M, headings_rad: Sequence[float] = HEADINGS_RAD) -> dict:
-    """The BM's and the demonstrator's law's normalised steering at each posed start (see the module text);
-    offsets beyond the road (from the start lane's centre to the road edge) are refused."""
+                offsets_m: Sequence[float] = OFFSETS_M, headings_rad: Sequence[float] = HEADINGS_RAD,
+                segment: str = "straight") -> dict:
+    """The BM's and the demonstrator's law's normalised steering at each posed start (see the module text), in
+    the middle of the track's longest ``segment`` (:data:`SEGMENTS`); offsets beyond the road (from the start
+    lane's centre to the road edge) are refused."""
     import gymnasium
 
     import plm_highway  # noqa: F401  (registers the env)
@@ -80,7 +87,7 @@ def bm_response(track: str = PAPER_TRACK, conditions: str = "paper", checkpoints
         if too_far:
             raise BadInput(f"offsets {too_far} m would pose the car off the road of track {track!r}: "
                            f"at most {room_m:g} m from the start lane's centre to the road edge")
-        arc_m = longest_straight_middle_m(unwrapped.track)
+        arc_m = longest_segment_middle_m(unwrapped.track, segment)
 
         def steer(offset_m: float, heading_rad: float) -> tuple[float, float]:
             obs, info = env.reset(options={"start_arc_length_m": arc_m, "start_offset_m": offset_m,
@@ -95,7 +102,7 @@ def bm_response(track: str = PAPER_TRACK, conditions: str = "paper", checkpoints
                             "bm": [s[0] for s in steered], "law": [s[1] for s in steered]}
     finally:
         env.close()
-    return {"track": track, "conditions": conditions, "arc_length_m": arc_m,
+    return {"track": track, "conditions": conditions, "segment": segment, "arc_length_m": arc_m,
             "speed_mps": chosen.speed_mps, "max_steering_rad": chosen.max_steering_rad,
             "law": {"natural_frequency_radps": law.natural_frequency_radps, "damping_ratio": law.damping_ratio,
                     "demonstrator": chosen.demonstrator},
@@ -127,7 +134,7 @@ def response_figure(result: dict):
         ax.legend(fontsize=8)
     fig.suptitle(f"BM vs its demonstrator's law ({result['law']['natural_frequency_radps']:g} rad/s, damping "
                  f"{result['law']['damping_ratio']:g}), {result['conditions']} conditions, {result['track']} "
-                 f"track straight, no latency", fontsize=10)
+                 f"track, {SEGMENT_TITLES[result['segment']]}, no latency", fontsize=10)
     fig.tight_layout()
     return fig
 
