@@ -16,6 +16,7 @@ from plm_highway.evaluation.calibration import (
     judge,
     paper_bm_mae_rad,
     paper_unit_to_front_wheel_rad,
+    summary_lines,
 )
 
 
@@ -99,6 +100,10 @@ def test_a_bm_that_left_the_road_is_penalised_for_every_step_it_missed(monkeypat
     # 40 steps at 0.1 and 60 missed at the penalty of 1.0, over the reference's 100, at 0.4 rad: 0.256 rad.
     assert off_road["mae_penalised_rad_per_seed"] == pytest.approx([0.256, 0.256])
     assert off_road["left_road"] == [True, True]
+    lines = summary_lines(result)
+    assert any(line.startswith("0.25 s: BM MAE 0.0400 rad") and "penalised 0.2560 rad" in line for line in lines)
+    assert not any(line.startswith("0.20 s") and "penalised" in line for line in lines)  # it stayed on the road
+    assert any(line.startswith("MISSED BM MAE, leaving the road penalised,") for line in lines)
 
 
 def test_a_short_calibration_run_measures_every_latency_and_the_floor():
