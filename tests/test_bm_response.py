@@ -67,6 +67,8 @@ def test_a_track_without_such_a_segment_is_refused():
     assert longest_segment_middle_m(only_left, "left") == pytest.approx(50 + 30 * math.pi / 2)
     with pytest.raises(BadInput, match="track 'ring' has no right turn segment"):
         longest_segment_middle_m(only_left, "right")
+    with pytest.raises(BadInput, match=r"--segment: 'curve' is not one of \['straight', 'left', 'right'\]"):
+        longest_segment_middle_m(only_left, "curve")
 
 
 def test_a_pose_off_the_road_is_refused():

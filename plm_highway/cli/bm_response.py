@@ -25,9 +25,10 @@ def configure(parser) -> None:
 def run(args) -> int:
     from plm_highway.evaluation.response import RESPONSE_JSON, bm_response, ratio_lines, write_response
 
-    return publish_figure_and_numbers(args, lambda: bm_response(args.track, args.conditions, args.checkpoints,
-                                                                        segment=args.segment),
-                                      write_response, ratio_lines, RESPONSE_JSON)
+    def respond() -> dict:
+        return bm_response(args.track, args.conditions, args.checkpoints, segment=args.segment)
+
+    return publish_figure_and_numbers(args, respond, write_response, ratio_lines, RESPONSE_JSON)
 
 
 COMMANDS = [Command("bm-response", "the BM's steering beside its demonstrator's tracking law at posed offsets and "

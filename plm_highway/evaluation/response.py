@@ -27,6 +27,7 @@ from plm_highway.evaluation.protocol import PAPER_TRACK
 from plm_highway.evaluation.run import CONDITIONS, Conditions
 from plm_highway.expert.controller import ExpertParams, expert_steering
 from plm_highway.io import file_kind, pyplot, write_figure_and_numbers
+from plm_highway.models.config_checks import check_choice
 
 OFFSETS_M = tuple(round(float(x), 2) for x in np.arange(-5.0, 5.001, 0.5))
 HEADINGS_RAD = tuple(round(float(x), 2) for x in np.arange(-0.20, 0.2001, 0.04))
@@ -49,14 +50,14 @@ SEGMENT_TITLES = {"straight": "straight", "left": "left turn", "right": "right t
 
 def longest_segment_middle_m(track, segment: str = "straight") -> float:
     """Arc length [m] at the middle of the track's longest ``segment`` (straight, left or right arc)."""
+    check_choice("--segment", segment, SEGMENTS)
     arc_m, best = 0.0, None
     for part in track.segments:
         if part.direction == segment and (best is None or part.length_m > best[1]):
             best = (arc_m + 0.5 * part.length_m, part.length_m)
         arc_m += part.length_m
     if best is None:
-        raise BadInput(f"track {track.name!r} has no {SEGMENT_TITLES.get(segment, segment)} segment to pose the "
-                       "car on")
+        raise BadInput(f"track {track.name!r} has no {SEGMENT_TITLES[segment]} segment to pose the car on")
     return best[0]
 
 
