@@ -228,8 +228,6 @@ TARGETS = {
         "const:0.3": 68.6,
         "steps:0.0-0.35:1.0": 78.7,
     },
-    # PLM-Net's full-track Frechet distance must stay within this factor of the reference run's
-    "mitigated_full_frechet_max_ratio_to_reference": 1.5,
 }
 
 NOTES = (
