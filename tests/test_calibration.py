@@ -224,7 +224,7 @@ def test_the_loop_frames_reading_injects_the_originals_frame_counts_at_its_30_hz
                                                                                           18 / 30]
     assert [injected_latency_s(s) for s in (0.0, 0.15, 0.30)] == [0.0, 0.15, 0.30]
     assert injected_latency_s(0.0, "loop-frames") == 0.0  # the reference stays without latency
-    with pytest.raises(BadInput, match="--reading 'frames'"):
+    with pytest.raises(BadInput, match=r"--reading: 'frames' is not one of \['stated', 'loop-frames'\]"):
         injected_latency_s(0.15, "frames")
 
 

@@ -56,6 +56,7 @@ from plm_highway.evaluation.run import (
 )
 from plm_highway.io import file_kind, pyplot, write_figure_and_numbers
 from plm_highway.metrics.steering import common_span, steering_errors
+from plm_highway.models.config_checks import check_choice
 from plm_highway.vehicle.paper_units import paper_unit_to_front_wheel_rad
 
 LATENCIES_S = (0.0, 0.15, 0.20, 0.25, 0.30)  # as the paper states them
@@ -78,13 +79,9 @@ def paper_bm_mae_rad(latency_s: float) -> float | None:
 
 def injected_latency_s(paper_latency_s: float, reading: str = "stated") -> float:
     """The latency we inject for the paper's constant latency ``paper_latency_s`` under ``reading``."""
-    if reading == "stated":
+    if check_choice("--reading", reading, tuple(READINGS)) == "stated":
         return paper_latency_s
-    if reading == "loop-frames":
-        return round(paper_latency_s * ORIGINAL_FRAME_READING_FPS) / ORIGINAL_LOOP_HZ
-    from plm_highway.errors import BadInput
-
-    raise BadInput(f"--reading {reading!r}: expected one of {', '.join(READINGS)}")
+    return round(paper_latency_s * ORIGINAL_FRAME_READING_FPS) / ORIGINAL_LOOP_HZ
 
 
 def judge(per_latency: dict[float, dict], floor: dict) -> dict:
