@@ -248,15 +248,17 @@ def summary_lines(result: dict) -> Sequence[str]:
                         else f"tires saturating at {result['friction_coefficient']:g} g"),
              f"latencies: {READINGS[result['reading']]}",
              f"noise floor (BM at 0 s, seed vs next seed): {floor['mean']:.4f} rad"]
+    # The ratios to the paper are the ones the rules were judged on (judge), not computed again here.
+    ratios = result["rules"]["paper"]["ours_over_paper"]
+    penalised_ratios = result["rules"]["paper_penalised"]["ours_over_paper"]
     for key, row in result["per_latency"].items():
         est = row["mae_rad"]
         ci = f" [{est['low']:.4f}, {est['high']:.4f}]" if est["low"] is not None else ""
-        paper_text = f", paper {row['paper_rad']:.4f} rad (x{est['mean'] / row['paper_rad']:.2f})" \
-            if row["paper_rad"] else ""
+        paper_text = f", paper {row['paper_rad']:.4f} rad (x{ratios[key]:.2f})" if key in ratios else ""
         at_text = f"{key} s" if result["reading"] == "stated" else f"{key} s (injected {row['injected_s']:.2f} s)"
-        penalised = row["mae_penalised_rad"]["mean"]
         penalised_text = "" if not any(row["left_road"]) else (
-            f"; penalised {penalised:.4f} rad" + (f" (x{penalised / row['paper_rad']:.2f})" if row["paper_rad"] else ""))
+            f"; penalised {row['mae_penalised_rad']['mean']:.4f} rad"
+            + (f" (x{penalised_ratios[key]:.2f})" if key in penalised_ratios else ""))
         lines.append(f"{at_text}: BM MAE {est['mean']:.4f} rad{ci}{paper_text}; left the road in "
                      f"{int(np.sum(row['left_road']))}/{len(row['left_road'])} seeds{penalised_text}")
     for rule in result["rules"].values():
