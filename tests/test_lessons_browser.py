@@ -50,6 +50,11 @@ def jupyterlab(tmp_path_factory):
     tracker = settings / "@jupyterlab" / "notebook-extension" / "tracker.jupyterlab-settings"
     tracker.parent.mkdir(parents=True)
     tracker.write_text(json.dumps({"windowingMode": "none"}))  # every cell in the page, not only the visible ones
+    # No news or update toasts: they would reach for the internet, and a toast that pops up while a menu is open
+    # closes the menu, so a Run All or Close All click is lost (seen once in CI: a notebook that never ran).
+    notification = settings / "@jupyterlab" / "apputils-extension" / "notification.jupyterlab-settings"
+    notification.parent.mkdir(parents=True)
+    notification.write_text(json.dumps({"fetchNews": "false", "checkForUpdates": False, "doNotDisturbMode": True}))
     port, token = _free_port(), secrets.token_hex(16)
     env = {key: value for key, value in os.environ.items() if key != "MPLBACKEND"}  # the kernel's inline plots
     env.update(PLM_FAST="1", SDL_VIDEODRIVER="offscreen", JUPYTERLAB_SETTINGS_DIR=str(settings),
@@ -112,6 +117,7 @@ def screenshots(tmp_path_factory):
 
 @pytest.mark.parametrize("path", SOLUTIONS, ids=lambda p: p.name)
 def test_solution_runs_in_jupyterlab_and_its_last_check_passes(path, jupyterlab, browser, screenshots):
+    from selenium.common.exceptions import TimeoutException
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import WebDriverWait
 
@@ -123,18 +129,30 @@ def test_solution_runs_in_jupyterlab_and_its_last_check_passes(path, jupyterlab,
     WebDriverWait(browser, 180, poll_frequency=1).until(
         lambda d: d.find_elements(By.CSS_SELECTOR, ACTIVE + ".jp-Cell") and
         "Idle" in d.find_element(By.ID, "jp-main-statusbar").text)
-    _click_menu(browser, "Run", "Run All Cells")
     started = time.monotonic()
+
+    def prompts(driver) -> list[str]:
+        return [p.text for p in driver.find_elements(By.CSS_SELECTOR, ACTIVE + ".jp-CodeCell .jp-InputPrompt")]
+
+    def run_started(driver) -> bool:
+        return any(prompt.strip() not in ("", "[ ]:") for prompt in prompts(driver))
 
     def finished(driver):
         if "Idle" not in driver.find_element(By.ID, "jp-main-statusbar").text:
             return False
-        prompts = [p.text for p in driver.find_elements(By.CSS_SELECTOR, ACTIVE + ".jp-CodeCell .jp-InputPrompt")]
+        shown = prompts(driver)
         # Run All stops at a cell that raises: an idle kernel with unrun cells is finished too
-        return bool(prompts) and not any("*" in prompt for prompt in prompts) and prompts[0].strip() not in ("", "[ ]:")
+        return bool(shown) and not any("*" in prompt for prompt in shown) and shown[0].strip() not in ("", "[ ]:")
 
     try:
-        time.sleep(5)  # let the kernel turn busy
+        _click_menu(browser, "Run", "Run All Cells")
+        try:
+            WebDriverWait(browser, 30, poll_frequency=1).until(run_started)
+        except TimeoutException:
+            # The click did not reach the notebook (a lost menu click, not the notebook's doing): once more,
+            # and if the cells still do not start, fail here rather than after RUN_TIMEOUT_S.
+            _click_menu(browser, "Run", "Run All Cells")
+            WebDriverWait(browser, 30, poll_frequency=1).until(run_started, f"{path.name}: Run All did not start")
         WebDriverWait(browser, RUN_TIMEOUT_S, poll_frequency=2).until(finished)
     finally:
         browser.save_screenshot(str(screenshots / f"{path.stem}.png"))
