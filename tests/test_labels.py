@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from plm_highway.data.dataset import read_dataset
 from plm_highway.training.labels import balance_by_histogram, future_steering_labels, save_balance_figure
@@ -92,6 +94,55 @@ def test_tapm_rows_carry_the_dataset_rows_and_their_future_labels(tmp_path):
         rows.targets[first_of_second_episode], steering[[23, 24, 25, 26, 27]], atol=1e-6
     )
     np.testing.assert_array_equal(rows.steering, steering[rows.frame_index])
+
+
+def test_bm_rows_with_a_label_lead_pair_each_frame_with_the_steering_that_many_steps_later(tmp_path):
+    # The synthetic dataset runs at 20 Hz: a 0.10 s lead is 2 steps.
+    dataset = read_dataset(make_synthetic_dataset(tmp_path / "data", n_episodes=2, steps_per_episode=20))
+    steering = dataset.steps["steering"]
+    rows = bm_rows(dataset, label_lead_s=0.10)
+    # Each episode of 20 steps loses its last 2 rows; the second episode starts at frame 20.
+    assert len(rows) == 2 * 18
+    assert rows.frame_index.tolist() == list(range(18)) + list(range(20, 38))
+    np.testing.assert_allclose(rows.targets[:, 0], steering[rows.frame_index + 2], atol=1e-6)
+    # Balancing looks at the aligned label, not at the steering recorded with the frame.
+    np.testing.assert_array_equal(rows.steering, rows.targets[:, 0])
+
+
+def test_bm_rows_without_a_lead_keep_every_row_and_its_own_steering(tmp_path):
+    dataset = read_dataset(make_synthetic_dataset(tmp_path / "data", n_episodes=2, steps_per_episode=20))
+    rows = bm_rows(dataset)
+    assert rows.frame_index.tolist() == list(range(40))
+    np.testing.assert_array_equal(rows.targets[:, 0], dataset.steps["steering"])
+    np.testing.assert_array_equal(rows.steering, dataset.steps["steering"])
+
+
+def test_tapm_rows_with_a_label_lead_shift_every_horizon_by_it(tmp_path):
+    dataset = read_dataset(make_synthetic_dataset(tmp_path / "data", n_episodes=2, steps_per_episode=20))
+    steering = dataset.steps["steering"]
+    rows = tapm_rows(dataset, (0.15, 0.25), label_lead_s=0.10)
+    # t + 0.10 + 0.25 s is 7 steps ahead: each episode keeps 13 rows.
+    assert len(rows) == 2 * 13
+    np.testing.assert_allclose(rows.targets[:, 0], steering[rows.frame_index + 5], atol=1e-6)
+    np.testing.assert_allclose(rows.targets[:, 1], steering[rows.frame_index + 7], atol=1e-6)
+    np.testing.assert_allclose(rows.steering, steering[rows.frame_index + 2], atol=1e-6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(episode_lengths=st.lists(st.integers(1, 30), min_size=1, max_size=5), lead_steps=st.integers(0, 10))
+def test_an_aligned_label_is_the_same_episodes_steering_lead_steps_later(episode_lengths, lead_steps):
+    # 30 Hz episodes of random lengths, steering = a distinct value per row: every aligned label must
+    # name the row lead_steps later in the same episode, and no row whose episode ends sooner may stay.
+    dt_s = 1 / 30
+    episode_id = np.repeat(np.arange(len(episode_lengths)), episode_lengths)
+    t_s = np.concatenate([np.arange(n) * dt_s for n in episode_lengths])
+    steering = np.arange(len(t_s), dtype=np.float32) / len(t_s)
+    labels, has_future = future_steering_labels(episode_id, t_s, steering, (lead_steps * dt_s,))
+    position = np.concatenate([np.arange(n) for n in episode_lengths])
+    length = np.repeat(episode_lengths, episode_lengths)
+    np.testing.assert_array_equal(has_future, position + lead_steps < length)
+    rows = np.flatnonzero(has_future)
+    np.testing.assert_allclose(labels[rows, 0], steering[rows + lead_steps], atol=1e-6)
 
 
 # --- balancing ------------------------------------------------------------------------------------

@@ -33,6 +33,10 @@ def _common_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--balance-max-per-bin", type=int,
                         default=defaults.balance_max_per_bin, help="steering histogram cap per bin (35 bins); 0 disables")
     parser.add_argument("--no-augment", action="store_true", help="disable flip and brightness augmentation")
+    parser.add_argument("--label-lead-s", type=float, default=defaults.label_lead_s,
+                        help="label alignment: label the frame at t with the steering recorded at t + this lead "
+                             "[s] of the same episode (0 to 2; 0 pairs each frame with its own steering, as the "
+                             "original did)")
     parser.add_argument("--threads", type=int,
                         help="torch intra-op threads (default: the CPUs this process may use)")
     parser.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
@@ -63,7 +67,8 @@ def _config(args):
         raise BadInput(f"--balance-max-per-bin: must be 0 (off) or >= 1, got {args.balance_max_per_bin}")
     return TrainConfig(epochs=args.epochs, seed=args.seed, max_samples=args.max_samples,
                        balance_max_per_bin=args.balance_max_per_bin or None,
-                       augmentation=None if args.no_augment else Augmentation(), show_progress=not args.quiet)
+                       augmentation=None if args.no_augment else Augmentation(), show_progress=not args.quiet,
+                       label_lead_s=args.label_lead_s)
 
 
 def _set_threads(args) -> None:

@@ -42,30 +42,48 @@ class LabelledRows:
         return LabelledRows(*(getattr(self, name)[rows] for name in self.__dataclass_fields__))
 
 
-def bm_rows(dataset: Dataset) -> LabelledRows:
-    """D = {(o_t, v_t), a_t}: every row, labelled with its own steering."""
-    steering = dataset.steps["steering"].astype(np.float32)
-    return _rows(dataset, np.arange(len(dataset)), steering[:, None])
+def bm_rows(dataset: Dataset, label_lead_s: float = 0.0) -> LabelledRows:
+    """D = {(o_t, v_t), a_t}: every row, labelled with its own steering.
+
+    With ``label_lead_s`` > 0 (label alignment) the label of the frame at t is the demonstrator's steering
+    at t + ``label_lead_s`` of the same episode, and rows without that future are dropped: a driver who
+    reacts ``label_lead_s`` late answers the frame at t with its steering at t + lead.
+    """
+    rows, labels = _labels_from(dataset, label_lead_s, ())
+    return _rows(dataset, rows, labels[:, :1], current=labels[:, 0])
 
 
-def tapm_rows(dataset: Dataset, horizons_s: tuple[float, ...]) -> LabelledRows:
-    """D_TAPM: rows with the expert's future steering at each horizon; rows without a future dropped."""
+def tapm_rows(dataset: Dataset, horizons_s: tuple[float, ...], label_lead_s: float = 0.0) -> LabelledRows:
+    """D_TAPM: rows with the expert's future steering at each horizon; rows without a future dropped.
+
+    ``label_lead_s`` shifts every horizon and the current label (the one balancing looks at) alike, so a
+    TAPM trained with the lead its BM was trained with predicts that BM's labels ``horizon`` ahead.
+    """
+    rows, labels = _labels_from(dataset, label_lead_s, tuple(horizons_s))
+    return _rows(dataset, rows, labels[:, 1:], current=labels[:, 0])
+
+
+def _labels_from(dataset: Dataset, label_lead_s: float, horizons_s: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Rows with every label, and their labels: column 0 at t + lead, then t + lead + each horizon.
+
+    At lead 0 column 0 is the row's own steering exactly (interpolation at a sample returns it).
+    """
     steps = dataset.steps
     labels, has_future = future_steering_labels(
-        steps["episode_id"], steps["t_s"], steps["steering"], horizons_s
+        steps["episode_id"], steps["t_s"], steps["steering"], tuple(label_lead_s + h for h in (0.0, *horizons_s))
     )
     rows = np.flatnonzero(has_future)
-    return _rows(dataset, rows, labels[rows])
+    return rows, labels[rows]
 
 
-def _rows(dataset: Dataset, rows: np.ndarray, targets: np.ndarray) -> LabelledRows:
+def _rows(dataset: Dataset, rows: np.ndarray, targets: np.ndarray, current: np.ndarray) -> LabelledRows:
     steps = dataset.steps
     return LabelledRows(
         frame_index=rows.astype(np.int64),
         episode_id=steps["episode_id"][rows],
         t_s=steps["t_s"][rows],
         speed_mps=steps["speed_mps"][rows].astype(np.float32),
-        steering=steps["steering"][rows].astype(np.float32),
+        steering=current.astype(np.float32),
         targets=targets.astype(np.float32),
     )
 

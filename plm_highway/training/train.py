@@ -65,6 +65,7 @@ MAX_EPOCHS = 1000
 MAX_BATCH_SIZE = 4096
 MAX_SEED = 2**63 - 1
 MAX_ROWS = 10**9
+MAX_LABEL_LEAD_S = 2.0  # far beyond any human reaction time; a longer lead labels frames with another road
 
 
 @dataclass(frozen=True)
@@ -81,6 +82,9 @@ class TrainConfig:
     grad_clip_value: float | None = 1.0
     augmentation: Augmentation | None = field(default_factory=Augmentation)
     show_progress: bool = True
+    # Label alignment: the frame at t is labelled with the demonstrator's steering at t + this lead
+    # (0: the steering recorded with the frame, as the original paired them). See samples.bm_rows.
+    label_lead_s: float = 0.0
 
     def __post_init__(self) -> None:
         # Named as the command line spells them: that is where they come from.
@@ -96,6 +100,7 @@ class TrainConfig:
             check_int("--balance-max-per-bin", self.balance_max_per_bin, 1, MAX_ROWS)
         if self.grad_clip_value is not None:
             check_number("grad_clip_value", self.grad_clip_value, 0.0, 1e6, low_open=True)
+        check_number("--label-lead-s", self.label_lead_s, 0.0, MAX_LABEL_LEAD_S)
 
 
 @dataclass
@@ -289,7 +294,7 @@ def train_base_model(
     check_target(out_dir, CHECKPOINT, overwrite=overwrite)
     out_dir = Path(out_dir)
     rng = np.random.default_rng(config.seed)
-    prepared = prepare_rows(bm_rows(dataset), config, rng, f"dataset {data_dir}")
+    prepared = prepare_rows(bm_rows(dataset, config.label_lead_s), config, rng, f"dataset {data_dir}")
     with deterministic(config.seed):
         bm = BaseModel(model_config)
         result = fit(bm, bm_loss(bm), dataset.frames, prepared.train, prepared.val, config, "BM")
@@ -319,7 +324,7 @@ def train_tapm(
     check_target(out_dir, CHECKPOINT, overwrite=overwrite)
     tapm_config = TAPMConfig(image_feature_dim=bm.image_feature_dim, delta_grid_s=delta_grid_s)
     rng = np.random.default_rng(config.seed)
-    rows = tapm_rows(dataset, tapm_config.delta_grid_s)
+    rows = tapm_rows(dataset, tapm_config.delta_grid_s, config.label_lead_s)
     source = f"dataset {data_dir} (rows with a future label {tapm_config.delta_grid_s[-1]:g} s ahead)"
     prepared = prepare_rows(rows, config, rng, source)
     with deterministic(config.seed):
