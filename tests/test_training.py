@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -25,6 +26,7 @@ from plm_highway.training.train import (
     freeze,
     tapm_loss,
     train_base_model,
+    train_tapm,
 )
 
 TINY = TrainConfig(epochs=1, max_samples=96, show_progress=False)
@@ -247,6 +249,25 @@ def test_bad_training_arguments_exit_2_and_write_nothing(data_dir, trained_bm_di
     err = capsys.readouterr().err
     assert code == cli.EXIT_BAD_INPUT, err
     assert re.search(message, err), err
+    assert "Traceback" not in err and not out.exists()
+
+
+def test_a_bm_and_tapm_trained_with_one_label_lead_record_it_and_load_as_plm_net(data_dir, tmp_path):
+    aligned = dataclasses.replace(TINY, label_lead_s=0.1)
+    bm_description = train_base_model(data_dir, tmp_path / "bm", config=aligned)
+    tapm_description = train_tapm(data_dir, tmp_path / "tapm", tmp_path / "bm", config=aligned)
+    assert bm_description["training"]["config"]["label_lead_s"] == 0.1
+    assert tapm_description["training"]["config"]["label_lead_s"] == 0.1
+    assert load_plm_net(tmp_path / "bm", tmp_path / "tapm") is not None
+
+
+def test_a_tapm_refuses_a_label_lead_other_than_its_bms(data_dir, trained_bm_dir, tmp_path, capsys):
+    # The fixture BM was trained without label alignment (lead 0 s).
+    out = tmp_path / "tapm"
+    code = run_train("tapm", data_dir, out, ["--label-lead-s", "0.1"], trained_bm_dir)
+    err = capsys.readouterr().err
+    assert code == cli.EXIT_BAD_INPUT, err
+    assert "--label-lead-s 0.1: the BM at" in err and "label lead of 0 s" in err, err
     assert "Traceback" not in err and not out.exists()
 
 

@@ -319,6 +319,7 @@ def train_tapm(
     """Train a TAPM on the frozen BM at ``bm_path``; writes ``out_dir/model.pt`` + ``model.json``."""
     bm = freeze(load_base_model(bm_path))
     bm_description = read_description(bm_path, KIND_BASE_MODEL)
+    check_same_label_lead(bm_path, bm_description, config.label_lead_s)
     dataset = read_dataset(data_dir)
     _check_frame_size(dataset, bm.config.image_size_px, f"the BM at {bm_path}")
     check_target(out_dir, CHECKPOINT, overwrite=overwrite)
@@ -340,6 +341,15 @@ def train_tapm(
     }
     _write_checkpoint_dir(Path(out_dir), tapm, description, prepared, overwrite)
     return description
+
+
+def check_same_label_lead(bm_path, bm_description: dict, label_lead_s: float) -> None:
+    """A TAPM predicts its BM's labels ahead, so both must pair frames and labels with the same lead."""
+    # Checkpoints trained before label alignment existed record no lead: they paired frames with their own steering.
+    bm_lead_s = bm_description.get("training", {}).get("config", {}).get("label_lead_s", 0.0)
+    if bm_lead_s != label_lead_s:
+        raise BadInput(f"--label-lead-s {label_lead_s:g}: the BM at {bm_path} was trained with a label lead of "
+                       f"{bm_lead_s:g} s; train the TAPM with the same lead")
 
 
 def _check_frame_size(dataset: Dataset, image_size_px: tuple[int, int], owner: str) -> None:
