@@ -8,7 +8,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plm_highway.data.dataset import read_dataset
+from plm_highway.data.dataset import Dataset, read_dataset
 from plm_highway.training.labels import balance_by_histogram, future_steering_labels, save_balance_figure
 from plm_highway.training.samples import (
     Augmentation,
@@ -134,15 +134,19 @@ def test_an_aligned_label_is_the_same_episodes_steering_lead_steps_later(episode
     # 30 Hz episodes of random lengths, steering = a distinct value per row: every aligned label must
     # name the row lead_steps later in the same episode, and no row whose episode ends sooner may stay.
     dt_s = 1 / 30
-    episode_id = np.repeat(np.arange(len(episode_lengths)), episode_lengths)
-    t_s = np.concatenate([np.arange(n) * dt_s for n in episode_lengths])
-    steering = np.arange(len(t_s), dtype=np.float32) / len(t_s)
-    labels, has_future = future_steering_labels(episode_id, t_s, steering, (lead_steps * dt_s,))
+    n_rows = sum(episode_lengths)
+    steps = {
+        "episode_id": np.repeat(np.arange(len(episode_lengths)), episode_lengths).astype(np.int32),
+        "t_s": np.concatenate([np.arange(n) * dt_s for n in episode_lengths]),
+        "speed_mps": np.full(n_rows, 16.7, np.float32),
+        "steering": (np.arange(n_rows) / n_rows).astype(np.float32),
+    }
+    dataset = Dataset(manifest={}, frames=np.zeros((n_rows, 1, 1), np.uint8), steps=steps)
+    rows = bm_rows(dataset, label_lead_s=lead_steps * dt_s)
     position = np.concatenate([np.arange(n) for n in episode_lengths])
     length = np.repeat(episode_lengths, episode_lengths)
-    np.testing.assert_array_equal(has_future, position + lead_steps < length)
-    rows = np.flatnonzero(has_future)
-    np.testing.assert_allclose(labels[rows, 0], steering[rows + lead_steps], atol=1e-6)
+    np.testing.assert_array_equal(rows.frame_index, np.flatnonzero(position + lead_steps < length))
+    np.testing.assert_allclose(rows.targets[:, 0], steps["steering"][rows.frame_index + lead_steps], atol=1e-6)
 
 
 # --- balancing ------------------------------------------------------------------------------------
