@@ -13,7 +13,7 @@ def configure(parser) -> None:
     from plm_highway.cli._common import defaults_of
     from plm_highway.evaluation.evaluate import evaluate
     from plm_highway.evaluation.policies import POLICY_NAMES
-    from plm_highway.evaluation.run import CONDITION_NAMES, INJECTION_LATENCY_SOURCE
+    from plm_highway.evaluation.run import CONDITION_NAMES, INJECTION_LATENCY_SOURCE, LATENCY_SOURCE_NAMES
 
     d = defaults_of(evaluate)
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
@@ -30,6 +30,11 @@ def configure(parser) -> None:
                         help="latency injection instead of the conditions' own (ideal: time, paper: legacy-fifo), as "
                              "for reproduce; legacy-fifo also runs the BM baseline of a time-varying profile at its "
                              "middle latency, as the original code did")
+    parser.add_argument("--latency-source", choices=LATENCY_SOURCE_NAMES,
+                        help="what the mitigation is told instead of the conditions' own (ideal: measured, paper: "
+                             "requested): measured (the frame's true age), requested, or estimated (from the camera "
+                             "and the car's fast sensors, no capture timestamps; every run then logs the estimate, "
+                             "latency_estimate_s and latency_estimable, beside the true age)")
     add_seed(parser, d["seed"])
     parser.add_argument("--seeds", help="run every run once per seed: a count N (seeds --seed .. --seed+N-1) or a "
                                         "list a,b,c; the JSON adds per_seed and over_seeds (mean, 95%% CI)")
@@ -50,7 +55,7 @@ def run(args) -> int:
             check_target(path, kind, overwrite=args.overwrite)
     with single_threaded_inference():
         result, logs = evaluate(args.track, args.latency, args.policy, args.seed, args.max_steps, args.checkpoints,
-                                args.seeds, args.conditions, args.injection)
+                                args.seeds, args.conditions, args.injection, args.latency_source)
     sys.stdout.write(json_text(result, EVALUATION_JSON))
     if args.json or args.out:
         publish_results(result, logs, args.json, args.out, overwrite=args.overwrite)

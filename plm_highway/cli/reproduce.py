@@ -7,7 +7,7 @@ from plm_highway.cli._common import Command, add_overwrite, add_seed, bounded_fl
 
 def configure(parser) -> None:
     from plm_highway.evaluation.reproduce import reproduce
-    from plm_highway.evaluation.run import CONDITION_NAMES, INJECTION_LATENCY_SOURCE
+    from plm_highway.evaluation.run import CONDITION_NAMES, INJECTION_LATENCY_SOURCE, LATENCY_SOURCE_NAMES
 
     d = defaults_of(reproduce)
     parser.add_argument("--out", help="output directory (default: figures/reproduce, figures/reproduce/TRACK for a "
@@ -22,6 +22,10 @@ def configure(parser) -> None:
                              "original's FIFO (fresher frames while it refills, PLM-Net told the requested latency, "
                              "the BM baseline of a time-varying setting at a constant latency). The report compares "
                              "the time-varying settings under both")
+    parser.add_argument("--latency-source", choices=LATENCY_SOURCE_NAMES,
+                        help="what PLM-Net is told instead of the conditions' own (ideal: measured, paper: requested): "
+                             "measured, requested, or estimated from the stream without capture timestamps (every "
+                             "run then logs the estimate beside the true age)")
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: shipped)")
     parser.add_argument("--settings", nargs="+", metavar="SPEC",
@@ -58,7 +62,8 @@ def run(args) -> int:
         results = reproduce(args.track, args.settings, args.checkpoints, args.seed, args.max_steps, args.out,
                             args.generalise, args.sweep, args.sweep_max, args.sweep_step, not args.no_progress,
                             args.command_line, overwrite=args.overwrite, seeds=args.seeds, conditions=args.conditions,
-                            workers=args.workers, batch_size=args.batch_size, injection=args.injection)
+                            workers=args.workers, batch_size=args.batch_size, injection=args.injection,
+                            latency_source=args.latency_source)
     out = output_dir(args.out, args.track, results["track"], args.conditions)
     for target in results["targets"]:
         print(f"{'met   ' if target['met'] else 'MISSED'} {setting_label(target['setting']):>26}: {target['target']}: "

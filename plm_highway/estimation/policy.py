@@ -19,6 +19,8 @@ sensors carry to the present.
 
 ``latency_bias_s`` is a misestimated latency: the frame is re-stamped at
 ``time_s - (observation_age_s + latency_bias_s)`` (kept within ``[oldest history, now]``).
+``latency_source="estimated"`` re-stamps by the latency estimated from the stream instead of the true age:
+``info["latency_estimate_s"]`` (:mod:`plm_highway.estimation.latency_stream`; the run must estimate it).
 
 Controller: the path curvature that makes the lateral offset a damped second-order system,
 ``kappa_path = kappa + (-k_d d - k_v v_n) / u^2``, with ``k_d = w^2``, ``k_v = 2 zeta w``, turned into a
@@ -42,6 +44,8 @@ from plm_highway.vehicle.single_track import SingleTrackParams
 INFO_YAW_RATE = "yaw_rate_radps"
 INFO_LATERAL_ACCELERATION = "lateral_acceleration_mps2"
 INFO_FRONT_WHEEL_ANGLE = "front_wheel_angle_rad"
+# The frame's age by latency source (as plm_highway.evaluation.policies.LATENCY_SOURCES tells PLM-Net).
+CAPTURE_AGE_KEYS = {"measured": "observation_age_s", "requested": "latency_s", "estimated": "latency_estimate_s"}
 
 # highway-env's kinematic bicycle (5 m wheelbase, reference point in the middle) as a single-track car
 # with tires so stiff that they do not slip: neutral steer, r = u delta / L, v = b r, as the kinematic
@@ -57,6 +61,9 @@ class EkfPolicyConfig:
     vehicle: SingleTrackParams = KINEMATIC_ENV_VEHICLE  # the car the env simulates, as the estimator models it
     max_steering_rad: float = 0.2  # the env's max_steering_rad (action +-1)
     latency_bias_s: float = 0.0
+    # What the frame is re-stamped by: "measured" (the true age, observation_age_s) or "estimated" (the latency
+    # estimated from the stream, latency_estimate_s); "requested" (latency_s) is the original PLM-Net's.
+    latency_source: str = "measured"
     compensate_delay: bool = True  # False: each frame is fused as if captured now (the uncompensated EKF)
     lane_width_m: float = 4.0  # the kit's tracks
     camera: CameraConfig = field(default_factory=CameraConfig)  # the env's camera
@@ -77,6 +84,9 @@ class EkfPolicyConfig:
             raise ValueError(f"EkfPolicyConfig.latency_bias_s={self.latency_bias_s!r} must be within +-1 s")
         if not (math.isfinite(self.max_steering_rad) and 0 < self.max_steering_rad <= 1.0):
             raise ValueError(f"EkfPolicyConfig.max_steering_rad={self.max_steering_rad!r} must be in (0, 1] rad")
+        if self.latency_source not in CAPTURE_AGE_KEYS:
+            raise ValueError(f"EkfPolicyConfig.latency_source={self.latency_source!r}: expected one of "
+                             f"{sorted(CAPTURE_AGE_KEYS)}")
         if self.natural_frequency_radps <= 0 or self.damping_ratio <= 0:
             raise ValueError("EkfPolicyConfig: natural_frequency_radps and damping_ratio must be positive")
 
@@ -112,7 +122,11 @@ class EkfLaneKeepingPolicy:
         speed_mps = max(float(info["speed_mps"]), 1.0)
         steer_rad, imu = self._sensors(info, now_s, speed_mps)
         self.estimator.step(now_s, steer_rad, speed_mps, imu)
-        self._fuse_frame(frame, now_s - float(info.get("observation_age_s", 0.0)) - self.config.latency_bias_s)
+        age_key = CAPTURE_AGE_KEYS[self.config.latency_source]
+        if age_key not in info and self.config.latency_source == "estimated":
+            raise ValueError("the EKF policy re-stamps by the estimated latency, but info has no 'latency_estimate_s': "
+                             "drive it in a run that estimates its latency (latency_estimation)")
+        self._fuse_frame(frame, now_s - float(info.get(age_key, 0.0)) - self.config.latency_bias_s)
         return self._control(self.estimator.state, speed_mps)
 
     def _sensors(self, info: dict, now_s: float, speed_mps: float) -> tuple[float, np.ndarray]:
@@ -155,10 +169,11 @@ class EkfLaneKeepingPolicy:
         return float(np.clip(steer_rad / config.max_steering_rad, -1.0, 1.0))
 
 
-def ekf_policy(compensate_delay: bool = True, latency_bias_s: float = 0.0, seed: int = 0) -> EkfLaneKeepingPolicy:
+def ekf_policy(compensate_delay: bool = True, latency_bias_s: float = 0.0, seed: int = 0,
+               latency_source: str = "measured") -> EkfLaneKeepingPolicy:
     """The EKF lane-keeping policy as ``plm-highway evaluate --policy ekf`` drives it (default config)."""
-    return EkfLaneKeepingPolicy(EkfPolicyConfig(latency_bias_s=latency_bias_s, compensate_delay=compensate_delay),
-                                seed=seed)
+    return EkfLaneKeepingPolicy(EkfPolicyConfig(latency_bias_s=latency_bias_s, compensate_delay=compensate_delay,
+                                                latency_source=latency_source), seed=seed)
 
 
 def measure_camera_noise(track="train", seed: int = 0, max_steps: int | None = None,

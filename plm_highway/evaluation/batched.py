@@ -39,7 +39,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plm_highway.evaluation.closed_loop import LOG_COLUMNS, NOISE_STREAM, RunLog, add_image_noise, make_env
+from plm_highway.evaluation.closed_loop import (
+    LOG_COLUMNS,
+    NOISE_STREAM,
+    RunLog,
+    add_image_noise,
+    log_estimate,
+    make_env,
+)
 from plm_highway.evaluation.policies import POLICY_NAMES, SHIPPED_PRESET, VisionPolicy, make_policy
 
 DEFAULT_BATCH_SIZE = 32
@@ -66,6 +73,7 @@ class RunCell:
     max_steps: int | None = None
     injection: str = "time"  # LatencyWrapper injection, as for drive()
     image_noise_std: float = 0.0  # Gaussian pixel noise [grey levels], seeded as drive() seeds it
+    latency_estimation: object = None  # a LatencyEstimation: the run estimates its latency, as for drive()
 
 
 @dataclass
@@ -94,6 +102,7 @@ class _Run:
         for column in LOG_COLUMNS[2:]:
             self.rows[column].append(self.info[column])
         self.rows["t_s"].append(self.info["time_s"])
+        log_estimate(self.rows, self.info)
 
     def advance(self, steering: float) -> None:
         self.obs, _, self.terminated, truncated, self.info = self.env.step(np.array([steering], dtype=np.float32))
@@ -203,7 +212,7 @@ def _start(cell: RunCell, models: dict[str, VisionPolicy]) -> _Run:
         policy = VisionPolicy(models[cell.policy].model_policy, cell.latency_bias_s, cell.latency_source)
     else:
         policy = cell.policy
-    env = make_env(cell.track, cell.latency, cell.camera, cell.env_config, cell.injection)
+    env = make_env(cell.track, cell.latency, cell.camera, cell.env_config, cell.injection, cell.latency_estimation)
     obs, info = env.reset(seed=cell.seed)
     policy.reset()
     return _Run(cell, env, policy, obs, info, np.random.default_rng([cell.seed, NOISE_STREAM]))

@@ -5,6 +5,10 @@ and ``reset()``; ``info`` carries the observed (possibly delayed) privileged sta
 ``latency_s`` and the measured ``observation_age_s``. A policy that also counts the steps whose
 latency lay beyond what it can compensate satisfies :class:`CountsClampedLatency`, and its count is
 logged. Runs compared with each other use the same track, seed and so the same latency realisation.
+
+A run given a ``latency_estimation`` (:class:`~plm_highway.estimation.latency_stream.LatencyEstimation`)
+estimates its latency from the stream (no capture timestamps) and logs :data:`ESTIMATE_COLUMNS` beside the
+true ``observation_age_s``; PLM-Net told ``latency_source="estimated"`` reads that estimate.
 """
 
 from __future__ import annotations
@@ -20,6 +24,8 @@ from plm_highway.latency import LatencyWrapper, parse_profile
 
 LOG_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_m", "heading_rad", "speed_mps",
                "lateral_offset_m", "heading_error_rad", "arc_length_m", "segment")
+# Logged when the run estimates its latency (plm_highway.estimation.latency_stream adds them to info).
+ESTIMATE_COLUMNS = ("latency_estimate_s", "latency_estimate_std_s", "latency_estimable")
 NOISE_STREAM = 7  # the image-noise generator is np.random.default_rng([seed, NOISE_STREAM]): apart from the env's
 
 
@@ -66,10 +72,22 @@ class RunLog:
 
 
 def make_env(track, latency, camera: dict | None = None, env_config: dict | None = None,
-             injection: str = "time") -> LatencyWrapper:
+             injection: str = "time", latency_estimation=None) -> gymnasium.Env:
     config = {"track": track, **({"camera": camera} if camera else {}), **(env_config or {})}
-    return LatencyWrapper(gymnasium.make("plm_highway/LaneKeeping-v0", config=config), parse_profile(latency),
-                          injection=injection)
+    env = LatencyWrapper(gymnasium.make("plm_highway/LaneKeeping-v0", config=config), parse_profile(latency),
+                         injection=injection)
+    if latency_estimation is None:
+        return env
+    from plm_highway.estimation.latency_stream import LatencyEstimateWrapper
+
+    return LatencyEstimateWrapper(env, latency_estimation)
+
+
+def log_estimate(rows: dict[str, list], info: dict) -> None:
+    """Append the latency estimate's columns of ``info`` to ``rows`` (a run that estimates its latency)."""
+    for column in ESTIMATE_COLUMNS:
+        if column in info:
+            rows.setdefault(column, []).append(info[column])
 
 
 def add_image_noise(frame: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
@@ -80,9 +98,9 @@ def add_image_noise(frame: np.ndarray, std: float, rng: np.random.Generator) -> 
 
 def drive(name: str, policy: Policy, track="test", latency="const:0", seed: int = 0, camera: dict | None = None,
           env_config: dict | None = None, max_steps: int | None = None, injection: str = "time",
-          image_noise_std: float = 0.0) -> RunLog:
+          image_noise_std: float = 0.0, latency_estimation=None) -> RunLog:
     """Drive one run until the track ends, the car leaves the road or ``max_steps``; the env is closed after."""
-    env = make_env(track, latency, camera, env_config, injection)
+    env = make_env(track, latency, camera, env_config, injection, latency_estimation)
     noise_rng = np.random.default_rng([seed, NOISE_STREAM])
     try:
         obs, info = env.reset(seed=seed)
@@ -97,6 +115,7 @@ def drive(name: str, policy: Policy, track="test", latency="const:0", seed: int 
             for column in LOG_COLUMNS[2:]:
                 rows[column].append(info[column])
             rows["t_s"].append(info["time_s"])
+            log_estimate(rows, info)
             obs, _, terminated, truncated, info = env.step(np.array([steering], dtype=np.float32))
             step += 1
             if terminated or truncated:

@@ -22,7 +22,7 @@ run and metric succeeded.
 from __future__ import annotations
 
 from plm_highway.errors import BadInput
-from plm_highway.evaluation.closed_loop import LOG_COLUMNS, RunLog, drive, make_env
+from plm_highway.evaluation.closed_loop import ESTIMATE_COLUMNS, LOG_COLUMNS, RunLog, drive, make_env
 from plm_highway.evaluation.policies import make_policy
 from plm_highway.evaluation.trajectory import trajectory_method, trajectory_metrics
 from plm_highway.io import directory_kind, file_kind, json_text, write_csv_into, write_outputs
@@ -71,7 +71,8 @@ def compare_runs(logs: dict[str, RunLog], track, latency_spec: str, policy: str,
 
 
 def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps=None, checkpoints=None,
-             seeds=None, conditions: str = "ideal", injection: str | None = None) -> tuple[dict, dict]:
+             seeds=None, conditions: str = "ideal", injection: str | None = None,
+             latency_source: str | None = None) -> tuple[dict, dict]:
     """Run the comparison; returns (result dict, {run name: RunLog}).
 
     ``seeds`` (a count N: seeds ``seed .. seed+N-1``, or a list): every run once per seed, each seed with its own
@@ -83,8 +84,13 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
     injection, image noise and checkpoint preset of those conditions; under ``paper`` every run, single or
     per seed, is driven as ``reproduce`` drives it (a seed above 0 also perturbs the start). ``injection``
     (``--injection``) replaces the conditions' latency injection, as for ``reproduce``.
+
+    ``latency_source`` (``--latency-source``; None: the conditions' own) is what the mitigation is told: the
+    ``measured`` age of the frame, the ``requested`` latency, or the latency ``estimated`` from the stream without
+    capture timestamps (:mod:`plm_highway.estimation.latency_stream`): PLM-Net interpolates by it, the EKF
+    re-stamps by it, and every run logs it (``latency_estimate_s``, ``latency_estimable``) beside the true age.
     """
-    from plm_highway.evaluation.run import CONDITIONS, with_injection
+    from plm_highway.evaluation.run import CONDITIONS, with_injection, with_latency_source
 
     if conditions not in CONDITIONS:
         raise BadInput(f"--conditions {conditions!r}: expected one of {list(CONDITIONS)}")
@@ -92,7 +98,7 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
         raise BadInput(f"--policy ekf with --conditions {conditions}"
                        f"{'' if injection is None else f' --injection {injection}'}: the EKF policy is built for the "
                        "ideal conditions' car, loop and latency injection; use --conditions ideal without --injection")
-    chosen = with_injection(CONDITIONS[conditions], injection)
+    chosen = with_latency_source(with_injection(CONDITIONS[conditions], injection), latency_source)
     track_spec, latency_spec = check_inputs(track, latency, max_steps)
     max_steps = run_steps(track_spec, max_steps, conditions)
     if seeds is not None or conditions != "ideal" or injection is not None:
@@ -108,23 +114,29 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
             result["conditions"] = conditions
         if injection is not None:
             result["injection"] = injection
+        if latency_source is not None:
+            result["latency_source"] = latency_source
         return result, logs
+    source = chosen.latency_source
     if policy == "ekf":
         from plm_highway.estimation.policy import ekf_policy
 
         policies = {"reference": make_policy("ekf", seed=seed), "baseline": ekf_policy(compensate_delay=False, seed=seed),
-                    "mitigated": make_policy("ekf", seed=seed)}
+                    "mitigated": make_policy("ekf", seed=seed, latency_source=source)}
     else:
         base_policy = "expert" if policy == "expert" else "bm"
         policies = {"reference": make_policy(base_policy, checkpoints),
                     "baseline": make_policy(base_policy, checkpoints)}
         if policy == "plm":
-            policies["mitigated"] = make_policy("plm", checkpoints)
+            policies["mitigated"] = make_policy("plm", checkpoints, latency_source=source)
     logs = {}
     for name, run_policy in policies.items():
         logs[name] = drive(name, run_policy, track_spec, "const:0" if name == "reference" else latency_spec, seed,
-                           max_steps=max_steps)
-    return compare_runs(logs, track, latency_spec, policy, seed, track_spec), logs
+                           max_steps=max_steps, latency_estimation=chosen.latency_estimation)
+    result = compare_runs(logs, track, latency_spec, policy, seed, track_spec)
+    if latency_source is not None:
+        result["latency_source"] = latency_source
+    return result, logs
 
 
 def _seed_list(seeds, first_seed: int) -> list[int]:
@@ -171,18 +183,25 @@ def combined_rows(logs: dict[str, RunLog]) -> tuple[list[str], list[list]]:
     Step k is the same instant in every run; a run that ended earlier has empty cells.
     """
     longest = max(logs.values(), key=lambda log: log.steps)
-    header = ["t_s"] + [f"{name}_{column}" for name in logs for column in COMBINED_COLUMNS]
+    columns = {name: COMBINED_COLUMNS + tuple(c for c in ESTIMATE_COLUMNS if c in log.columns)
+               for name, log in logs.items()}
+    header = ["t_s"] + [f"{name}_{column}" for name in logs for column in columns[name]]
     rows = []
     for k in range(longest.steps):
         row = [longest.columns["t_s"][k]]
-        for log in logs.values():
-            row += [log.columns[c][k] if k < log.steps else "" for c in COMBINED_COLUMNS]
+        for name, log in logs.items():
+            row += [log.columns[c][k] if k < log.steps else "" for c in columns[name]]
         rows.append(row)
     return header, rows
 
 
+def log_columns(log: RunLog) -> tuple[str, ...]:
+    """The columns a run's CSV holds: every logged column, and the latency estimate's where the run made one."""
+    return LOG_COLUMNS + tuple(column for column in ESTIMATE_COLUMNS if column in log.columns)
+
+
 def log_rows(log: RunLog) -> list[list]:
-    return [list(row) for row in zip(*(log.columns[column] for column in LOG_COLUMNS))]
+    return [list(row) for row in zip(*(log.columns[column] for column in log_columns(log)))]
 
 
 def publish_results(result: dict, logs: dict[str, RunLog], json_path=None, out_dir=None, overwrite: bool = False
@@ -196,5 +215,5 @@ def publish_results(result: dict, logs: dict[str, RunLog], json_path=None, out_d
                 continue
             (path / "result.json").write_text(json_text(result, EVALUATION_JSON), encoding="utf-8")
             for name, log in logs.items():
-                write_csv_into(path / f"{name}.csv", LOG_COLUMNS, log_rows(log))
+                write_csv_into(path / f"{name}.csv", log_columns(log), log_rows(log))
             write_csv_into(path / "steps.csv", *combined_rows(logs))

@@ -19,7 +19,9 @@ from pathlib import Path
 from plm_highway.expert import ExpertPolicy
 
 POLICY_NAMES = ("expert", "bm", "plm", "ekf")
-LATENCY_SOURCES = {"measured": "observation_age_s", "requested": "latency_s"}  # what PLM-Net is told -> info key
+# What PLM-Net is told -> the info key it reads; "estimated" is the latency estimated from the stream
+# (plm_highway.estimation.latency_stream, added to info by the run's LatencyEstimateWrapper).
+LATENCY_SOURCES = {"measured": "observation_age_s", "requested": "latency_s", "estimated": "latency_estimate_s"}
 SHIPPED_PRESET = "default"
 
 
@@ -115,7 +117,7 @@ def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, lat
     if name == "ekf":
         from plm_highway.estimation.policy import ekf_policy
 
-        return ekf_policy(latency_bias_s=latency_bias_s, seed=seed)
+        return ekf_policy(latency_bias_s=latency_bias_s, seed=seed, latency_source=latency_source)
     if name not in POLICY_NAMES:
         raise ValueError(f"--policy {name!r}: expected one of {list(POLICY_NAMES)}")
     from plm_highway.models import checkpoints, inference

@@ -49,6 +49,11 @@ def _is_reproduce_report(path: Path) -> bool:
     return (path / "report.md").is_file() and str(command).startswith("plm-highway reproduce")
 
 
+# What PLM-Net is told, by latency source (plm_highway.evaluation.policies.LATENCY_SOURCES).
+SOURCE_SHORT = {"measured": "measured age", "requested": "requested latency", "estimated": "estimated latency"}
+SOURCE_TOLD = {"measured": "the measured age of the frame", "requested": "the requested latency",
+               "estimated": "the latency estimated from the stream, without capture timestamps"}
+
 REPRODUCE_REPORT = directory_kind("reproduce-report", "a plm-highway reproduction report directory",
                                   _is_reproduce_report)
 
@@ -326,8 +331,7 @@ def injection_table(r: Reproduction) -> tuple[list[str], list[list[str]]]:
             s = entry["steering"]
             off = [sum(1 for x in entry["per_seed"] if x["steering"][run]["off_road"]) for run in ("baseline", "mitigated")]
             bm_latency = baseline_latency(spec, c)
-            rows.append([setting_label(spec), f"`{injection}`", "requested latency" if c.latency_source == "requested"
-                         else "measured age", setting_label(bm_latency) if bm_latency != spec else "the profile",
+            rows.append([setting_label(spec), f"`{injection}`", SOURCE_SHORT[c.latency_source], setting_label(bm_latency) if bm_latency != spec else "the profile",
                          est(s["baseline"]["mae"]), est(s["mitigated"]["mae"]), est_pct(s["mae_reduction_pct"]),
                          f"{off[0]} / {off[1]}"])
         d = differences[spec]
@@ -581,7 +585,7 @@ def render_report(r: Reproduction, figure_files: dict, other_figures: dict) -> s
         r=r, seeds=protocol.seeds_text(r.seeds), sight=sight_m(c.camera),
         injection=("frames delivered with their exact age (`time`)" if c.injection == "time"
                    else "the original's FIFO (`legacy-fifo`)"),
-        told=("the measured age of the frame" if c.latency_source == "measured" else "the requested latency"),
+        told=SOURCE_TOLD[c.latency_source],
         paper_items=PAPER_CONDITION_ITEMS, not_reproduced=PAPER_CONDITIONS_NOT_REPRODUCED,
         targets=targets_table(r.track.targets), met=met, summary=summary_table(r.track),
         noise_floor=est(r.track.noise_floor), off_road=off_road_rows(r.track), sections=sections,

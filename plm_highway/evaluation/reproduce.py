@@ -48,6 +48,7 @@ from plm_highway.evaluation.run import (
     progress_bar,
     run_cells,
     with_injection,
+    with_latency_source,
 )
 from plm_highway.io import check_target
 from plm_highway.road.track import TrackSpec, load_track
@@ -157,7 +158,7 @@ def run_track(track, specs: list[str], policies: dict, seed: int, max_steps: int
 def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=None, out=None, generalise=None,
               sweep=False, sweep_max=0.5, sweep_step=0.05, progress=True, command="", overwrite=False,
               seeds=DEFAULT_SEEDS, conditions="ideal", workers=None, batch_size=DEFAULT_BATCH_SIZE,
-              injection=None) -> dict:
+              injection=None, latency_source=None) -> dict:
     """Validate everything, drive every cell, then write the report; returns the results dict (JSON-ready).
 
     ``seeds``: a count N (seeds ``seed .. seed+N-1``) or a list; ``settings`` None: :func:`default_settings`.
@@ -166,7 +167,9 @@ def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=N
     depend on either (batch-invariant models, :mod:`~plm_highway.evaluation.cell_runner`).
     The ``--sweep`` runs are driven the same way, after the settings'. ``injection`` (``--injection``) replaces the conditions'
     latency injection (:func:`~plm_highway.evaluation.run.with_injection`); the time-varying settings of the main
-    track are also driven under the other injection, for the report's comparison of the two.
+    track are also driven under the other injection, for the report's comparison of the two. ``latency_source``
+    (``--latency-source``) replaces what PLM-Net is told (:func:`~plm_highway.evaluation.run.with_latency_source`),
+    under both injections.
     """
     from plm_highway.evaluation import sweep as sweep_module
     from plm_highway.sweep.backends import default_workers
@@ -177,11 +180,12 @@ def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=N
     if not 1 <= batch_size <= MAX_BATCH_SIZE:
         raise BadInput(f"--batch-size {batch_size}: must lie in [1, {MAX_BATCH_SIZE}]")
 
-    conditions = with_injection(conditions_named(conditions), injection)
+    conditions = with_latency_source(with_injection(conditions_named(conditions), injection), latency_source)
     seed_list = _seed_list(seeds, seed)
     specs = split_settings(settings if settings is not None else default_settings(conditions))
     varying = [spec for spec in specs if not is_constant(spec)]
-    compared = with_injection(conditions, OTHER_INJECTION[conditions.injection]) if varying else None
+    compared = with_latency_source(with_injection(conditions, OTHER_INJECTION[conditions.injection]),
+                                   latency_source) if varying else None
     if max_steps is not None and max_steps < 1:
         raise BadInput(f"--max-steps {max_steps}: must be at least 1")
     main_spec = load_track(track)

@@ -69,6 +69,9 @@ class Conditions:
     sharp_turn_braking: dict | None = None
     vehicle_model: str = "kinematic"  # a name in plm_highway.vehicle.models.VEHICLE_MODELS (env config)
     vehicle_params: dict = field(default_factory=dict)  # overrides of that model's default parameters
+    # None, or a plm_highway.estimation.latency_stream.LatencyEstimation: every run estimates its latency from the
+    # stream and logs it (latency_source "estimated": PLM-Net is told that estimate); see with_latency_source
+    latency_estimation: object = None
 
     def env_config(self, start_offset_m: float = 0.0, start_heading_error_rad: float = 0.0) -> dict:
         return {"policy_frequency": self.policy_frequency_hz, "simulation_frequency": self.simulation_frequency_hz,
@@ -125,6 +128,27 @@ def with_injection(conditions: Conditions, injection: str | None) -> Conditions:
     if injection not in INJECTION_LATENCY_SOURCE:
         raise BadInput(f"--injection {injection!r}: expected one of {list(INJECTION_LATENCY_SOURCE)}")
     return replace(conditions, injection=injection, latency_source=INJECTION_LATENCY_SOURCE[injection])
+
+
+LATENCY_SOURCE_NAMES = ("measured", "requested", "estimated")
+
+
+def with_latency_source(conditions: Conditions, latency_source: str | None, estimation=None) -> Conditions:
+    """``conditions`` with PLM-Net told ``latency_source`` (``--latency-source``; None: as they are): the measured age
+    of its frame, the requested latency, or the latency estimated from the stream without timestamps. ``estimated``
+    also makes every run estimate it and log the estimate beside the true age (``estimation``: a
+    :class:`~plm_highway.estimation.latency_stream.LatencyEstimation`, default its defaults)."""
+    if latency_source is None:
+        return conditions
+    if latency_source not in LATENCY_SOURCE_NAMES:
+        raise BadInput(f"--latency-source {latency_source!r}: expected one of {list(LATENCY_SOURCE_NAMES)}")
+    if latency_source != "estimated":
+        return replace(conditions, latency_source=latency_source, latency_estimation=None)
+    if estimation is None:
+        from plm_highway.estimation.latency_stream import LatencyEstimation
+
+        estimation = LatencyEstimation()
+    return replace(conditions, latency_source=latency_source, latency_estimation=estimation)
 
 
 # ``--speed-logic``: how the car's speed evolves. "constant" holds the conditions' speed_mps (the paper's text);
@@ -389,7 +413,8 @@ def drive_options(cell: Cell, conditions: Conditions, steps: int | None) -> dict
     ``conditions`` set for ``cell``: one place, so serial and batched runs are set up alike."""
     offset_m, heading_rad = start_perturbation(cell.seed, conditions)
     return {"camera": conditions.camera or None, "env_config": conditions.env_config(offset_m, heading_rad),
-            "max_steps": steps, "injection": conditions.injection, "image_noise_std": conditions.image_noise_std}
+            "max_steps": steps, "injection": conditions.injection, "image_noise_std": conditions.image_noise_std,
+            "latency_estimation": conditions.latency_estimation}
 
 
 def progress_bar(total: int, enabled: bool, desc: str = "reproduce") -> tqdm:
@@ -405,6 +430,6 @@ def make_policies(checkpoints, conditions: Conditions) -> dict[str, Policy]:
                                preset=conditions.checkpoint_preset)}
 
 
-__all__ = ["CONDITIONS", "CONDITION_NAMES", "INJECTION_LATENCY_SOURCE", "SPEED_LOGICS", "Cell", "Conditions", "ROLES",
+__all__ = ["CONDITIONS", "CONDITION_NAMES", "INJECTION_LATENCY_SOURCE", "LATENCY_SOURCE_NAMES", "SPEED_LOGICS", "Cell", "Conditions", "ROLES",
            "baseline_latency", "drive_options", "run_cells", "scored_steps", "sight_m", "start_perturbation",
-           "top_speed_mps", "with_injection", "with_pipeline", "with_speed_logic"]
+           "top_speed_mps", "with_injection", "with_latency_source", "with_pipeline", "with_speed_logic"]

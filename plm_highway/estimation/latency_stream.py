@@ -1,0 +1,136 @@
+"""The perception latency estimated from a lane-keeping env's stream, for PLM-Net, the EKF and the logs.
+
+:class:`CameraLatencyObserver` turns what a car has at each policy step into the estimator's input
+(:mod:`plm_highway.latency.estimate`): the fast sensors from ``info`` (``time_s``, ``yaw_rate_radps``,
+``speed_mps``, ``steering_angle_rad``: the car's own clock, no delay) and the lane measured in the late
+camera frame (:class:`~plm_highway.estimation.lane_camera.LaneDetector`). Nothing else of ``info`` is
+read: in particular neither ``observation_age_s``, ``latency_s`` nor ``observed_state`` (the truth the
+estimate is judged against).
+
+:class:`LatencyEstimateWrapper` wraps the latency wrapper and adds the estimate to every ``info``:
+
+- ``latency_estimate_s``: the latency a consumer should use now (the newest estimable estimate, the step
+  detector's, or the prior before any evidence; :attr:`~plm_highway.latency.estimate.LatencyEstimate.held_s`);
+- ``latency_estimate_std_s``: the standard deviation of the window's estimate (inf while the cost is flat);
+- ``latency_estimable``: whether the recent driving carried enough information for a fresh estimate.
+
+PLM-Net told the estimate reads ``latency_estimate_s`` (``latency_source="estimated"``); so does the EKF
+policy, which re-stamps each camera measurement by it. The frame the observer measures is the one the
+wrapper delivers (image noise that a run adds afterwards for the policy is not in it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import gymnasium
+import numpy as np
+
+from plm_highway.estimation.lane_camera import LaneDetector, LaneDetectorConfig, LaneMeasurement
+from plm_highway.latency.estimate import (
+    FastSample,
+    LaneSample,
+    LatencyEstimate,
+    LatencyEstimator,
+    LatencyEstimatorConfig,
+)
+
+INFO_ESTIMATE = "latency_estimate_s"
+INFO_STD = "latency_estimate_std_s"
+INFO_ESTIMABLE = "latency_estimable"
+ESTIMATE_KEYS = (INFO_ESTIMATE, INFO_STD, INFO_ESTIMABLE)
+FAST_SENSOR_KEYS = ("time_s", "yaw_rate_radps", "speed_mps", "steering_angle_rad")
+
+
+def fast_sample(info: dict) -> FastSample:
+    """The car's own sensors in ``info`` (and nothing else of it)."""
+    return FastSample(*(float(info[key]) for key in FAST_SENSOR_KEYS))
+
+
+def lane_sample(measurement: LaneMeasurement | None) -> LaneSample | None:
+    if measurement is None:
+        return None
+    return LaneSample(measurement.offset_m, measurement.heading_rad)
+
+
+def env_sensor_shift_s(env_config: dict) -> float:
+    """When the motion of the kit env's fast-sensor sample happens, relative to its tick
+    (:attr:`~plm_highway.latency.estimate.LatencyEstimatorConfig.fast_sensor_shift_s`).
+
+    The env moves the car over each simulation step with the wheel angle at the step's start
+    (:mod:`plm_highway.vehicle.kinematic`) and reports the yaw rate for the wheel angle at its end. Without a
+    steering actuator both are the command of that step: the sample describes the step before its tick
+    (-dt/2). With an actuator the angle at the step's end is the one the next step starts with (+dt/2).
+    """
+    step_s = 1.0 / float(env_config["simulation_frequency"])
+    return 0.5 * step_s if float(env_config.get("steering_time_constant_s", 0.0)) > 0 else -0.5 * step_s
+
+
+class CameraLatencyObserver:
+    """Feeds the estimator from ``(frame, info)``: the lane measured in the frame, the fast sensors in ``info``."""
+
+    def __init__(self, detector: LaneDetector, config: LatencyEstimatorConfig | None = None):
+        self.detector = detector
+        self.estimator = LatencyEstimator(LatencyEstimatorConfig() if config is None else config)
+        self.reset()
+
+    def reset(self) -> None:
+        self.estimator.reset()
+        self._previous: LaneMeasurement | None = None
+        self.frames_missed = 0
+
+    def observe(self, frame: np.ndarray, info: dict) -> LatencyEstimate:
+        measurement = self.detector.measure(frame, self._previous)
+        if measurement is None:
+            self.frames_missed += 1
+        else:
+            self._previous = measurement
+        return self.estimator.update(fast_sample(info), lane_sample(measurement))
+
+
+def estimate_info(estimate: LatencyEstimate) -> dict:
+    """The ``info`` entries of one estimate (plain floats and a bool, for the logs)."""
+    return {INFO_ESTIMATE: float(estimate.held_s), INFO_STD: float(estimate.std_s),
+            INFO_ESTIMABLE: bool(estimate.estimable)}
+
+
+@dataclass(frozen=True)
+class LatencyEstimation:
+    """How a run estimates its latency (plain data: it travels to pool workers with the run)."""
+
+    estimator: LatencyEstimatorConfig = LatencyEstimatorConfig()
+    # None: the sensor timing the env's own configuration implies (env_sensor_shift_s); a number overrides it.
+    fast_sensor_shift_s: float | None = None
+
+
+class LatencyEstimateWrapper(gymnasium.Wrapper):
+    """Adds the latency estimated from the stream to ``info`` (module docstring). Wrap a ``LatencyWrapper``."""
+
+    def __init__(self, env: gymnasium.Env, estimation: LatencyEstimation = LatencyEstimation()):
+        super().__init__(env)
+        self.estimation = estimation
+        self.observer: CameraLatencyObserver | None = None
+
+    def _make_observer(self) -> CameraLatencyObserver:
+        base = self.env.unwrapped
+        shift_s = self.estimation.fast_sensor_shift_s
+        if shift_s is None:
+            shift_s = env_sensor_shift_s(base.config)
+        config = self.estimation.estimator
+        if not math.isclose(config.fast_sensor_shift_s, shift_s):
+            from dataclasses import replace
+
+            config = replace(config, fast_sensor_shift_s=shift_s)
+        detector = LaneDetector(base.camera_config, LaneDetectorConfig(lane_width_m=base.track.lane_width_m))
+        return CameraLatencyObserver(detector, config)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        # Rates, camera and track are read at every reset: reset(options=...) may change them.
+        self.observer = self._make_observer()
+        return obs, {**info, **estimate_info(self.observer.observe(obs, info))}
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, reward, terminated, truncated, {**info, **estimate_info(self.observer.observe(obs, info))}
