@@ -84,7 +84,54 @@ def run_compare(args) -> int:
     return 0
 
 
+def configure_latency(parser) -> None:
+    from plm_highway.evaluation.latency_estimation import LatencySuite
+
+    d = LatencySuite()
+    parser.add_argument("--out", default="figures/latency-estimation",
+                        help="report directory: results.json, report.md (rendered from it) and the figures")
+    parser.add_argument("--seeds", type=bounded_int(1, 100), default=len(d.seeds), help="seeds 0..N-1")
+    parser.add_argument("--conditions", default=",".join(d.conditions), help="comma-separated: ideal, paper")
+    parser.add_argument("--tracks", default=",".join(d.tracks), help="comma-separated track names or JSON paths")
+    parser.add_argument("--max-steps", type=bounded_int(2, 10_000_000),
+                        help="stop each closed-loop run after this many policy steps (default: the scored track)")
+    parser.add_argument("--table3-seeds", type=bounded_int(0, 100), default=len(d.table3_seeds),
+                        help="seeds of the EKF's Table 3 scenarios (0: skip them)")
+    parser.add_argument("--workers", type=bounded_int(0, 64), default=0,
+                        help="runs driven at once in worker processes (0: in this process)")
+    parser.add_argument("--cache", metavar="DIR",
+                        help="keep each finished run here (one JSON per run) and reuse them: an interrupted "
+                             "measurement resumes")
+    parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: shipped)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_overwrite(parser)
+
+
+def run_latency(args) -> int:
+    from plm_highway.evaluation.latency_estimation import LatencySuite, measure
+    from plm_highway.evaluation.latency_estimation_report import LATENCY_REPORT, write_latency_report
+    from plm_highway.evaluation.policies import single_threaded_inference
+    from plm_highway.io import check_target
+
+    suite = LatencySuite(conditions=tuple(c.strip() for c in args.conditions.split(",") if c.strip()),
+                         tracks=tuple(t.strip() for t in args.tracks.split(",") if t.strip()),
+                         seeds=tuple(range(args.seeds)), max_steps=args.max_steps,
+                         table3_seeds=tuple(range(args.table3_seeds)))
+    check_target(args.out, LATENCY_REPORT, overwrite=args.overwrite)  # refuse before hours of driving, not after
+    with single_threaded_inference():
+        results = measure(suite, args.command_line, args.cache, args.workers, args.checkpoints,
+                          progress=not args.no_progress)
+    for target in results["targets"]:
+        print(f"{'met   ' if target['met'] else 'MISSED'} {target['target']}: {target['detail']}")
+    for path in write_latency_report(results, args.out, overwrite=args.overwrite):
+        print(f"wrote {path}")
+    return 0
+
+
 COMMANDS = [Command("table3", "reproduce seed paper 004's Table 3 in simulation (camera, EKF, delay-compensated EKF)",
                     configure_table3, run_table3),
             Command("compare", "PLM-Net beside the delay-compensated EKF policy in the closed loop (same track, "
-                               "latencies, seeds)", configure_compare, run_compare)]
+                               "latencies, seeds)", configure_compare, run_compare),
+            Command("latency", "the perception latency estimated from the stream (no timestamps): accuracy, "
+                               "robustness, and PLM-Net and the EKF driven by the estimate", configure_latency,
+                    run_latency)]

@@ -40,6 +40,10 @@ INFO_ESTIMATE = "latency_estimate_s"
 INFO_STD = "latency_estimate_std_s"
 INFO_ESTIMABLE = "latency_estimable"
 ESTIMATE_KEYS = (INFO_ESTIMATE, INFO_STD, INFO_ESTIMABLE)
+# With ``record``: what the estimator was given at the tick (after the stream's impairments), for writing a
+# recording of the stream without capture timestamps.
+STREAM_KEYS = ("stream_time_s", "stream_yaw_rate_radps", "stream_speed_mps", "stream_steer_rad",
+               "stream_lane_offset_m", "stream_lane_heading_rad")
 FAST_SENSOR_KEYS = ("time_s", "yaw_rate_radps", "speed_mps", "steering_angle_rad")
 
 
@@ -68,17 +72,26 @@ def env_sensor_shift_s(env_config: dict) -> float:
 
 
 class CameraLatencyObserver:
-    """Feeds the estimator from ``(frame, info)``: the lane measured in the frame, the fast sensors in ``info``."""
+    """Feeds the estimator from ``(frame, info)``: the lane measured in the frame, the fast sensors in ``info``.
 
-    def __init__(self, detector: LaneDetector, config: LatencyEstimatorConfig | None = None):
+    ``drop_rng`` and ``drop_fraction``: lose lane measurements at random; ``clock_rate``: the car's clock runs at
+    that rate (:class:`LatencyEstimation`). :attr:`last_input` is what the estimator was given last.
+    """
+
+    def __init__(self, detector: LaneDetector, config: LatencyEstimatorConfig | None = None,
+                 drop_fraction: float = 0.0, drop_rng: np.random.Generator | None = None, clock_rate: float = 1.0):
         self.detector = detector
         self.estimator = LatencyEstimator(LatencyEstimatorConfig() if config is None else config)
+        self.drop_fraction, self.drop_rng, self.clock_rate = drop_fraction, drop_rng, clock_rate
+        if drop_fraction > 0 and drop_rng is None:
+            raise ValueError("CameraLatencyObserver: dropping lane measurements needs the caller's drop_rng")
         self.reset()
 
     def reset(self) -> None:
         self.estimator.reset()
         self._previous: LaneMeasurement | None = None
         self.frames_missed = 0
+        self.last_input: tuple[FastSample, LaneSample | None] | None = None
 
     def observe(self, frame: np.ndarray, info: dict) -> LatencyEstimate:
         measurement = self.detector.measure(frame, self._previous)
@@ -86,7 +99,14 @@ class CameraLatencyObserver:
             self.frames_missed += 1
         else:
             self._previous = measurement
-        return self.estimator.update(fast_sample(info), lane_sample(measurement))
+        lane = lane_sample(measurement)
+        if self.drop_fraction > 0 and self.drop_rng.random() < self.drop_fraction:
+            lane = None
+        fast = fast_sample(info)
+        if self.clock_rate != 1.0:
+            fast = fast._replace(time_s=fast.time_s * self.clock_rate)
+        self.last_input = (fast, lane)
+        return self.estimator.update(fast, lane)
 
 
 def estimate_info(estimate: LatencyEstimate) -> dict:
@@ -97,11 +117,28 @@ def estimate_info(estimate: LatencyEstimate) -> dict:
 
 @dataclass(frozen=True)
 class LatencyEstimation:
-    """How a run estimates its latency (plain data: it travels to pool workers with the run)."""
+    """How a run estimates its latency (plain data: it travels to pool workers with the run).
+
+    ``drop_fraction`` and ``clock_rate`` impair the stream the estimator sees, for robustness measurements: each
+    lane measurement is lost with that probability (seeded by the run's seed), and the car's clock runs at
+    ``clock_rate`` times true time (1.01: a clock that drifts 1%).
+    """
 
     estimator: LatencyEstimatorConfig = LatencyEstimatorConfig()
     # None: the sensor timing the env's own configuration implies (env_sensor_shift_s); a number overrides it.
     fast_sensor_shift_s: float | None = None
+    drop_fraction: float = 0.0
+    clock_rate: float = 1.0
+    record: bool = False  # add what the estimator was given to info (STREAM_KEYS), for writing a recording
+
+    def __post_init__(self):
+        if not (isinstance(self.drop_fraction, (int, float)) and 0.0 <= self.drop_fraction < 1.0):
+            raise ValueError(f"LatencyEstimation.drop_fraction={self.drop_fraction!r}: must be in [0, 1)")
+        if not (isinstance(self.clock_rate, (int, float)) and 0.5 <= self.clock_rate <= 2.0):
+            raise ValueError(f"LatencyEstimation.clock_rate={self.clock_rate!r}: must be in [0.5, 2]")
+
+
+DROP_STREAM = 13  # lost lane measurements draw from np.random.default_rng([seed, DROP_STREAM])
 
 
 class LatencyEstimateWrapper(gymnasium.Wrapper):
@@ -112,7 +149,7 @@ class LatencyEstimateWrapper(gymnasium.Wrapper):
         self.estimation = estimation
         self.observer: CameraLatencyObserver | None = None
 
-    def _make_observer(self) -> CameraLatencyObserver:
+    def _make_observer(self, seed: int | None) -> CameraLatencyObserver:
         base = self.env.unwrapped
         shift_s = self.estimation.fast_sensor_shift_s
         if shift_s is None:
@@ -123,14 +160,24 @@ class LatencyEstimateWrapper(gymnasium.Wrapper):
 
             config = replace(config, fast_sensor_shift_s=shift_s)
         detector = LaneDetector(base.camera_config, LaneDetectorConfig(lane_width_m=base.track.lane_width_m))
-        return CameraLatencyObserver(detector, config)
+        estimation = self.estimation
+        drop_rng = np.random.default_rng([0 if seed is None else seed, DROP_STREAM])
+        return CameraLatencyObserver(detector, config, estimation.drop_fraction, drop_rng, estimation.clock_rate)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
         # Rates, camera and track are read at every reset: reset(options=...) may change them.
-        self.observer = self._make_observer()
-        return obs, {**info, **estimate_info(self.observer.observe(obs, info))}
+        self.observer = self._make_observer(seed)
+        return obs, self._with_estimate(obs, info)
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
-        return obs, reward, terminated, truncated, {**info, **estimate_info(self.observer.observe(obs, info))}
+        return obs, reward, terminated, truncated, self._with_estimate(obs, info)
+
+    def _with_estimate(self, obs, info: dict) -> dict:
+        info = {**info, **estimate_info(self.observer.observe(obs, info))}
+        if self.estimation.record:
+            fast, lane = self.observer.last_input
+            info.update(zip(STREAM_KEYS, (*fast, math.nan if lane is None else lane.offset_m,
+                                          math.nan if lane is None else lane.heading_rad)))
+        return info

@@ -20,12 +20,15 @@ import gymnasium
 import numpy as np
 
 import plm_highway  # noqa: F401  (registers the env)
+from plm_highway.estimation.latency_stream import ESTIMATE_KEYS, STREAM_KEYS
 from plm_highway.latency import LatencyWrapper, parse_profile
 
 LOG_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_m", "heading_rad", "speed_mps",
                "lateral_offset_m", "heading_error_rad", "arc_length_m", "segment")
-# Logged when the run estimates its latency (plm_highway.estimation.latency_stream adds them to info).
-ESTIMATE_COLUMNS = ("latency_estimate_s", "latency_estimate_std_s", "latency_estimable")
+# Logged when the run estimates its latency (plm_highway.estimation.latency_stream adds them to info), and with its
+# ``record`` option what the estimator was given (for writing the stream as a recording).
+ESTIMATE_COLUMNS = ESTIMATE_KEYS
+STREAM_COLUMNS = STREAM_KEYS
 NOISE_STREAM = 7  # the image-noise generator is np.random.default_rng([seed, NOISE_STREAM]): apart from the env's
 
 
@@ -85,7 +88,7 @@ def make_env(track, latency, camera: dict | None = None, env_config: dict | None
 
 def log_estimate(rows: dict[str, list], info: dict) -> None:
     """Append the latency estimate's columns of ``info`` to ``rows`` (a run that estimates its latency)."""
-    for column in ESTIMATE_COLUMNS:
+    for column in ESTIMATE_COLUMNS + STREAM_COLUMNS:
         if column in info:
             rows.setdefault(column, []).append(info[column])
 

@@ -180,18 +180,19 @@ def write_report(d: Diagnosis, directory: str | os.PathLike, overwrite: bool = F
     return [Path(directory) / name for name in names]
 
 
-def publish_diagnosis(d: Diagnosis, data: dict, json_path=None, report_dir=None, overwrite: bool = False) -> None:
-    """The diagnosis JSON and/or the report directory, published together."""
+def publish_diagnosis(d: Diagnosis, data: dict, json_path=None, report_dir=None, overwrite: bool = False,
+                      extra_lines: list[str] | tuple[str, ...] = ()) -> None:
+    """The diagnosis JSON and/or the report directory, published together (``extra_lines``: more of the summary)."""
     targets = [(p, k) for p, k in ((json_path, DIAGNOSIS_JSON), (report_dir, SIM2REAL_REPORT)) if p]
     with write_outputs(targets, overwrite=overwrite) as staged:
         for (_, kind), path in zip(targets, staged):
             if kind is DIAGNOSIS_JSON:
                 path.write_text(json_text(data, DIAGNOSIS_JSON, indent=1), encoding="utf-8")
             else:
-                _write_report_files(d, path)
+                _write_report_files(d, path, extra_lines)
 
 
-def _write_report_files(d: Diagnosis, directory: Path) -> list[str]:
+def _write_report_files(d: Diagnosis, directory: Path, extra_lines: list[str] | tuple[str, ...] = ()) -> list[str]:
     plt = _pyplot()
     written = []
     for name, make in zip(FIGURES, (overlay_figure, residuals_figure, conditions_figure, candidates_figure)):
@@ -229,6 +230,7 @@ def _write_report_files(d: Diagnosis, directory: Path) -> list[str]:
     for c in d.selection.ranking:
         params = "; ".join(f"{k}={v:.5g}" for e in c.estimates.values() for k, v in e.items())
         lines.append(f"| {c.name} | {c.heldout_rmse:.5f} | {params} |")
+    lines += ["", *extra_lines]
     (directory / "summary.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
     (directory / "diagnosis.json").write_text(json_text(data, indent=1), encoding="utf-8")
     return written + ["summary.md", "diagnosis.json"]

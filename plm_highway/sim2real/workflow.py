@@ -103,14 +103,27 @@ def diagnose_file(
     for note in result.notes:
         print(f"warning: {note}", file=sys.stderr)
     data = to_json(result)
+    perception_lines = _perception_delay(recording_path, result, data)
     data["elapsed_s"] = time.perf_counter() - started
     if json_path or report_dir:
-        publish_diagnosis(result, data, json_path, report_dir, overwrite=overwrite)
+        publish_diagnosis(result, data, json_path, report_dir, overwrite=overwrite, extra_lines=perception_lines)
     if not quiet:
         print(result.summary)
+        print(perception_lines[2])
         confidence = ", low confidence" if result.confidence == "low" else ""
         print(f"verdict: {result.verdict}{confidence} ({time.perf_counter() - started:.1f} s)")
     return 0
+
+
+def _perception_delay(recording_path: Path, result, data: dict) -> list[str]:
+    """The camera's perception delay beside the diagnosis's delays (:mod:`plm_highway.sim2real.perception_delay`):
+    added to ``data``; the report's lines returned."""
+    from plm_highway.sim2real.perception_delay import diagnosis_delays, perception_delay, perception_delay_lines
+
+    found = perception_delay(recording_path, vehicle_params=result.recording.vehicle.kinematic)
+    delays = diagnosis_delays(result)
+    data["perception_delay"] = {**found, "diagnosis_delays_s": delays}
+    return perception_delay_lines(found, delays)
 
 
 def make_recording_file(
