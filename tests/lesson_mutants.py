@@ -397,4 +397,38 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("05", ("check_fuse_late",), "delegates to the check's reference", "",
            "def fuse_late(history, z, capture_time_s, step):\n"
            "    return lesson5.reference_fuse_late(history, z, capture_time_s, step)", delegation=True),
+    # ---------------- Lesson 5: the hidden latency ----------------
+    Mutant("05", ("check_alignment_cost",), "integrates the yaw rate with the rectangle rule",
+           "np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))", "np.cumsum(rate[1:] * np.diff(t))"),
+    Mutant("05", ("check_alignment_cost", "check_estimate_latency"), "looks ahead instead of back (t + lag)",
+           "capture = t - lag_s", "capture = t + lag_s"),
+    Mutant("05", ("check_alignment_cost",), "keeps captures from before the log began (read at its first tick)",
+           "use = (capture >= t[0] - 1e-9) & np.isfinite(camera)", "use = np.isfinite(camera)"),
+    Mutant("05", ("check_alignment_cost",), "mean square instead of variance: the lane's constant heading stays in",
+           "return float(np.var(camera[use] - np.interp(capture[use], t, heading)))",
+           "return float(np.mean((camera[use] - np.interp(capture[use], t, heading)) ** 2))"),
+    Mutant("05", ("check_alignment_cost",), "delegates to the check's reference", "",
+           "def alignment_cost(log, lag_s):\n    return lesson5.reference_alignment_cost(log, lag_s)", delegation=True),
+    Mutant("05", ("check_estimate_latency",), "the lag of the largest cost",
+           "return float(lags_s[int(np.argmin(costs))]), costs", "return float(lags_s[int(np.argmax(costs))]), costs"),
+    Mutant("05", ("check_estimate_latency",), "off by one lag",
+           "return float(lags_s[int(np.argmin(costs))]), costs",
+           "return float(lags_s[min(int(np.argmin(costs)) + 1, len(lags_s) - 1)]), costs"),
+    Mutant("05", ("check_estimate_latency",), "delegates to the kit's estimator", "",
+           "from plm_highway.latency.estimate import estimate_stream as _kit\n\n\n"
+           "def estimate_latency(log, lags_s):\n"
+           "    kit = _kit(log['time_s'], log['yaw_rate_radps'], log['speed_mps'], log['steer_rad'], "
+           "log['lane_offset_m'], log['lane_heading_rad'])\n"
+           "    return float(kit['held_s'][-1]), np.array([alignment_cost(log, lag) for lag in lags_s])",
+           delegation=True),
+    Mutant("05", ("check_relative_dip",), "the absolute dip, not relative to the best fit",
+           "return float((np.min(costs[far]) - costs[best]) / costs[best])",
+           "return float(np.min(costs[far]) - costs[best])"),
+    Mutant("05", ("check_relative_dip",), "only the lags strictly farther than span_s",
+           "far = np.abs(lags_s - lags_s[best]) >= span_s - 1e-9", "far = np.abs(lags_s - lags_s[best]) > span_s + 1e-9"),
+    Mutant("05", ("check_relative_dip",), "the largest far cost instead of the smallest",
+           "return float((np.min(costs[far]) - costs[best]) / costs[best])",
+           "return float((np.max(costs[far]) - costs[best]) / costs[best])"),
+    Mutant("05", ("check_why_estimable",), "a higher frame rate", 'return "b"', 'return "a"'),
+    Mutant("05", ("check_why_estimable",), "a larger latency", 'return "b"', 'return "d"'),
 )

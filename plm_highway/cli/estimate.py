@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_overwrite, bounded_int
+from plm_highway.cli._common import Command, add_overwrite, bounded_float, bounded_int
 
 GROUP_HELP = "model-based latency compensation: the delay-compensated lane-coordinate EKF (seed paper 004)"
 
@@ -93,8 +93,9 @@ def configure_latency(parser) -> None:
     parser.add_argument("--seeds", type=bounded_int(1, 100), default=len(d.seeds), help="seeds 0..N-1")
     parser.add_argument("--conditions", default=",".join(d.conditions), help="comma-separated: ideal, paper")
     parser.add_argument("--tracks", default=",".join(d.tracks), help="comma-separated track names or JSON paths")
-    parser.add_argument("--max-steps", type=bounded_int(2, 10_000_000),
-                        help="stop each closed-loop run after this many policy steps (default: the scored track)")
+    parser.add_argument("--duration-s", type=bounded_float(1.0, 1e5), default=d.duration_s,
+                        help="drive each closed-loop run for the scored track's first this many seconds")
+    parser.add_argument("--whole-track", action="store_true", help="drive each run over the whole scored track")
     parser.add_argument("--table3-seeds", type=bounded_int(0, 100), default=len(d.table3_seeds),
                         help="seeds of the EKF's Table 3 scenarios (0: skip them)")
     parser.add_argument("--workers", type=bounded_int(0, 64), default=0,
@@ -115,7 +116,7 @@ def run_latency(args) -> int:
 
     suite = LatencySuite(conditions=tuple(c.strip() for c in args.conditions.split(",") if c.strip()),
                          tracks=tuple(t.strip() for t in args.tracks.split(",") if t.strip()),
-                         seeds=tuple(range(args.seeds)), max_steps=args.max_steps,
+                         seeds=tuple(range(args.seeds)), duration_s=None if args.whole_track else args.duration_s,
                          table3_seeds=tuple(range(args.table3_seeds)))
     check_target(args.out, LATENCY_REPORT, overwrite=args.overwrite)  # refuse before hours of driving, not after
     with single_threaded_inference():

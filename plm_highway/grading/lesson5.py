@@ -160,3 +160,150 @@ def phase_lag_s(estimate, truth, step_s: float, max_lag_s: float = 0.6) -> float
     lags = range(int(round(max_lag_s / step_s)) + 1)
     errors = [np.mean((estimate[lag:] - truth[: len(truth) - lag]) ** 2) for lag in lags]
     return float(np.argmin(errors) * step_s)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Part 6: how late is the camera? A hidden latency estimated from a short log (no capture timestamps).
+# ------------------------------------------------------------------------------------------------------------
+
+LOG_RATE_HZ = 20.0  # the log's loop rate: one frame period is 0.05 s
+LOG_DURATION_S = 12.0
+HIDDEN_LATENCIES_S = (0.1, 0.15, 0.2, 0.25, 0.3)  # on the log's frame grid
+DIP_SPAN_S = 0.1  # how far from the best lag the dip is judged
+WHY_ESTIMABLE = "b"  # the car turning relative to the lane: seen at once by the gyro and late by the camera
+
+
+class SealedLatency:
+    """The hidden latency, printed only when asked: ``answer.reveal()``."""
+
+    def __init__(self, latency_s: float):
+        self._latency_s = latency_s
+
+    def reveal(self) -> float:
+        return self._latency_s
+
+    def __repr__(self) -> str:
+        return "<hidden latency, sealed: answer.reveal() at the end of the lesson>"
+
+
+def latency_log(seed: int, latency_s: float, weave_rad: float = 0.02, duration_s: float = LOG_DURATION_S) -> dict:
+    """A log of a car on a straight lane weaving with ``weave_rad`` of front-wheel angle (0: no steering): its
+    fast sensors and the camera's late lane offset and heading, ``latency_s`` late, with noise
+    (:func:`plm_highway.latency.synthetic.synthetic_stream`)."""
+    from plm_highway.latency.synthetic import StreamSpec, Weave, synthetic_stream
+
+    rng = np.random.default_rng(seed)
+    weave = Weave((weave_rad, 0.5 * weave_rad), (float(rng.uniform(0.3, 0.6)), float(rng.uniform(0.8, 1.2))),
+                  tuple(float(v) for v in rng.uniform(0, 2 * np.pi, 2)))
+    stream = synthetic_stream(StreamSpec(duration_s=duration_s, rate_hz=LOG_RATE_HZ, latency=latency_s, weave=weave),
+                              rng)
+    return {name: values for name, values in stream.items() if name != "true_latency_s"}
+
+
+def hidden_latency_log(seed: int) -> tuple[dict, SealedLatency]:
+    """The lesson's log: the seed picks the latency (from :data:`HIDDEN_LATENCIES_S`), the weave and the noise."""
+    latency_s = float(np.random.default_rng([seed, 6]).choice(HIDDEN_LATENCIES_S))
+    return latency_log(seed, latency_s), SealedLatency(latency_s)
+
+
+def reference_heading(log: dict) -> np.ndarray:
+    """The heading turned since the log began: the trapezoidal integral of the yaw rate."""
+    t, rate = np.asarray(log["time_s"], float), np.asarray(log["yaw_rate_radps"], float)
+    return np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))])
+
+
+def reference_alignment_cost(log: dict, lag_s: float) -> float:
+    """How badly the camera's heading fits the car's own heading ``lag_s`` earlier: the variance, over the samples
+    whose capture time ``t - lag_s`` lies in the log, of camera heading minus integrated yaw rate at that time (on a
+    straight the lane's own heading is a constant, which the variance removes)."""
+    t = np.asarray(log["time_s"], float)
+    heading = reference_heading(log)
+    camera = np.asarray(log["lane_heading_rad"], float)
+    capture = t - lag_s
+    use = (capture >= t[0] - 1e-9) & np.isfinite(camera)
+    return float(np.var(camera[use] - np.interp(capture[use], t, heading)))
+
+
+def reference_estimate_latency(log: dict, lags_s) -> tuple[float, np.ndarray]:
+    costs = np.array([reference_alignment_cost(log, lag) for lag in lags_s])
+    return float(np.asarray(lags_s, float)[int(np.argmin(costs))]), costs
+
+
+def reference_relative_dip(costs, lags_s, span_s: float = DIP_SPAN_S) -> float:
+    """How much worse the best fit ``span_s`` or more away from the best lag is, relative to the best fit."""
+    costs, lags = np.asarray(costs, float), np.asarray(lags_s, float)
+    best = int(np.argmin(costs))
+    far = np.abs(lags - lags[best]) >= span_s - 1e-9
+    return float((costs[far].min() - costs[best]) / costs[best])
+
+
+LAGS_S = np.round(np.arange(0.0, 0.5001, 0.05), 2)
+
+
+@graded(points=3)
+def check_alignment_cost(alignment_cost, seed: int | None = None) -> None:
+    """The alignment cost of a lag: variance of camera heading minus the integrated yaw rate at the capture time."""
+    rng = np.random.default_rng(61 if seed is None else seed)
+    for _ in range(2 if seed is None else 3):
+        log = latency_log(int(rng.integers(1 << 30)), float(rng.choice(HIDDEN_LATENCIES_S)), duration_s=6.0)
+        if rng.random() < 0.5:  # a lost frame or two: NaN in the camera's columns
+            lost = rng.integers(0, len(log["time_s"]), 3)
+            log["lane_heading_rad"] = log["lane_heading_rad"].copy()
+            log["lane_heading_rad"][lost] = np.nan
+        for lag_s in (0.0, float(rng.choice(LAGS_S[1:])), 0.475):
+            expected = reference_alignment_cost(log, lag_s)
+            received = call_student(alignment_cost, dict(log), lag_s, what=f"alignment_cost(log, {lag_s})",
+                                    exercise="lesson5.alignment_cost")
+            expect_close(f"alignment_cost at a lag of {lag_s} s", expected, received, atol=1e-12, rtol=1e-6,
+                         hint="integrate the yaw rate with the trapezoidal rule from 0 at the first sample; keep the "
+                              "samples whose capture time t - lag is not before the first sample and whose camera "
+                              "heading is not NaN; np.interp the integrated heading at the capture times; np.var of "
+                              "camera heading minus that")
+
+
+@graded(points=3)
+def check_estimate_latency(estimate_latency, seed: int | None = None) -> None:
+    """The lag of the smallest cost, on logs whose latency is known to the check: within one frame of the truth."""
+    rng = np.random.default_rng(62 if seed is None else seed)
+    for _ in range(2 if seed is None else 3):
+        truth_s = float(rng.choice(HIDDEN_LATENCIES_S))
+        log = latency_log(int(rng.integers(1 << 30)), truth_s, duration_s=8.0)
+        expected, expected_costs = reference_estimate_latency(log, LAGS_S)
+        received = call_student(estimate_latency, dict(log), LAGS_S.copy(), what="estimate_latency(log, LAGS_S)",
+                                exercise="lesson5.estimate_latency")
+        if not (isinstance(received, tuple) and len(received) == 2):
+            raise CheckFailed("what estimate_latency returned", "(best_lag_s, costs)", repr(received)[:80])
+        lag, costs = received
+        expect_close("the costs, one per lag", expected_costs, costs, atol=1e-12, rtol=1e-6,
+                     hint="call your alignment_cost for every lag of lags_s, in order")
+        expect_close(f"the best lag (the log's latency is {truth_s} s)", expected, lag, atol=1e-9,
+                     hint="the lag whose cost is smallest: lags_s[np.argmin(costs)]")
+        expect_true(abs(float(lag) - truth_s) <= 1.0 / LOG_RATE_HZ + 1e-9, "the best lag against the truth",
+                    "within one frame period (0.05 s) of the latency", expected=truth_s, received=lag)
+
+
+@graded(points=2)
+def check_relative_dip(relative_dip, seed: int | None = None) -> None:
+    """The dip of a cost curve: (best cost at least span_s away - best cost) / best cost."""
+    rng = np.random.default_rng(63 if seed is None else seed)
+    cases = [(np.array([4.0, 2.0, 1.0, 1.5, 3.0, 5.0]), np.array([0.0, 0.05, 0.1, 0.15, 0.2, 0.25]), 0.1),
+             (np.array([1.0, 1.01, 1.02, 1.0, 0.99]), np.array([0.0, 0.1, 0.2, 0.3, 0.4]), 0.1)]
+    if seed is not None:
+        lags = np.round(np.arange(0, 0.5001, 0.05), 2)
+        cases = [(rng.uniform(0.5, 3.0, len(lags)), lags, float(rng.choice([0.05, 0.1, 0.15]))) for _ in range(4)]
+    for costs, lags, span_s in cases:
+        expected = reference_relative_dip(costs, lags, span_s)
+        received = call_student(relative_dip, costs.copy(), lags.copy(), span_s,
+                                what=f"relative_dip(costs, lags, {span_s})", exercise="lesson5.relative_dip")
+        expect_close(f"the relative dip of {np.round(costs, 3).tolist()} at span {span_s} s", expected, received,
+                     atol=1e-12, rtol=1e-9, hint="best = argmin(costs); among the lags at least span_s from "
+                     "lags[best] take the smallest cost; (that - costs[best]) / costs[best]")
+
+
+@graded(points=2)
+def check_why_estimable(why_estimable) -> None:
+    """The one thing that makes a latency estimable from the stream."""
+    answer = call_student(why_estimable, what="why_estimable()", exercise="lesson5.why_estimable")
+    expect_true(isinstance(answer, str) and answer.strip().lower() == WHY_ESTIMABLE, "your answer to the question",
+                "compare the two cost curves above: which log's curve has a dip, and what differs between the logs?",
+                expected="one letter: the right one", received=repr(answer))

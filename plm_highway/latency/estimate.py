@@ -99,6 +99,10 @@ class LatencyEstimatorConfig:
     # 400 tests) starts a new segment; a segment needs min_segment_samples before its own lag is estimated.
     split_samples: tuple[int, ...] = (4, 8, 16)
     change_threshold: float = 6.0
+    # A window that fits another lag better than the evidence's by this much (a likelihood ratio of e^3 = 20) casts
+    # doubt: the evidence is not claimed as estimable until they agree again (the step test may need a few samples
+    # more to be sure; meanwhile "not estimable" is said rather than the old value).
+    doubt_threshold: float = 3.0
     change_min_s: float = 0.05
     min_segment_samples: int = 4
     # What a consumer is told before the first estimate: the middle of the paper's time-varying range [0, 0.35] s,
@@ -120,7 +124,7 @@ class LatencyEstimatorConfig:
             ("memory_s", 0.1, 1e4),
             ("max_std_frames", 0.01, 100.0), ("far_lag_s", 0.0, 10.0), ("far_cost_margin", 0.0, 1e3),
             ("min_offset_noise_m", 1e-5, 10.0), ("min_heading_noise_rad", 1e-6, 1.0),
-            ("change_threshold", 0.0, 1e4), ("change_min_s", 0.0, 10.0),
+            ("change_threshold", 0.0, 1e4), ("doubt_threshold", 0.0, 1e4), ("change_min_s", 0.0, 10.0),
             ("prior_latency_s", 0.0, 10.0), ("fast_sensor_shift_s", -1.0, 1.0),
         )
         for name, low, high in checks:
@@ -438,12 +442,17 @@ class LatencyEstimator:
         _, _, assigned = self._arrays()
         if np.isnan(assigned).sum() < config.min_segment_samples:  # too few since the last step: keep its guess
             return LatencyEstimate(math.nan, math.inf, False, self.held_s, samples)
-        costs, fit, _ = self._window_costs()
+        costs, fit, discount = self._window_costs()
         self._noise = robust_noise(fit.residuals, (config.min_heading_noise_rad, config.min_offset_noise_m))
-        if self._step_detected(costs):
+        if self._step_detected(costs, discount):
             return self._estimate()
         self._evidence += (costs - costs.min()) / samples
         estimate = self._judge(self._evidence, samples)
+        # The window contradicting the evidence (a step not yet proven, or a window the lane model does not fit):
+        # the evidence is not claimed until they agree again.
+        current = int(np.argmin(self._evidence))
+        if float(costs[current] - costs.min()) >= config.doubt_threshold:
+            estimate = estimate._replace(estimable=False)
         if estimate.estimable:
             self.held_s = estimate.latency_s
         return estimate._replace(held_s=self.held_s)
@@ -458,11 +467,12 @@ class LatencyEstimator:
         estimable = std_s <= config.max_std_frames * self._frame_period_s() and separated
         return LatencyEstimate(latency_s, std_s, bool(estimable), self.held_s, samples)
 
-    def _step_detected(self, costs: np.ndarray) -> bool:
+    def _step_detected(self, costs: np.ndarray, discount: float) -> bool:
         """A step in the latency: restart the evidence (and, for a split, the segment) when the window says so.
 
         Only a window (or the newer part of a split) that is itself sure of its lag (:meth:`_judge`) may overrule
-        the evidence: a window near a curvature change or on a quiet stretch has a shallow, biased curve.
+        the evidence: a window near a curvature change or on a quiet stretch has a shallow, biased curve. Splits
+        and the unsplit window are compared on their raw costs, in the units of the unsplit window's discount.
         """
         config = self.config
         if not self._evidence.any():
@@ -473,6 +483,9 @@ class LatencyEstimator:
             return False  # the window fits best at the current lag: no step in it worth a split
         arrivals, lanes, assigned = self._arrays()
         scanned = np.flatnonzero(np.isnan(assigned))
+        unsplit = assigned.copy()
+        unsplit[scanned] = current_s
+        stay = float(self._window_costs(unsplit)[1].costs[0])  # every sample at the current lag (raw)
         best_gain, best_onset = 0.0, None
         for count in config.split_samples:
             if len(scanned) < count + config.min_segment_samples:
@@ -480,19 +493,38 @@ class LatencyEstimator:
             onset = scanned[-count]
             split = assigned.copy()
             split[scanned[scanned < onset]] = current_s
-            split_costs, _, _ = self._window_costs(split)
-            gain = float(costs[current] - split_costs.min())
+            split_costs, split_fit, _ = self._window_costs(split)
+            gain = (stay - float(split_fit.costs.min())) * discount
             if gain > best_gain and self._overrules(split_costs, current_s):
                 best_gain, best_onset = gain, onset
-        if best_onset is not None and best_gain >= config.change_threshold:
-            for index in scanned[scanned < best_onset]:
-                self._samples[index][3] = current_s
-        elif not (self._overrules(costs, current_s)
-                  and float(costs[current] - costs.min()) >= config.change_threshold):
-            return False
+        if best_onset is None or best_gain < config.change_threshold:
+            if not (self._overrules(costs, current_s)
+                    and float(costs[current] - costs.min()) >= config.change_threshold):
+                return False
+            # The whole window disagrees with the evidence: the step lies further back than the recent onsets
+            # tested. Find where: the onset whose split fits best.
+            best_onset = self._best_onset(arrivals, lanes, assigned, scanned, current_s)
+        for index in scanned[scanned < best_onset]:
+            self._samples[index][3] = current_s
         self._evidence = np.zeros(len(self.lags_s))
         self.changes_detected += 1
         return True
+
+    def _best_onset(self, arrivals, lanes, assigned, scanned: np.ndarray, current_s: float) -> int:
+        """The sample of the current segment from which on a new lag fits best (the older ones at ``current_s``);
+        every second sample that leaves ``min_segment_samples`` on each side is tried."""
+        margin = self.config.min_segment_samples
+        candidates = scanned[margin:len(scanned) - margin + 1:2]
+        if not len(candidates):
+            return int(scanned[0])
+        best_cost, best_onset = math.inf, int(scanned[0])
+        for onset in candidates:
+            split = assigned.copy()
+            split[scanned[scanned < onset]] = current_s
+            raw = float(self._window_costs(split)[1].costs.min())
+            if raw < best_cost:
+                best_cost, best_onset = raw, int(onset)
+        return best_onset
 
     def _frame_period_s(self) -> float:
         """The camera's frame period as the stream shows it: the median interval between the window's samples."""
