@@ -118,14 +118,14 @@ class EkfLaneKeepingPolicy:
         self.frames_skipped = 0
 
     def __call__(self, frame: np.ndarray, info: dict) -> float:
-        now_s = float(info["time_s"])
-        speed_mps = max(float(info["speed_mps"]), 1.0)
-        steer_rad, imu = self._sensors(info, now_s, speed_mps)
-        self.estimator.step(now_s, steer_rad, speed_mps, imu)
         age_key = CAPTURE_AGE_KEYS[self.config.latency_source]
         if age_key not in info and self.config.latency_source == "estimated":
             raise ValueError("the EKF policy re-stamps by the estimated latency, but info has no 'latency_estimate_s': "
                              "drive it in a run that estimates its latency (latency_estimation)")
+        now_s = float(info["time_s"])
+        speed_mps = max(float(info["speed_mps"]), 1.0)
+        steer_rad, imu = self._sensors(info, now_s, speed_mps)
+        self.estimator.step(now_s, steer_rad, speed_mps, imu)
         self._fuse_frame(frame, now_s - float(info.get(age_key, 0.0)) - self.config.latency_bias_s)
         return self._control(self.estimator.state, speed_mps)
 

@@ -1,0 +1,249 @@
+"""The latency estimate in the closed loop: the stream adapter reads no truth, ``--latency-source estimated`` reaches
+PLM-Net, the EKF and the logs, the measurement's report is its results file's, and sim2real's perception delay."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import re
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from plm_highway import cli
+from plm_highway.evaluation.latency_estimation import LatencySuite, Results, RunSpec, drive_run, plan
+from plm_highway.evaluation.latency_estimation_report import render_markdown, write_latency_report
+from plm_highway.evaluation.policies import LATENCY_SOURCES, VisionPolicy
+from plm_highway.latency.synthetic import StreamSpec, Weave, synthetic_stream
+
+ESTIMATE_COLUMNS = ("latency_estimate_s", "latency_estimate_std_s", "latency_estimable")
+
+
+def read_csv(path) -> list[dict]:
+    with open(path, newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+@pytest.mark.slow
+def test_evaluate_with_the_estimated_latency_logs_it_beside_the_true_age(tmp_path, capsys):
+    out = tmp_path / "eval"
+    code = cli.main(["evaluate", "--latency", "const:0.25", "--latency-source", "estimated", "--max-steps", "30",
+                     "--out", str(out)])
+    assert code == 0
+    result = json.loads((out / "result.json").read_text())
+    assert result["latency_source"] == "estimated"
+    for run in ("reference", "baseline", "mitigated"):
+        rows = read_csv(out / f"{run}.csv")
+        assert len(rows) == 30
+        assert set(ESTIMATE_COLUMNS) <= set(rows[0]) and "observation_age_s" in rows[0]
+        # Nothing to align in the first second: the prior, not estimable.
+        assert rows[0]["latency_estimable"] == "False" and float(rows[0]["latency_estimate_s"]) == 0.175
+    assert {f"mitigated_{c}" for c in ESTIMATE_COLUMNS} <= set(read_csv(out / "steps.csv")[0])
+
+
+def test_without_the_estimated_source_no_estimate_is_logged(tmp_path):
+    from plm_highway.evaluation.closed_loop import drive
+    from plm_highway.expert import ExpertPolicy
+
+    log = drive("expert", ExpertPolicy(), "test", "const:0.1", 0, max_steps=5)
+    assert not set(ESTIMATE_COLUMNS) & set(log.columns)
+
+
+def test_plm_net_told_the_estimate_reads_it_from_info():
+    told = []
+
+    class ModelPolicy:
+        def reset(self):
+            pass
+
+        def __call__(self, frame, speed_mps, latency_s):
+            told.append(latency_s)
+            return 0.0
+
+    policy = VisionPolicy(ModelPolicy(), latency_source="estimated")
+    assert LATENCY_SOURCES["estimated"] == "latency_estimate_s"
+    policy(np.zeros((2, 2), np.uint8), {"speed_mps": 10.0, "latency_estimate_s": 0.31, "observation_age_s": 0.25,
+                                        "latency_s": 0.2})
+    assert told == [0.31]
+
+
+def test_the_observer_reads_only_the_fast_sensors():
+    """The estimate depends on the frame and the fast sensors alone: the truth in info changes nothing."""
+    from plm_highway.camera.pinhole import CameraConfig
+    from plm_highway.estimation.lane_camera import LaneDetector, LaneDetectorConfig
+    from plm_highway.estimation.latency_stream import FAST_SENSOR_KEYS, CameraLatencyObserver
+
+    frame = np.full((66, 200), 90, np.uint8)
+    frame[40:, 60:64] = 230  # a marking
+    results = []
+    for truth in ({}, {"observation_age_s": 0.3, "latency_s": 0.3, "observed_state": {"time_s": 0.0}}):
+        observer = CameraLatencyObserver(LaneDetector(CameraConfig(), LaneDetectorConfig(lane_width_m=4.0)))
+        estimates = []
+        for k in range(30):
+            info = {"time_s": 0.05 * k, "yaw_rate_radps": 0.01 * math.sin(k), "speed_mps": 16.7,
+                    "steering_angle_rad": 0.002 * math.sin(k), **truth}
+            estimates.append(tuple(observer.observe(frame, info)))
+        results.append(estimates)
+    assert results[0] == results[1]
+    assert FAST_SENSOR_KEYS == ("time_s", "yaw_rate_radps", "speed_mps", "steering_angle_rad")
+
+
+def test_the_ekf_policy_restamps_by_the_estimate():
+    from plm_highway.estimation.policy import EkfLaneKeepingPolicy, EkfPolicyConfig
+
+    stamps = []
+    policy = EkfLaneKeepingPolicy(EkfPolicyConfig(latency_source="estimated"))
+    policy._fuse_frame = lambda frame, capture_s: stamps.append(capture_s)
+    info = {"time_s": 2.0, "speed_mps": 16.7, "yaw_rate_radps": 0.0, "steering": 0.0, "observation_age_s": 0.25,
+            "latency_estimate_s": 0.3}
+    policy(np.zeros((66, 200), np.uint8), info)
+    assert stamps == [pytest.approx(1.7)]
+    with pytest.raises(ValueError, match="latency_estimate_s"):
+        policy(np.zeros((66, 200), np.uint8), {k: v for k, v in info.items() if k != "latency_estimate_s"})
+
+
+def test_the_plan_covers_the_suite():
+    suite = LatencySuite(conditions=("ideal",), tracks=("test",), seeds=(0, 1), constants_s=(0.1,),
+                         profiles=("steps:0.0-0.35:1.0",), mitigation_constants_s=(0.1,),
+                         mitigation_profiles=("steps:0.0-0.35:1.0",))
+    runs = plan(suite)
+    assert len({run.key for run in runs}) == len(runs)
+    per_seed = [run for run in runs if run.seed == 0 and not run.variant]
+    assert {(run.latency, run.role) for run in per_seed} == {
+        ("const:0", "reference"), ("const:0.1", "estimated"), ("steps:0.0-0.35:1.0", "estimated"),
+        ("const:0.1", "baseline"), ("const:0.1", "true"), ("steps:0.0-0.35:1.0", "baseline"),
+        ("steps:0.0-0.35:1.0", "true")}
+    assert {run.variant for run in runs if run.variant} == {"dropped", "jitter", "drift", "recording"}
+
+
+@pytest.mark.slow
+def test_a_recorded_stream_without_timestamps_estimates_as_online():
+    record = drive_run(RunSpec("ideal", "test", 1, "const:0.25", "estimated", "recording"), max_steps=60)
+    assert record["recording"]["ticks"] == 60
+    assert record["recording"]["agrees_with_online_fraction"] == 1.0
+    assert set(record["estimate"]) >= {"lock", "quiet", "frame_s"}
+
+
+# -- the report is its results file's ------------------------------------------------------------------------
+
+
+def fabricated_results() -> dict:
+    """A results dict from made-up run records (the shape drive_run writes), no driving."""
+    suite = LatencySuite(conditions=("ideal",), tracks=("test",), seeds=(0, 1), constants_s=(0.25,),
+                         profiles=("frames:9-21:60@30",), mitigation_constants_s=(0.25,),
+                         mitigation_profiles=("frames:9-21:60@30",), table3_seeds=())
+    records = []
+    rng = np.random.default_rng(0)
+    for spec in plan(suite):
+        steering = rng.normal(0, 0.1 if spec.role == "baseline" else 0.02, 40).tolist()
+        record = {"spec": spec.__dict__, "summary": {"lateral_offset_rms_m": float(rng.uniform(0.05, 0.3)),
+                                                     "left_road": False}, "steering": steering}
+        if spec.role in ("estimated", "baseline"):
+            lock = {"first_estimable_s": 1.5, "lock_s": float(rng.uniform(1.0, 3.0)), "estimable_fraction": 0.6,
+                    "wrong_when_estimable_fraction": 0.01, "within_after_first_fraction": 0.95,
+                    "median_error_after_first_s": 0.01, "p90_error_after_first_s": 0.03, "within_fraction": 0.8}
+            record["estimate"] = {"frame_s": 0.05, "lock": lock, "quiet": {"quiet_ticks": 10,
+                                                                           "estimable_when_quiet_fraction": 0.0,
+                                                                           "wrong_when_quiet_fraction": 0.0}}
+            if not spec.latency.startswith("const:"):
+                record["estimate"]["steps"] = {"changes": 3, "recovered_within_budget_fraction": 2 / 3,
+                                               "median_recovery_s": 0.8, "never_recovered": 0, "within_fraction": 0.7}
+        records.append((spec, record))
+    synthetic = {"straight_without_steering": {"ticks": 100, "estimable_fraction": 0.0, "wrong_when_estimable": 0,
+                                               "final_held_s": 0.175},
+                 "straight_with_weave": {"ticks": 100, "estimable_fraction": 0.8, "wrong_when_estimable": 0,
+                                         "final_held_s": 0.25}}
+    return Results(suite, "plm-highway estimate latency (test)", records, [], synthetic).as_json()
+
+
+def test_the_report_holds_the_numbers_of_its_results():
+    results = json.loads(json.dumps(fabricated_results()))  # as read back from results.json
+    report = render_markdown(results)
+    assert report.startswith("# Perception latency estimated from the stream")
+    met = sum(t["met"] for t in results["targets"])
+    assert f"## Targets: {met} of {len(results['targets'])} met" in report
+    for target in results["targets"]:
+        assert f"| {target['target']} | {'met' if target['met'] else '**missed**'} | {target['detail']} |" in report
+    for m in results["mitigation"]:
+        row = next(line for line in report.splitlines()
+                   if line.startswith(f"| {m['conditions']} | {m['track']} | ") and f"{m['offset_rms_ratio']:.2f}" in line)
+        assert f"{100 * m['kept_reduction_fraction']:.0f}%" in row
+    constant = next(e for e in results["estimation"] if e["role"] == "estimated" and e["setting"] == "const:0.25")
+    assert f"{constant['locked_within_budget']} of {len(constant['seeds'])}" in report
+
+
+def test_the_report_directory_is_rendered_from_its_results_file(tmp_path):
+    results = fabricated_results()
+    paths = write_latency_report(results, tmp_path / "report")
+    assert [p.name for p in paths] == ["results.json", "report.md", "traces.png", "mitigation.png"]
+    stored = json.loads((tmp_path / "report" / "results.json").read_text())
+    assert (tmp_path / "report" / "report.md").read_text() == render_markdown(stored)
+
+
+# -- sim2real: the perception delay of a recording ----------------------------------------------------------------
+
+
+def lane_log(stream: dict) -> SimpleNamespace:
+    """A run log's columns as write_lane_recording reads them, from a synthetic stream."""
+    t = stream["time_s"]
+    heading = np.concatenate([[0.0], np.cumsum(0.5 * (stream["yaw_rate_radps"][1:] + stream["yaw_rate_radps"][:-1])
+                                               * np.diff(t))])
+    columns = {"stream_time_s": t, "stream_steer_rad": stream["steer_rad"], "stream_speed_mps": stream["speed_mps"],
+               "stream_yaw_rate_radps": stream["yaw_rate_radps"], "stream_lane_offset_m": stream["lane_offset_m"],
+               "stream_lane_heading_rad": stream["lane_heading_rad"], "x_m": stream["speed_mps"] * t,
+               "y_m": np.zeros_like(t), "heading_rad": heading}
+    return SimpleNamespace(name="synthetic", columns=columns)
+
+
+def test_the_perception_delay_of_a_recording_with_a_lane_signal(tmp_path):
+    from plm_highway.sim2real.perception_delay import perception_delay, perception_delay_lines, write_lane_recording
+
+    stream = synthetic_stream(StreamSpec(duration_s=15.0, latency=0.3, weave=Weave((0.02,), (0.6,), (0.0,)),
+                                         drop_fraction=0.1), np.random.default_rng(2))
+    path = tmp_path / "rec.csv"
+    write_lane_recording(path, lane_log(stream))
+    found = perception_delay(path)
+    assert found["estimated"] and abs(found["latency_s"] - 0.3) <= 0.05
+    lines = perception_delay_lines(found, {"transport_delay/delay_s": 0.1})
+    assert lines[0] == "## Perception delay" and "transport_delay/delay_s 0.100 s" in "\n".join(lines)
+
+
+def test_a_recording_without_a_lane_signal_says_so(tmp_path):
+    from plm_highway.sim2real.perception_delay import perception_delay, perception_delay_lines
+
+    path = tmp_path / "rec.csv"
+    path.write_text("t,steer,speed,x,y,heading\n0,0,10,0,0,0\n0.1,0,10,1,0,0\n")
+    found = perception_delay(path)
+    assert not found["estimated"] and "no camera-derived lane signal" in found["reason"]
+    assert "The diagnosis fitted no delay" in "\n".join(perception_delay_lines(found, {}))
+
+
+def test_a_lane_recording_with_a_bad_value_is_refused_by_line(tmp_path):
+    from plm_highway.errors import BadInput
+    from plm_highway.sim2real.perception_delay import read_lane_recording
+
+    path = tmp_path / "rec.csv"
+    path.write_text("t,steer,speed,yaw_rate,lane_offset,lane_heading\n0,0,10,0,0.1,0\n0.1,0,ten,0,0.1,0\n")
+    with pytest.raises(BadInput, match=re.escape("line 3, column 'speed'")):
+        read_lane_recording(path)
+
+
+@pytest.mark.slow
+def test_the_sim2real_report_puts_the_perception_delay_beside_its_own(tmp_path):
+    from plm_highway.sim2real.perception_delay import write_lane_recording
+
+    stream = synthetic_stream(StreamSpec(duration_s=20.0, latency=0.25, weave=Weave((0.02, 0.01), (0.4, 0.9),
+                                                                                    (0.0, 1.0))),
+                              np.random.default_rng(6))
+    path = tmp_path / "rec.csv"
+    write_lane_recording(path, lane_log(stream))
+    code = cli.main(["sim2real", "diagnose", str(path), "--report", str(tmp_path / "report"), "--json",
+                     str(tmp_path / "diagnosis.json")])
+    assert code == 0
+    summary = (tmp_path / "report" / "summary.md").read_text()
+    section = summary[summary.index("## Perception delay"):]
+    assert re.search(r"The camera's lane signal is 0\.2[2-8]\d s", section), section
+    found = json.loads((tmp_path / "diagnosis.json").read_text())["perception_delay"]
+    assert found["estimated"] and abs(found["latency_s"] - 0.25) <= 0.05 and "diagnosis_delays_s" in found
