@@ -104,6 +104,9 @@ def configure_latency(parser) -> None:
                         help="keep each finished run here (one JSON per run) and reuse them: an interrupted "
                              "measurement resumes")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: shipped)")
+    parser.add_argument("--real-recording", metavar="CSV",
+                        help="a real recording (sim2real format) whose perception delay the report puts beside its "
+                             "diagnosis's delays (default: only the simulated recording)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_overwrite(parser)
 
@@ -113,6 +116,7 @@ def run_latency(args) -> int:
     from plm_highway.evaluation.latency_estimation_report import LATENCY_REPORT, write_latency_report
     from plm_highway.evaluation.policies import single_threaded_inference
     from plm_highway.io import check_target
+    from plm_highway.sim2real.perception_tie_in import tie_in
 
     suite = LatencySuite(conditions=tuple(c.strip() for c in args.conditions.split(",") if c.strip()),
                          tracks=tuple(t.strip() for t in args.tracks.split(",") if t.strip()),
@@ -120,8 +124,10 @@ def run_latency(args) -> int:
                          table3_seeds=tuple(range(args.table3_seeds)))
     check_target(args.out, LATENCY_REPORT, overwrite=args.overwrite)  # refuse before hours of driving, not after
     with single_threaded_inference():
+        sim2real = tie_in(args.real_recording, args.checkpoints)  # a bad recording fails before hours of driving
         results = measure(suite, args.command_line, args.cache, args.workers, args.checkpoints,
                           progress=not args.no_progress)
+    results["sim2real"] = sim2real
     for target in results["targets"]:
         print(f"{'met   ' if target['met'] else 'MISSED'} {target['target']}: {target['detail']}")
     for path in write_latency_report(results, args.out, overwrite=args.overwrite):

@@ -628,7 +628,8 @@ def synthetic_checks(seed: int = 0) -> dict:
 def measure(suite: LatencySuite, command: str, cache=None, workers: int = 0, checkpoints=None,
             progress: bool = True) -> dict:
     """The whole measurement: the closed-loop suite, the EKF on the Table 3 scenarios, the synthetic checks; the
-    results dict the report is rendered from."""
+    results dict the report is rendered from (the CLI adds the sim2real tie-in,
+    :func:`plm_highway.sim2real.perception_tie_in.tie_in`, which sits beside this room, not under it)."""
     records = drive_suite(suite, cache, workers, checkpoints, progress)
     ekf_rows = ekf_with_estimate(suite.table3_seeds, progress=progress) if suite.table3_seeds else []
     return Results(suite, command, records, ekf_rows, synthetic_checks()).as_json()

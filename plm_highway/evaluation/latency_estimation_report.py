@@ -185,6 +185,28 @@ def render_markdown(results: dict) -> str:
                 first_text = f"{sum(first) / len(first):.1f} ({len(first)} of {len(rows)})" if first else "never"
                 lines.append(f"| `{delay}` | {scenario} | {known:.4f} | {estimated:.4f} | {estimated / known:.2f} | "
                              f"{first_text} | {after_text} | {used:.3f} / {true:.3f} |")
+    tie_in = results.get("sim2real", {})
+    if tie_in:
+        lines += ["", "## sim2real: the camera's delay beside the vehicle's", "",
+                  "`plm-highway sim2real diagnose` replays a recording's steering and finds the physics the simulator "
+                  "leaves out, delays included (`plm_highway/sim2real/`); where the recording also carries what the "
+                  "camera reported about the lane (columns `lane_offset`, `lane_heading`), its report now adds the "
+                  "perception delay the latency estimator finds (`plm_highway/sim2real/perception_delay.py`).", ""]
+        for key in ("real", "simulated"):
+            if key not in tie_in:
+                continue
+            entry = tie_in[key]
+            found = entry["perception_delay"]
+            delays = ", ".join(f"{name} {value:.3f} s" for name, value in entry["diagnosis_delays_s"].items()) or "none"
+            camera = (f"{found['latency_s']:.3f} s ± {found['std_s']:.3f} s" if found.get("estimated")
+                      else f"not estimated: {found['reason']}")
+            lines.append(f"- **{entry['recording']}** ({'real' if key == 'real' else 'simulated'}): diagnosis "
+                         f"`{entry['verdict']}`, its delays: {delays}; the camera's perception delay: {camera}.")
+            if key == "simulated":
+                truth = entry["true_vehicle_delays"]
+                lines.append(f"  The truth: the camera {entry['true_camera_latency_s']:.3f} s late; on the vehicle "
+                             f"side {truth['processing_delay_s']:.3f} s of processing and a "
+                             f"{truth['steering_time_constant_s']:g} s steering actuator.")
     lines += ["", "## Figures", "", "![estimate against the true latency](traces.png)", "",
               "![mitigation with the estimate and with the true latency](mitigation.png)", ""]
     return "\n".join(lines) + "\n"

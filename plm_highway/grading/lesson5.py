@@ -307,3 +307,15 @@ def check_why_estimable(why_estimable) -> None:
     expect_true(isinstance(answer, str) and answer.strip().lower() == WHY_ESTIMABLE, "your answer to the question",
                 "compare the two cost curves above: which log's curve has a dip, and what differs between the logs?",
                 expected="one letter: the right one", received=repr(answer))
+
+
+def kit_estimate(log: dict) -> tuple[float, float] | None:
+    """The kit's own estimator over a log (:mod:`plm_highway.latency.estimate`): its last estimable estimate and
+    standard deviation, or None where it never had one."""
+    from plm_highway.latency.estimate import estimate_stream
+
+    result = estimate_stream(log["time_s"], log["yaw_rate_radps"], log["speed_mps"], log["steer_rad"],
+                             log["lane_offset_m"], log["lane_heading_rad"])
+    estimable = np.flatnonzero(result["estimable"])
+    return None if not estimable.size else (float(result["latency_s"][estimable[-1]]),
+                                            float(result["std_s"][estimable[-1]]))

@@ -36,15 +36,17 @@ MAX_BYTES = 256 << 20
 DEFAULT_ESTIMATOR = LatencyEstimatorConfig()  # a lane recording is read whole: 150,000 rows of a dozen columns fit many times over
 
 
-def write_lane_recording(path: str | os.PathLike, log) -> None:
+def write_lane_recording(path: str | os.PathLike, log, steer_rad=None) -> None:
     """A run's stream as a recording with lane columns (into ``path``, which the caller stages): the fast sensors
     and lane measurements the estimator was given (a run with ``LatencyEstimation(record=True)``), the pose, and
-    no capture timestamp."""
+    no capture timestamp. ``steer_rad``: the ``steer`` column instead of the measured wheel angle (e.g. the
+    command, as a recording's ``steer`` is)."""
     c = log.columns
     missing = [name for name in ("stream_time_s", "stream_lane_offset_m") if name not in c]
     if missing:
         raise BadInput(f"run {log.name!r}: no recorded stream ({missing}); drive it with LatencyEstimation(record=True)")
-    rows = zip(c["stream_time_s"], c["stream_steer_rad"], c["stream_speed_mps"], c["x_m"], c["y_m"], c["heading_rad"],
+    steer = c["stream_steer_rad"] if steer_rad is None else steer_rad
+    rows = zip(c["stream_time_s"], steer, c["stream_speed_mps"], c["x_m"], c["y_m"], c["heading_rad"],
                c["stream_yaw_rate_radps"], c["stream_lane_offset_m"], c["stream_lane_heading_rad"])
     write_csv_into(Path(path), STREAM_COLUMNS,
                    [[value if math.isfinite(float(value)) else "" for value in row] for row in rows])
