@@ -12,6 +12,7 @@ import bisect
 import math
 from dataclasses import dataclass
 
+from plm_highway.envs.config import as_float
 from plm_highway.errors import BadInput
 from plm_highway.vehicle.paper_units import paper_unit_to_front_wheel_rad
 
@@ -53,7 +54,7 @@ def parse_speed(value, where: str = "config['speed_mps']") -> SpeedSchedule:
     for index, point in enumerate(value):
         if not isinstance(point, (list, tuple)) or len(point) != 2 or not all(_is_number(v) for v in point):
             raise BadInput(f"{where}[{index}]: must be a [time_s, speed_mps] pair of numbers, got {point!r}")
-        time_s = float(point[0])
+        time_s = as_float(point[0])
         if not (math.isfinite(time_s) and 0.0 <= time_s <= MAX_SCHEDULE_TIME_S):
             raise BadInput(f"{where}[{index}]: time_s {point[0]!r} outside [0, {MAX_SCHEDULE_TIME_S:.0f}] s")
         if times and time_s <= times[-1]:
@@ -68,7 +69,7 @@ def _is_number(value) -> bool:
 
 
 def _speed(value, where: str) -> float:
-    speed = float(value) if _is_number(value) else math.nan
+    speed = as_float(value)
     if not (math.isfinite(speed) and 0.0 < speed <= MAX_SPEED_MPS):
         raise BadInput(f"{where}: speed {value!r} m/s outside (0, {MAX_SPEED_MPS:.0f}] m/s")
     return speed
@@ -135,7 +136,7 @@ def parse_sharp_turn_braking(value, where: str = "config['sharp_turn_braking']")
     fields = {}
     for key, raw in value.items():
         low, high = SHARP_TURN_BRAKING_BOUNDS[key]
-        number = float(raw) if _is_number(raw) else math.nan
+        number = as_float(raw)
         if not (low < number <= high):
             raise BadInput(f"{where}[{key!r}] = {raw!r}: must be a number in ({low:g}, {high:g}]")
         fields[key] = number

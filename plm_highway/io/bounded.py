@@ -176,36 +176,45 @@ def field_path(parts) -> str:
 
 def _check_tree(document, source: str, limits: JsonLimits, expanded_chars: int | None = None) -> None:
     """Count the nodes (with multiplicity: a shared YAML alias counts each time) and find the markers the
-    parser left; iterative, and never more than ``max_nodes`` steps."""
+    parser left; iterative, and never more than ``max_nodes`` steps. Paths are kept as links to the
+    parent's (a tuple per node would cost time quadratic in the depth of a self-referencing alias)."""
     max_chars = expanded_chars
     nodes = chars = 0
-    stack = [(document, ())]
+    stack: list[tuple[object, tuple | None]] = [(document, None)]
+
+    def where(link) -> str:
+        parts = []
+        while link is not None:
+            key, link = link
+            parts.append(key)
+        return field_path(reversed(parts))
+
     while stack:
-        node, path = stack.pop()
+        node, link = stack.pop()
         nodes += 1
         if nodes > limits.max_nodes:
-            raise BadInput(f"{source}: more than {limits.max_nodes:,} values (near field {field_path(path)!r})"
+            raise BadInput(f"{source}: more than {limits.max_nodes:,} values (near field {where(link)!r})"
                            + ("; aliases are counted after expansion" if max_chars is not None else "")
                            + " (node limit)")
         if isinstance(node, _LongInteger):
             shown = node.digits[:12] + "..." if len(node.digits) > 12 else node.digits
-            raise BadInput(f"{source}: field {field_path(path)!r}: an integer of {len(node.digits.lstrip('-')):,} "
+            raise BadInput(f"{source}: field {where(link)!r}: an integer of {len(node.digits.lstrip('-')):,} "
                            f"digits ({shown}); at most {limits.max_int_digits} digits (limit)")
         if isinstance(node, _DuplicateKeys):
-            raise BadInput(f"{source}: field {field_path(path)!r}: key {node.duplicate!r} appears more than once; "
+            raise BadInput(f"{source}: field {where(link)!r}: key {node.duplicate!r} appears more than once; "
                            "each key may appear once")
         if isinstance(node, dict):
             for key, value in node.items():
                 if max_chars is not None:
                     chars += len(str(key)) if isinstance(key, str) else 0
-                stack.append((value, (*path, key)))
+                stack.append((value, (key, link)))
         elif isinstance(node, (list, tuple)):
-            stack.extend((value, (*path, index)) for index, value in enumerate(node))
+            stack.extend((value, (index, link)) for index, value in enumerate(node))
         elif max_chars is not None and isinstance(node, (str, bytes)):
             chars += len(node)
         if max_chars is not None and chars > max_chars:
             raise BadInput(f"{source}: more than {max_chars:,} characters of values once aliases are expanded "
-                           f"(near field {field_path(path)!r}; expansion limit)")
+                           f"(near field {where(link)!r}; expansion limit)")
 
 
 # -- YAML -------------------------------------------------------------------------------------------
