@@ -605,3 +605,26 @@ def test_two_figures_of_one_output_with_one_name_are_refused(tmp_path):
     with pytest.raises(RuntimeError, match="both named 'f.png'"):
         save_figure_into(fig, tmp_path / "f.png")
     pyplot().close(fig)
+
+
+# -- one training command, one result: the thread count does not follow the CPU affinity -----------------
+
+
+@pytest.mark.timeout(1200)
+def test_training_writes_the_same_bytes_whatever_the_cpu_affinity(inputs, tmp_path):
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) < 2:
+        pytest.skip("needs a machine with two CPUs to compare one CPU with two")
+    argv = ["train", "bm", "--data", "ds", "--epochs", "1", "--max-samples", "200", "--seed", "3", "--quiet",
+            "--out", "ck"]
+    results = []
+    for allowed in ({cpus[0]}, set(cpus)):
+        work = tmp_path / f"cpus{len(allowed)}"
+        work.mkdir()
+        (work / "ds").symlink_to(inputs / "ds")
+        done = subprocess.run([sys.executable, "-m", "plm_highway", *argv], cwd=work, env=env(), capture_output=True,
+                              text=True, timeout=1100, preexec_fn=lambda allowed=allowed: os.sched_setaffinity(0, allowed))
+        assert done.returncode == 0, done.stderr
+        results.append(tree(work / "ck"))
+    assert results[0] == results[1]
+    assert json.loads(results[0]["model.json"])["training"]["threads"] == 2
