@@ -1,4 +1,4 @@
-"""The bad-input battery (issue 8 item 3, issue 17): every input surface, through the real command line.
+"""The bad-input battery: every input surface, through the real command line.
 
 One line per case: an id, the command line (run in a fresh temporary directory, relative paths),
 the files the case puts there first, and the words the error must contain (the file, field, row

@@ -1,4 +1,4 @@
-"""Bad inputs to the env and its tracks (issue 17 items 3, 5, 6, 7): each is refused before any work
+"""Bad inputs to the env, its tracks and the bounded loader: each is refused before any work
 with a BadInput that names the field or file, the value and the accepted range."""
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def test_bad_track_specs_are_refused(raw, fragments):
 
 
 def test_300k_segments_are_refused_without_building_them():
-    # Issue 17 item 5: 300k one-centimetre segments ran for minutes; the count is checked first.
+    # 300k one-centimetre segments once ran for minutes; the count is checked first.
     refused(["300,000 segments"], parse_track, spec(*[straight(0.01)] * 300_000))
 
 

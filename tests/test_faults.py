@@ -1,4 +1,4 @@
-"""The fault battery (issue 8 item 4, issue 17 item 8): SIGKILL, foreign content, two writers at once.
+"""The fault battery: SIGKILL, foreign content, two writers at once, and what --overwrite may touch.
 
 For each writing command (collect, train bm, evaluate --json, evaluate --out, reproduce, sim2real
 diagnose --report):
@@ -14,6 +14,12 @@ diagnose --report):
 
 The commands are deterministic under their seed, so the new output of an ``--overwrite`` run is
 byte-identical to the first one except for the fields listed in ``VOLATILE`` (wall times).
+
+Then, in-process and only in ``tmp_path``: ``--overwrite`` keeps every file the earlier output's
+manifest does not list (and says so), refuses one where the new output writes, never replaces an
+input of the run, never touches a name that merely looks like a staging directory; a sweep's grid,
+table and figures publish as one set; output names stay unique; training gives the same bytes under
+any CPU affinity.
 """
 
 from __future__ import annotations
