@@ -605,6 +605,8 @@ CASES = [
       "my,trace.csv"),
     c("eval-json-trailing-slash", f"{EVAL[:-len('out.json')]}res/", ["res/", "directory"]),
     c("estimate-json-trailing-slash", "estimate table3 --seeds 1 --json t/", ["t/", "directory"]),
+    c("train-tapm-over-its-own-bm", "train tapm --data ds --bm ck/bm --out ck/bm --epochs 1 --quiet --overwrite",
+      ["ck/bm", "input of this run"], {"ds": DS, "ck": CK}),
     c("generalise-two-tracks-one-name", "reproduce --generalise a/t.json b/t.json --max-steps 1 --out rep --no-progress",
       ["a/t.json", "b/t.json", "both named"], {"a/t.json": TRACK, "b/t.json": TRACK}),
 ]

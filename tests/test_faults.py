@@ -362,6 +362,24 @@ def test_a_kit_file_that_is_an_input_of_the_run_is_never_replaced(tmp_path):
     assert (target / "grid.json").read_bytes() == b"{}" and (target / "other.txt").read_bytes() == b"y"
 
 
+def test_a_directory_input_protects_what_lies_inside_the_output_not_around_it(tmp_path):
+    from plm_highway.errors import OutputRefused
+    from plm_highway.io import protected_inputs
+
+    target = tmp_path / "out"
+    kit_output(target, {"model.pt": b"bm weights", "model.json": b"{}", "sub/data.bin": b"read"})
+    before = files_with_meta(tmp_path)
+    with protected_inputs([target]), pytest.raises(OutputRefused, match=r"out'?: it is an input of this run"):
+        kit_output(target, {"model.pt": b"tapm weights"}, overwrite=True)  # train tapm --bm C --out C
+    assert files_with_meta(tmp_path) == before
+    with protected_inputs([target / "sub"]), pytest.raises(OutputRefused, match=r"sub/data\.bin.*input of this run"):
+        kit_output(target, {"sub/data.bin": b"replaced"}, overwrite=True)  # --checkpoints R/ck --out R
+    assert files_with_meta(tmp_path) == before
+    with protected_inputs([tmp_path]):  # --checkpoints . --out out: the output lies inside the input
+        kit_output(target, {"model.pt": b"new"}, overwrite=True)
+    assert (target / "model.pt").read_bytes() == b"new" and not (target / "model.json").exists()
+
+
 def test_the_command_line_protects_every_input_it_names(tmp_path, monkeypatch):
     from plm_highway.cli import build_parser, input_paths
 

@@ -233,20 +233,28 @@ def protected_inputs(paths: Iterable[str | os.PathLike]) -> Iterator[None]:
         _PROTECTED.reset(token)
 
 
-def input_named(path: Path, extra: Sequence[_Input] = ()) -> Path | None:
-    """The protected input that ``path`` is (or lies under), or None."""
+def input_named(path: Path, extra: Sequence[_Input] = (), output: Path | None = None) -> Path | None:
+    """The protected input that ``path`` is (or lies under), or None.
+
+    A file input protects that file (any spelling, any hard link). A directory input protects the files
+    under it only inside ``output``, the directory output being replaced, when the input lies at or
+    below it (``--bm C --out C``, ``--checkpoints R/ck --out R``): an output written inside an input
+    directory (``--checkpoints . --out rep``) replaces nothing that was read.
+    """
     inputs = (*_PROTECTED.get(), *extra)
     if not inputs:
         return None
     try:
         resolved = path.resolve()
         info = path.lstat()
+        root = output.resolve() if output is not None else None
     except (OSError, RuntimeError):
         return None
     inode = (info.st_dev, info.st_ino)
     for entry in inputs:
         if entry.is_dir:
-            if resolved == entry.path or entry.path in resolved.parents:
+            if root is not None and (entry.path == root or root in entry.path.parents) and \
+                    (resolved == entry.path or entry.path in resolved.parents):
                 return entry.path
         elif entry.inode == inode or resolved == entry.path:
             return entry.path
@@ -298,11 +306,10 @@ def check_target(path: str | os.PathLike, kind: OutputKind, *, overwrite: bool =
         raise OutputRefused(f"refusing to write {kind.describe} at {text!r}: a directory goes there, but it is {there}")
     if not kind.is_dir and target.is_dir():
         raise OutputRefused(f"refusing to write {kind.describe} at {text!r}: a file goes there, but it is {there}")
-    if not kind.is_dir:
-        source = input_named(target, _inputs_of(protect))
-        if source is not None:
-            raise OutputRefused(f"refusing to replace {text!r}: it is an input of this run ({str(source)!r}); "
-                                "nothing was changed. Write the output to another path")
+    source = input_named(target, _inputs_of(protect)) if not kind.is_dir else _directory_input(target, protect)
+    if source is not None:
+        raise OutputRefused(f"refusing to replace {text!r}: it is an input of this run ({str(source)!r}); "
+                            "nothing was changed. Write the output to another path")
     if kind.is_dir and not any(target.iterdir()):
         return target  # an empty directory holds nothing to lose (e.g. made with mkdir beforehand)
     if not kind.recognises(target):
@@ -312,6 +319,16 @@ def check_target(path: str | os.PathLike, kind: OutputKind, *, overwrite: bool =
         raise OutputRefused(f"{text!r} already holds {kind.describe} (an earlier output); pass --overwrite to "
                             "replace it, or choose a new path")
     return target
+
+
+def _directory_input(target: Path, protect: Sequence[str | os.PathLike]) -> Path | None:
+    """The input directory that ``target`` is itself (``train tapm --bm C --out C``), or None."""
+    with contextlib.suppress(OSError, RuntimeError):
+        resolved = target.resolve()
+        for entry in (*_PROTECTED.get(), *_inputs_of(protect)):
+            if entry.is_dir and entry.path == resolved:
+                return entry.path
+    return None
 
 
 def _inputs_of(paths: Sequence[str | os.PathLike]) -> tuple[_Input, ...]:
@@ -593,7 +610,7 @@ def _plan(staged: _Staged, protect: tuple[_Input, ...]) -> _Plan:
                 refusals.append(f"{relative} (a special file that cannot be carried into the new output)")
             continue
         if owner == "kit":
-            source = input_named(path, protect)
+            source = input_named(path, protect, old)
             if source is not None:
                 if collides(relative, False):
                     refusals.append(f"{relative} (an input of this run, which the new output would replace)")
