@@ -482,7 +482,8 @@ def _restore_previous(staging_dir: Path, target: Path) -> None:
     """Put back an earlier output moved aside by a swap that a crash cut between its two renames."""
     previous = staging_dir / _PREVIOUS
     try:
-        claim = json.loads((staging_dir / _PREVIOUS_CLAIM).read_bytes().decode("utf-8"))
+        with open(staging_dir / _PREVIOUS_CLAIM, "rb") as handle:
+            claim = json.loads(handle.read(4096).decode("utf-8"))
         info = previous.lstat()
     except (OSError, ValueError):
         return
