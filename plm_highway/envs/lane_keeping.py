@@ -48,7 +48,7 @@ from plm_highway.envs.speed import SharpTurnBraking, SpeedSchedule, parse_sharp_
 from plm_highway.errors import BadInput
 from plm_highway.road.builder import BuiltRoad, build_road
 from plm_highway.road.geometry import SegmentLookup, reference_pose_at
-from plm_highway.road.track import TrackSpec, load_track, parse_track
+from plm_highway.road.track import TrackSpec, resolve_track
 from plm_highway.vehicle.models import checked_params, vehicle_model
 
 ACTION_RANGE = (-1, 1)  # normalised steering
@@ -306,12 +306,7 @@ class LaneKeepingCameraEnv(AbstractEnv):
         self._ego = vehicle  # the same car, without highway-env's property lookup in the hot path
 
     def _track_from_config(self) -> TrackSpec:
-        track = self.config["track"]
-        if isinstance(track, TrackSpec):
-            return track
-        if isinstance(track, dict):
-            return parse_track(track, source="config['track']")
-        return load_track(track)
+        return resolve_track(self.config["track"], source="config['track']")
 
     @property
     def start_lane(self) -> int:

@@ -6,6 +6,7 @@
 """
 
 from plm_highway.io.formats import (
+    BENCH_RESULT,
     FIGURE,
     command_line,
     format_cell,
@@ -33,6 +34,7 @@ from plm_highway.io.outputs import (
 )
 
 __all__ = [
+    "BENCH_RESULT",
     "FIGURE",
     "JSON_MARKER_KEY",
     "MARKER_NAME",

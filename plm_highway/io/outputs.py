@@ -258,7 +258,7 @@ def _discard(staged: _Staged) -> None:
 
 
 def write_marker(directory: Path, kind: OutputKind) -> None:
-    from plm_highway import __version__
+    from plm_highway._version import __version__
 
     (directory / MARKER_NAME).write_text(json.dumps({"tool": "plm-highway", "version": __version__,
                                                      "kind": kind.name}) + "\n", encoding="utf-8")
