@@ -76,21 +76,21 @@ def test_the_paper_rule_is_judged_again_on_the_penalised_mae_when_rows_carry_it(
 
 
 def test_a_bm_that_left_the_road_is_penalised_for_every_step_it_missed(monkeypatch):
-    from plm_highway.evaluation import cell_runner
-    from plm_highway.evaluation.closed_loop import RunLog
+    from plm_highway.evaluation import calibration
+    from plm_highway.rollout.closed_loop import RunLog
 
     def log(steering: list[float], left_road: bool) -> RunLog:
         n = len(steering)
         return RunLog("run", {"t_s": np.arange(n) / 30, "steering": np.asarray(steering),
                               "lateral_offset_m": np.zeros(n)}, left_road, n / 100)
 
-    def fake_drive_cells(cells, *args, **kwargs):
+    def fake_run_cells(cells, *args, **kwargs):
         # 100 reference steps at 0; every delayed run steers 0.1 (normalised) and the 0.25 s one leaves after 40.
-        return [log([0.0] * 100, False) if cell.role == "reference"
+        return [log([0.0] * 100, False) if cell.name == "reference"
                 else log([0.1] * (40 if cell.latency == "const:0.25" else 100), cell.latency == "const:0.25")
                 for cell in cells]
 
-    monkeypatch.setattr(cell_runner, "drive_cells", fake_drive_cells)
+    monkeypatch.setattr(calibration, "run_cells", fake_run_cells)
     result = bm_calibration("test", seeds="0,1", conditions="paper", progress=False, workers=1)
     on_road, off_road = result["per_latency"]["0.20"], result["per_latency"]["0.25"]
     # 0.1 normalised on the paper conditions' 0.4 rad car is 0.04 rad, over whatever span both runs reached.
@@ -146,7 +146,7 @@ def test_a_calibration_on_worker_processes_gives_the_same_numbers():
 
 
 def test_the_assumed_pipeline_can_be_replaced_and_is_recorded():
-    from plm_highway.evaluation.run import CONDITIONS, with_pipeline
+    from plm_highway.rollout.conditions import CONDITIONS, with_pipeline
 
     paper = CONDITIONS["paper"]
     assert with_pipeline(paper) == paper  # None keeps the conditions' values
@@ -186,7 +186,7 @@ def test_a_pipeline_out_of_range_is_refused_on_the_command_line(tmp_path, capsys
 def test_a_friction_limit_is_added_to_the_kinematic_car_only_and_checked():
     from dataclasses import replace
 
-    from plm_highway.evaluation.run import CONDITIONS, with_friction_limit
+    from plm_highway.rollout.conditions import CONDITIONS, with_friction_limit
 
     paper = CONDITIONS["paper"]
     assert with_friction_limit(paper) is paper  # None: the conditions' car

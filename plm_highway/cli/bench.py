@@ -227,7 +227,7 @@ def run_sweep(args) -> int:
 
 def configure_reproduce(parser) -> None:
     from plm_highway.bench.sweep import bench_reproduce
-    from plm_highway.evaluation.run import CONDITION_NAMES
+    from plm_highway.rollout.conditions import CONDITION_NAMES
 
     d = defaults_of(bench_reproduce)
     parser.add_argument("--seeds", type=bounded_int(1, 1000), default=d["seeds"], help="seeds per setting")

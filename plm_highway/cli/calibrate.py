@@ -15,7 +15,7 @@ from plm_highway.cli._common import (
 def configure(parser) -> None:
     from plm_highway.envs.config import MAX_PROCESSING_DELAY_STEPS, MAX_STEERING_TIME_CONSTANT_S
     from plm_highway.evaluation.calibration import DEFAULT_OUT, READINGS, bm_calibration
-    from plm_highway.evaluation.run import CONDITION_NAMES, CONDITIONS, FRICTION_RANGE, SPEED_LOGICS
+    from plm_highway.rollout.conditions import CONDITION_NAMES, CONDITIONS, FRICTION_RANGE, SPEED_LOGICS
 
     d = defaults_of(bm_calibration)
     paper = CONDITIONS["paper"]

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from plm_highway.evaluation.closed_loop import drive
 from plm_highway.evaluation.plots import draw_road
-from plm_highway.evaluation.policies import make_policy
 from plm_highway.io import FIGURE, check_target, pyplot, save_figure
 from plm_highway.latency import parse_profile
 from plm_highway.road.track import load_track
+from plm_highway.rollout.closed_loop import drive
+from plm_highway.rollout.policies import make_policy
 
 
 def _choose_policy(name: str):
