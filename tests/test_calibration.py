@@ -87,7 +87,7 @@ def test_a_bm_that_left_the_road_is_penalised_for_every_step_it_missed(monkeypat
     def fake_run_cells(cells, *args, **kwargs):
         # 100 reference steps at 0; every delayed run steers 0.1 (normalised) and the 0.25 s one leaves after 40.
         return [log([0.0] * 100, False) if cell.name == "reference"
-                else log([0.1] * (40 if cell.latency == "const:0.25" else 100), cell.latency == "const:0.25")
+                else log([0.1] * (40 if str(cell.latency) == "const:0.25" else 100), str(cell.latency) == "const:0.25")
                 for cell in cells]
 
     monkeypatch.setattr(calibration, "run_cells", fake_run_cells)
