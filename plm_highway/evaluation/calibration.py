@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -98,22 +99,41 @@ def _paper_rule(per_latency: dict[float, dict], metric: str, what: str) -> dict:
             "met": all(1.0 / PAPER_FACTOR <= ratio <= PAPER_FACTOR for ratio in ratios.values())}
 
 
-def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: str = "paper",
-                   checkpoints=None, max_steps: int | None = None, progress: bool = True, workers: int = 0,
-                   speed_logic: str = "constant", processing_delay_steps: int | None = None,
-                   steering_time_constant_s: float | None = None, friction_coefficient: float | None = None,
-                   reading: str = "stated") -> dict:
-    """Drive the BM at :data:`LATENCIES_S` (as ``reading`` injects them, :func:`injected_latency_s`) under
-    ``seeds``; return the per-seed MAEs, their means with 95% CIs (front-wheel radians), the noise floor, the
-    paper's numbers and the two rules judged. ``workers`` 0 drives the runs batched in this process; >= 1 on
-    that many processes (the same numbers, bit for bit).
-    ``speed_logic`` (:data:`~plm_highway.rollout.conditions.SPEED_LOGICS`): constant speed, or the original run
-    scripts' braking on sharp steering. ``processing_delay_steps`` and ``steering_time_constant_s`` replace the
-    conditions' assumed pipeline (:func:`~plm_highway.rollout.conditions.with_pipeline`; None keeps it).
-    ``friction_coefficient`` gives the car tires that saturate at that many g
-    (:func:`~plm_highway.rollout.conditions.with_friction_limit`; None: the conditions' car)."""
-    from plm_highway.road.track import load_track
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """What ``plm-highway calibrate`` is asked to do: its options, typed (the command line builds one).
 
+    ``seeds``: a count N (seeds 0..N-1) or a list, at least two (the noise floor). ``workers`` 0 drives the runs
+    batched in this process; >= 1 on that many processes (the same numbers, bit for bit). ``speed_logic``
+    (:data:`~plm_highway.rollout.conditions.SPEED_LOGICS`): constant speed, or the original run scripts' braking on
+    sharp steering. ``processing_delay_steps`` and ``steering_time_constant_s`` replace the conditions' assumed
+    pipeline (:func:`~plm_highway.rollout.conditions.with_pipeline`; None keeps it). ``friction_coefficient``
+    gives the car tires that saturate at that many g (:func:`~plm_highway.rollout.conditions.with_friction_limit`;
+    None: the conditions' car). ``reading``: how the paper's latencies are injected (:data:`READINGS`).
+    """
+
+    track: str = PAPER_TRACK
+    seeds: str | int | tuple[int, ...] = 5
+    conditions: str = "paper"
+    checkpoints: str | None = None
+    max_steps: int | None = None
+    progress: bool = True
+    workers: int = 0
+    speed_logic: str = "constant"
+    processing_delay_steps: int | None = None
+    steering_time_constant_s: float | None = None
+    friction_coefficient: float | None = None
+    reading: str = "stated"
+
+
+def bm_calibration(options: CalibrationOptions = CalibrationOptions()) -> dict:
+    """Drive the BM at :data:`LATENCIES_S` (as ``options.reading`` injects them, :func:`injected_latency_s`) under
+    the options' seeds; return the per-seed MAEs, their means with 95% CIs (front-wheel radians), the noise floor,
+    the paper's numbers and the two rules judged."""
+    from plm_highway.road.track import resolve_track
+
+    o = options
+    track, seeds, conditions, checkpoints, reading = o.track, o.seeds, o.conditions, o.checkpoints, o.reading
     injected_s = {latency_s: injected_latency_s(latency_s, reading) for latency_s in LATENCIES_S}
     spec_of = {latency_s: f"const:{injected:g}" for latency_s, injected in injected_s.items()}
     seed_list = parse_seeds(seeds)
@@ -121,16 +141,17 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
         from plm_highway.errors import BadInput
 
         raise BadInput(f"--seeds {seeds!r}: the noise floor needs at least two seeds")
-    spec = load_track(track)
-    chosen = with_friction_limit(with_pipeline(with_speed_logic(CONDITIONS[conditions], speed_logic),
-                                               processing_delay_steps, steering_time_constant_s), friction_coefficient)
-    policies = None if workers else {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset)}
+    spec = resolve_track(track)
+    chosen = with_friction_limit(with_pipeline(with_speed_logic(CONDITIONS[conditions], o.speed_logic),
+                                               o.processing_delay_steps, o.steering_time_constant_s),
+                                 o.friction_coefficient)
+    policies = None if o.workers else {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset)}
     cells = [Cell("reference" if latency_s == 0 else "baseline", "bm", spec_of[latency_s], seed,
                   f"BM {injected_s[latency_s]:.2f} s seed {seed}") for seed in seed_list for latency_s in LATENCIES_S]
-    runs = runs_under(cells, spec, chosen, policies, max_steps)
-    bar = progress_bar(len(cells), progress, desc="calibration")
+    runs = runs_under(cells, spec, chosen, policies, o.max_steps)
+    bar = progress_bar(len(cells), o.progress, desc="calibration")
     try:
-        with local_workers(workers) as backend:
+        with local_workers(o.workers) as backend:
             logs = run_cells(runs, checkpoints, preset=chosen.checkpoint_preset, backend=backend,
                              on_done=advancing(bar))
     finally:
@@ -157,9 +178,9 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
     pipeline = (chosen.processing_delay_steps, chosen.steering_time_constant_s)
     as_conditions = pipeline == (CONDITIONS[conditions].processing_delay_steps,
                                  CONDITIONS[conditions].steering_time_constant_s)
-    return {"track": spec.name, "conditions": conditions, "speed_logic": speed_logic, "seeds": seed_list,
+    return {"track": spec.name, "conditions": conditions, "speed_logic": o.speed_logic, "seeds": seed_list,
             "processing_delay_steps": pipeline[0], "steering_time_constant_s": pipeline[1],
-            "pipeline_as_conditions": as_conditions, "friction_coefficient": friction_coefficient,
+            "pipeline_as_conditions": as_conditions, "friction_coefficient": o.friction_coefficient,
             "reading": reading, "latencies_s": list(LATENCIES_S),
             "steps": [log.steps for log in references], "reference_left_road": [r.left_road for r in references],
             "steering_ratio": PAPER_STEERING_RATIO, "max_steering_rad": chosen.max_steering_rad,

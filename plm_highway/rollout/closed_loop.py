@@ -16,7 +16,7 @@ import gymnasium
 import numpy as np
 
 from plm_highway.envs import ENV_ID, register_envs
-from plm_highway.latency import LatencyProfile, LatencyWrapper, parse_profile
+from plm_highway.latency import LatencyProfile, LatencyWrapper
 from plm_highway.road.spec import TrackSpec
 
 LOG_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_m", "heading_rad", "speed_mps",
@@ -93,10 +93,10 @@ class RunCell:
 def make_env(track: TrackSpec | str, latency: LatencyProfile | str, camera: dict | None = None,
              env_config: dict | None = None, injection: str = "time") -> LatencyWrapper:
     """The lane-keeping env on ``track`` behind a latency wrapper. ``latency``: a parsed profile (the wrapper
-    keeps a private copy of it), or a spec, parsed here by the one parser."""
+    keeps a private copy of it), or a spec, which the wrapper parses with the one parser."""
     register_envs()
     config = {"track": track, **({"camera": camera} if camera else {}), **(env_config or {})}
-    return LatencyWrapper(gymnasium.make(ENV_ID, config=config), parse_profile(latency), injection=injection)
+    return LatencyWrapper(gymnasium.make(ENV_ID, config=config), latency, injection=injection)
 
 
 def add_image_noise(frame: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
