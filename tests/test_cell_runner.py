@@ -70,8 +70,10 @@ def test_runs_that_cannot_be_driven_as_asked_are_refused_before_any_starts():
                   backend=LocalPool(1))
     with pytest.raises(ValueError, match="neither given as an object nor one of"):
         runs_under([Cell("reference", "pid", "const:0", 0)], track_spec, conditions)
-    with pytest.raises(ValueError, match="serial runs take neither"):
+    with pytest.raises(ValueError, match="serial runs take no threads"):
         run_cells(runs_under(cells, track_spec, conditions, max_steps=2), serial=True, threads=2)
+    with pytest.raises(ValueError, match="on a backend take no threads"):
+        run_cells(runs_under(cells, track_spec, conditions, max_steps=2), threads=2, backend=LocalPool(1))
 
 
 @given(n_runs=st.integers(1, 500), workers=st.integers(1, 8), batch_size=st.integers(1, 64))

@@ -148,14 +148,17 @@ def run_cells(cells: Sequence[RunCell], checkpoints=None, *, preset: str = SHIPP
     Named model policies load the checkpoint pair once per process (``checkpoints`` and ``preset`` as for
     :func:`~plm_highway.rollout.policies.make_policy`); the expert and the EKF are made per run.
     ``on_done(index, log)`` is called as each run ends (progress, or saving results as they come).
-    ``batch_invariant``: run a caller's model policy objects with batch-invariant kernels too.
+    ``batch_invariant`` (batched in this process): run a caller's model policy objects with batch-invariant
+    kernels too (the named ones always are).
     """
     if not 1 <= batch_size <= MAX_BATCH_SIZE:
         raise ValueError(f"batch_size {batch_size}: must lie in [1, {MAX_BATCH_SIZE}]")
     if not 1 <= threads <= MAX_THREADS:
         raise ValueError(f"threads {threads}: must lie in [1, {MAX_THREADS}]")
-    if serial and (threads != 1 or backend is not None):
-        raise ValueError("serial runs take neither threads nor a backend")
+    if serial and (threads != 1 or backend is not None or batch_invariant):
+        raise ValueError("serial runs take no threads, backend or batch_invariant (they step one env at a time)")
+    if backend is not None and threads != 1:
+        raise ValueError("runs on a backend take no threads (each worker steps its chunk as one batch)")
     for i, cell in enumerate(cells):
         if isinstance(cell.policy, str) and cell.policy not in POLICY_NAMES:
             raise ValueError(f"cell {i} ({cell.name!r}): policy {cell.policy!r} is not one of {list(POLICY_NAMES)}")
