@@ -57,13 +57,15 @@ def run_chunk(job: ChunkJob) -> list[dict]:
     import os
 
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    from plm_highway.road.track import resolve_track
     from plm_highway.rollout.cells import RunCell, run_cells
     from plm_highway.rollout.policies import single_threaded_inference
 
+    tracks = {track: resolve_track(track) for track in dict.fromkeys(cell.track for cell in job.cells)}
     run_cells_list = []
     for cell in job.cells:
         condition = job.grid.conditions[cell.condition]
-        run_cells_list.append(RunCell(f"{cell.policy} {cell.latency} seed {cell.seed}", cell.policy, cell.track,
+        run_cells_list.append(RunCell(f"{cell.policy} {cell.latency} seed {cell.seed}", cell.policy, tracks[cell.track],
                                       cell.latency, cell.seed, camera=dict(condition.get("camera", {})) or None,
                                       env_config=dict(condition.get("env_config", {})) or None,
                                       max_steps=job.grid.max_steps))
