@@ -88,16 +88,21 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
 
     if conditions not in CONDITIONS:
         raise BadInput(f"--conditions {conditions!r}: expected one of {list(CONDITIONS)}")
-    if (conditions != "ideal" or injection is not None) and policy == "ekf":
-        raise BadInput(f"--policy ekf with --conditions {conditions}"
-                       f"{'' if injection is None else f' --injection {injection}'}: the EKF policy is built for the "
-                       "ideal conditions' car, loop and latency injection; use --conditions ideal without --injection")
     chosen = with_injection(CONDITIONS[conditions], injection)
     track_spec, latency_spec = check_inputs(track, latency, max_steps)
     max_steps = run_steps(track_spec, max_steps, conditions)
-    if seeds is not None or conditions != "ideal" or injection is not None:
-        if policy == "ekf":  # each seed needs its own sensor-noise stream; compare over seeds with 'estimate compare'
+    if policy == "ekf":
+        if seeds is not None:  # each seed needs its own sensor-noise stream; compare over seeds with 'estimate compare'
             raise BadInput("--seeds with --policy ekf: not supported by evaluate; use 'plm-highway estimate compare'")
+        logs = _drive_ekf(track_spec, latency_spec, seed, max_steps, chosen,
+                          as_conditions=conditions != "ideal" or injection is not None)
+        result = compare_runs(logs, track, latency_spec, policy, seed, track_spec)
+        if conditions != "ideal":
+            result["conditions"] = conditions
+        if injection is not None:
+            result["injection"] = injection
+        return result, logs
+    if seeds is not None or conditions != "ideal" or injection is not None:
         seed_list = [seed] if seeds is None else _seed_list(seeds, seed)
         result, logs = _evaluate_seeds(track, track_spec, latency_spec, policy, seed_list, max_steps, checkpoints,
                                        chosen)
@@ -109,22 +114,37 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
         if injection is not None:
             result["injection"] = injection
         return result, logs
-    if policy == "ekf":
-        from plm_highway.estimation.policy import ekf_policy
-
-        policies = {"reference": make_policy("ekf", seed=seed), "baseline": ekf_policy(compensate_delay=False, seed=seed),
-                    "mitigated": make_policy("ekf", seed=seed)}
-    else:
-        base_policy = "expert" if policy == "expert" else "bm"
-        policies = {"reference": make_policy(base_policy, checkpoints),
-                    "baseline": make_policy(base_policy, checkpoints)}
-        if policy == "plm":
-            policies["mitigated"] = make_policy("plm", checkpoints)
+    base_policy = "expert" if policy == "expert" else "bm"
+    policies = {"reference": make_policy(base_policy, checkpoints),
+                "baseline": make_policy(base_policy, checkpoints)}
+    if policy == "plm":
+        policies["mitigated"] = make_policy("plm", checkpoints)
     logs = {}
     for name, run_policy in policies.items():
         logs[name] = drive(name, run_policy, track_spec, "const:0" if name == "reference" else latency_spec, seed,
                            max_steps=max_steps)
     return compare_runs(logs, track, latency_spec, policy, seed, track_spec), logs
+
+
+def _drive_ekf(track_spec: TrackSpec, latency_spec: str, seed: int, max_steps: int | None, chosen,
+               as_conditions: bool) -> dict[str, RunLog]:
+    """The EKF lane keeper's three runs: without latency, late frames fused as if current, late frames re-stamped.
+
+    Its plant (camera, steering range, loop, actuator lag, processing delay, car) is ``chosen``'s
+    (:func:`~plm_highway.evaluation.policies.ekf_plant`). ``as_conditions``: drive as ``reproduce`` drives the
+    conditions (their env settings, injection, image noise, start perturbation); otherwise the default env
+    from a centred start, as the other policies' single runs under the ideal conditions.
+    """
+    from plm_highway.evaluation.run import Cell, drive_options
+
+    runs = {"reference": ("const:0", True), "baseline": (latency_spec, False), "mitigated": (latency_spec, True)}
+    logs = {}
+    for role, (latency, compensate) in runs.items():
+        policy = make_policy("ekf", seed=seed, conditions=chosen, compensate_delay=compensate)
+        options = (drive_options(Cell(role, "ekf", latency, seed), chosen, max_steps) if as_conditions
+                   else {"max_steps": max_steps})
+        logs[role] = drive(role, policy, track_spec, latency, seed, **options)
+    return logs
 
 
 def _seed_list(seeds, first_seed: int) -> list[int]:
