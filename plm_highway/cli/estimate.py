@@ -8,11 +8,14 @@ GROUP_HELP = "model-based latency compensation: the delay-compensated lane-coord
 
 
 def configure_table3(parser) -> None:
-    from plm_highway.estimation.table3 import MAX_SEEDS
+    from plm_highway.estimation.table3 import MAX_SEEDS, MEASUREMENTS
 
     parser.add_argument("--seeds", type=bounded_int(1, MAX_SEEDS), default=5,
                         help="scored seeds 0..N-1 (at least 5 for the report's confidence intervals)")
     parser.add_argument("--scenarios", default="1,2,3,4", help="comma-separated scenario numbers (default all four)")
+    parser.add_argument("--measurements", default=",".join(MEASUREMENTS),
+                        help="comma-separated lane measurements: clean (the simulated camera's fit as it comes), "
+                             "realistic (plus the error the kit's detector makes on the kit's own frames)")
     parser.add_argument("--json", metavar="OUT.json", help="write the results to this JSON file")
     parser.add_argument("--out", metavar="DIR", help="write table3.json, table3.md and the Figure 7-10 style plots "
                                                      "(first seed) into this directory")
@@ -20,16 +23,21 @@ def configure_table3(parser) -> None:
 
 
 def run_table3(args) -> int:
+    from plm_highway.errors import BadInput
     from plm_highway.estimation.report import TABLE3_JSON, TABLE3_REPORT, publish_table3
-    from plm_highway.estimation.table3 import scenarios_by_number, table3
+    from plm_highway.estimation.table3 import MEASUREMENTS, scenarios_by_number, table3_report
     from plm_highway.io import check_target
 
     scenarios = scenarios_by_number(args.scenarios)
+    measurements = tuple(dict.fromkeys(m.strip() for m in args.measurements.split(",") if m.strip()))
+    unknown = [m for m in measurements if m not in MEASUREMENTS]
+    if unknown or not measurements:
+        raise BadInput(f"--measurements {args.measurements!r}: expected a comma-separated choice of {list(MEASUREMENTS)}")
     for path, kind in ((args.json, TABLE3_JSON), (args.out, TABLE3_REPORT)):
         if path is not None:  # refuse before minutes of simulation, not after
             check_target(path, kind, overwrite=args.overwrite)
-    runs: list = []
-    result = table3(args.seeds, scenarios=scenarios, keep_runs=runs if args.out else None)
+    runs: dict = {}
+    result = table3_report(args.seeds, measurements, scenarios, keep_runs=runs if args.out else None)
     print(result.markdown())
     for path in publish_table3(result, runs, args.json, args.out, overwrite=args.overwrite):
         print(f"wrote {path}")

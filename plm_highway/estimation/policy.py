@@ -187,26 +187,37 @@ def ekf_policy(compensate_delay: bool = True, latency_bias_s: float = 0.0, seed:
 
 
 def measure_camera_noise(track="train", seed: int = 0, max_steps: int | None = None,
-                         camera: CameraConfig | None = None) -> dict:
+                         camera: CameraConfig | None = None, steady_only: bool = False) -> dict:
     """The policy's lane measurement against the env's privileged state, with the expert driving ``track``.
 
     Every frame is measured as it is rendered (no latency: the error of the measurement itself), tracked
-    frame to frame as the policy does. Returns ``{"frames", "missed", "bias", "std", "robust_std"}``, the
-    last three as ``[d m, dpsi rad, kappa 1/m]`` (robust std: 1.4826 x median absolute deviation).
+    frame to frame as the policy does. ``steady_only``: only frames whose view holds no change of curvature
+    (the car more than :data:`STEADY_MARGIN_M` past the last segment start and the next one beyond the
+    detector's reach plus that margin), the road the Table 3 scenarios drive on.
+
+    Returns ``{"frames", "missed", "frame_period_s", "bias", "std", "robust_std", "lag1_correlation",
+    "correlation_time_s"}``, per component ``[d m, dpsi rad, kappa 1/m]`` (robust std: 1.4826 x median
+    absolute deviation; the correlation from consecutive measured frames, its time ``-period / ln(rho)``).
     """
     import gymnasium
 
     import plm_highway  # noqa: F401  (registers the env)
     from plm_highway.expert import ExpertPolicy
+    from plm_highway.road.geometry import segment_starts_m
 
     env = gymnasium.make("plm_highway/LaneKeeping-v0",
                          config={"track": track, **({"camera": asdict(camera)} if camera is not None else {})})
     try:
         frame, info = env.reset(seed=seed)
-        detector = LaneDetector(env.unwrapped.camera_config, LaneDetectorConfig(lane_width_m=env.unwrapped.track.lane_width_m))
+        base = env.unwrapped
+        detector_config = LaneDetectorConfig(lane_width_m=base.track.lane_width_m)
+        detector = LaneDetector(base.camera_config, detector_config)
+        changes_m = segment_starts_m(base.track)[1:-1]
+        reach_m = detector_config.max_forward_m + STEADY_MARGIN_M
+        frame_period_s = 1.0 / base.config["policy_frequency"]
         expert = ExpertPolicy()
         expert.reset()
-        previous, errors, missed, steps = None, [], 0, 0
+        previous, errors, kept, missed, steps = None, [], [], 0, 0
         while max_steps is None or steps < max_steps:
             measurement = detector.measure(frame, previous)
             if measurement is None:
@@ -215,16 +226,42 @@ def measure_camera_noise(track="train", seed: int = 0, max_steps: int | None = N
                 previous = measurement
                 truth = (info["lateral_offset_m"], info["heading_error_rad"], info["curvature_1pm"])
                 errors.append(measurement.vector - np.asarray(truth))
+                ahead_m = changes_m - info["arc_length_m"]
+                kept.append(not steady_only or not np.any((ahead_m > -STEADY_MARGIN_M) & (ahead_m < reach_m)))
             frame, _, terminated, truncated, info = env.step(np.array([expert(frame, info)], dtype=np.float32))
             steps += 1
             if terminated or truncated:
                 break
     finally:
         env.close()
-    if not errors:
-        raise ValueError(f"measure_camera_noise: no lane measured on track {track!r}")
-    errors = np.array(errors)
-    median = np.median(errors, axis=0)
-    return {"frames": len(errors), "missed": missed, "bias": errors.mean(axis=0).tolist(),
-            "std": errors.std(axis=0).tolist(),
-            "robust_std": (1.4826 * np.median(np.abs(errors - median), axis=0)).tolist()}
+    errors, kept = np.array(errors).reshape(-1, 3), np.array(kept, bool)
+    if not kept.any():
+        raise ValueError(f"measure_camera_noise: no lane measured on track {track!r}"
+                         f"{' away from curvature changes' if steady_only else ''}")
+    return {"frames": int(kept.sum()), "missed": missed, "frame_period_s": frame_period_s,
+            **error_statistics(errors, kept, frame_period_s)}
+
+
+STEADY_MARGIN_M = 5.0  # the car's length and a step of travel either side of a curvature change
+
+
+def error_statistics(errors: np.ndarray, kept: np.ndarray, period_s: float) -> dict:
+    """Bias, std, robust std and frame-to-frame correlation of ``errors[kept]`` ((n, k), one row per frame).
+
+    The lag-1 correlation pairs consecutive frames that are both kept; its time is ``-period_s / ln(rho)``
+    (0 for rho <= 0: no memory from one frame to the next).
+    """
+    errors, kept = np.asarray(errors, float), np.asarray(kept, bool)
+    chosen = errors[kept]
+    median = np.median(chosen, axis=0)
+    pairs = kept[1:] & kept[:-1]
+    correlation = []
+    for column in range(errors.shape[1]):
+        first, second = errors[:-1, column][pairs], errors[1:, column][pairs]
+        ok = len(first) > 2 and first.std() > 0 and second.std() > 0
+        correlation.append(float(np.corrcoef(first, second)[0, 1]) if ok else 0.0)
+    return {"bias": chosen.mean(axis=0).tolist(), "std": chosen.std(axis=0).tolist(),
+            "robust_std": (1.4826 * np.median(np.abs(chosen - median), axis=0)).tolist(),
+            "lag1_correlation": correlation,
+            "correlation_time_s": [-period_s / math.log(rho) if 0 < rho < 1 else (math.inf if rho >= 1 else 0.0)
+                                   for rho in correlation]}
