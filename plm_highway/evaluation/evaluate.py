@@ -5,8 +5,10 @@
 - ``mitigated`` (``--policy plm``): PLM-Net fed the delayed observations and told their age.
 
 With ``--policy ekf`` the three runs are the model-based policy's own (seed paper 004): the EKF
-policy without latency, the EKF fusing each late frame as if it were current (no delay
-compensation), and the EKF re-stamping it at its measured capture time and re-estimating to now.
+lane keeper without latency, fusing each late frame as if it were current (no delay
+compensation), and re-stamping it at its measured capture time and re-estimating to now; under
+``--conditions paper`` its controller's plant is those conditions' loop, actuator, processing delay
+and steering range (:func:`~plm_highway.evaluation.policies.ekf_plant`).
 All runs share the track and the seed, so the same latency realisation.
 
 The JSON holds ``track``, ``latency``, ``policy``, ``seed``, ``runs`` (per-run summary),
