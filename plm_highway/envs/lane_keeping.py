@@ -28,6 +28,7 @@ dicts are made only when read, and track look-ups are built once per track.
 from __future__ import annotations
 
 import math
+import os
 from collections import deque
 from typing import NamedTuple
 
@@ -42,7 +43,7 @@ from highway_env.road.road import Road
 from plm_highway.camera.ground_map import DEFAULT_MAP_PX_PER_M, ground_map
 from plm_highway.camera.pinhole import PAPER_CAMERA, CameraConfig, PinholeCamera  # noqa: F401 (PAPER_CAMERA re-exported)
 from plm_highway.camera.topdown import TopDownView
-from plm_highway.envs.config import check_env_config, check_start, check_unknown_keys
+from plm_highway.envs.config import check_env_config, check_fixed_settings, check_start, check_unknown_keys
 from plm_highway.envs.ego_vehicle import TrackVehicle
 from plm_highway.envs.speed import SharpTurnBraking, SpeedSchedule, parse_sharp_turn_braking, parse_speed
 from plm_highway.errors import BadInput
@@ -218,7 +219,17 @@ class LaneKeepingCameraEnv(AbstractEnv):
 
     # -- gymnasium API ---------------------------------------------------------------------------
 
+    def configure(self, config: dict) -> None:
+        if config is not None and not isinstance(config, dict):
+            raise BadInput(f"config: must be a dict of settings, got {type(config).__name__}")
+        super().configure(config)
+
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if options is not None and not isinstance(options, dict):
+            raise BadInput(f"reset options: must be a dict, got {type(options).__name__}")
+        if options and "config" in options and not isinstance(options["config"], dict):
+            raise BadInput(f"reset options['config']: must be a dict of settings, got "
+                           f"{type(options['config']).__name__}")
         self._start_overrides = {k: v for k, v in (options or {}).items() if k in START_KEYS}
         unknown = sorted(set(options or {}) - set(self._start_overrides) - {"config"})
         if unknown:
@@ -227,7 +238,9 @@ class LaneKeepingCameraEnv(AbstractEnv):
 
     def define_spaces(self) -> None:
         # Called by highway-env before every reset builds anything: the place to refuse bad settings.
-        check_unknown_keys(self.config, self.default_config())
+        defaults = self.default_config()
+        check_unknown_keys(self.config, defaults)
+        check_fixed_settings(self.config, defaults)
         check_env_config(self.config)
         self.camera_config = CameraConfig.from_dict(self.config["camera"])
         self.observation_type = DashCameraObservation(self)
@@ -311,6 +324,9 @@ class LaneKeepingCameraEnv(AbstractEnv):
             return track
         if isinstance(track, dict):
             return parse_track(track, source="config['track']")
+        if not isinstance(track, (str, os.PathLike)):
+            raise BadInput(f"config['track'] = {track!r:.60}: must be a shipped track's name, a path to a track "
+                           "JSON file or a track dict")
         return load_track(track)
 
     @property

@@ -31,6 +31,7 @@ from scipy import stats
 
 from plm_highway.errors import BadInput
 from plm_highway.evaluation import paper_results as paper
+from plm_highway.io.bounded import refuse_non_ascii_digits
 from plm_highway.metrics.steering import ERROR_NAMES, common_span, reduction_pct, steering_errors
 from plm_highway.vehicle.paper_units import PAPER_FULL_SCALE_DEG, PAPER_STEERING_RATIO
 
@@ -46,11 +47,22 @@ PAPER_TRACK = "test"  # the paper's numbers are for its test track
 # ---------------------------------------------------------------------------------------------
 
 
+_SPEC_START = re.compile(r"\s*(?:none|[0-9.]+|(?:const|steps|frames|sine|ramp|trace):)")
+
+
 def split_settings(items) -> list[str]:
-    """Latency specs from space- or comma-separated items, duplicates dropped, in order."""
+    """Latency specs from space- or comma-separated items, duplicates dropped, in order. A comma inside a
+    trace file's path stays in the path (``trace:runs/a,b.csv``): a piece that does not start a spec
+    continues the trace spec before it."""
     specs: list[str] = []
     for item in items:
-        for spec in str(item).split(","):
+        pieces: list[str] = []
+        for piece in str(item).split(","):
+            if pieces and pieces[-1].strip().startswith("trace:") and not _SPEC_START.match(piece):
+                pieces[-1] += "," + piece
+            else:
+                pieces.append(piece)
+        for spec in pieces:
             if spec.strip() and spec.strip() not in specs:
                 specs.append(spec.strip())
     if not specs:
@@ -84,10 +96,12 @@ def setting_label(spec: str) -> str:
 
 
 def setting_tag(spec: str) -> str:
-    """File-name part for a setting: ``0.20s``, ``time_varying`` or the spec made safe."""
+    """File-name part for a setting: ``0.20s``, ``time_varying`` or the spec made safe; two latencies that
+    differ get two tags (``0.199s`` and ``0.20s``: rounding never merges them)."""
     match = re.fullmatch(r"const:([0-9.]+)", spec)
     if match:
-        return f"{float(match.group(1)):.2f}s"
+        value = float(match.group(1))
+        return f"{value:.2f}s" if round(value, 2) == value else f"{value:g}s"
     if spec == "steps:0.0-0.35:1.0":
         return "time_varying"
     return re.sub(r"[^A-Za-z0-9.]+", "_", spec).strip("_")
@@ -137,6 +151,7 @@ def parse_seeds(value) -> list[int]:
         items: list = [value]
         count = True
     elif isinstance(value, str):
+        refuse_non_ascii_digits(value, "--seeds")
         items = [v.strip() for v in value.split(",") if v.strip()]
         count = len(items) == 1 and "," not in value
     else:

@@ -188,6 +188,12 @@ def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=N
     if generalise is None:
         generalise = DEFAULT_GENERALISATION.get(str(track), ())
     other_specs = [load_track(t) for t in dict.fromkeys(str(t) for t in generalise) if t != str(track)]
+    named: dict[str, str] = {}
+    for spec_ in (main_spec, *other_specs):  # the report keys each track's results and figures by its name
+        if spec_.name in named:
+            raise BadInput(f"--generalise: tracks {named[spec_.name]!r} and {spec_.source!r} are both named "
+                           f"{spec_.name!r}; give each track a name of its own (field 'name')")
+        named[spec_.name] = spec_.source
     for track_spec in (main_spec, *other_specs):
         for spec in specs:
             check_env(track_spec, spec, conditions)

@@ -15,7 +15,9 @@ the field, and the accepted range):
 
 ==========================  =====================================================================
 file                        at most ``MAX_TRACK_FILE_BYTES`` (1 MiB) of UTF-8 JSON, no byte-order
-                            mark, brackets nested at most ``MAX_NESTING_DEPTH`` (16) deep
+                            mark, brackets nested at most ``MAX_NESTING_DEPTH`` (16) deep, at
+                            most ``MAX_JSON_VALUES`` (20,000) values, integers of at most 20
+                            digits, no key twice in one object (plm_highway.io.bounded)
 ``name``                    a string of 1 to ``MAX_NAME_CHARS`` (100) characters
 ``lanes``                   an integer from 1 to 6
 ``lane_width_m``            from 2 to 8 m
@@ -36,9 +38,7 @@ a track that spans too large an area (e.g. a closed circle of 1.5 km radius) is 
 
 from __future__ import annotations
 
-import json
 import math
-import re
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.errors import BadInput
+from plm_highway.io.bounded import JsonLimits, parse_json
 
 TRACK_KEYS = {"name", "lanes", "lane_width_m", "segments", "closed"}
 SEGMENT_KEYS = {
@@ -62,6 +63,10 @@ MAX_SEGMENT_LENGTH_M = 10_000.0
 MAX_RADIUS_M = 50_000.0
 MAX_TRACK_LENGTH_M = 20_000.0
 OVERLAP_SAMPLE_SPACING_M = 1.0
+# Every value of a track file counts (1,000 segments of 4 fields and the top level fit well within).
+MAX_JSON_VALUES = 20_000
+TRACK_JSON_LIMITS = JsonLimits(max_bytes=MAX_TRACK_FILE_BYTES, max_depth=MAX_NESTING_DEPTH,
+                               max_nodes=MAX_JSON_VALUES, max_int_digits=20)
 # A closed track must come back to its start within these tolerances.
 CLOSE_POSITION_TOL_M = 0.5
 CLOSE_HEADING_TOL_RAD = math.radians(1.0)
@@ -118,37 +123,17 @@ def load_track(name_or_path: str | Path) -> TrackSpec:
         if size > MAX_TRACK_FILE_BYTES:
             raise BadInput(f"{source}: {size:,} bytes is larger than a track file may be "
                              f"({MAX_TRACK_FILE_BYTES:,} bytes)")
-        data = path.read_bytes()
+        with open(path, "rb") as handle:
+            data = handle.read(MAX_TRACK_FILE_BYTES + 1)  # the file may have grown since stat
+        if len(data) > MAX_TRACK_FILE_BYTES:
+            raise BadInput(f"{source}: more bytes than a track file may hold ({MAX_TRACK_FILE_BYTES:,} bytes)")
     return parse_track(_json_of(data, source), source=source)
 
 
 def _json_of(data: bytes, source: str):
-    if data.startswith(b"\xef\xbb\xbf"):
-        raise BadInput(f"{source}: starts with a UTF-8 byte-order mark; save it as UTF-8 without BOM")
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise BadInput(f"{source}: not a UTF-8 text file (byte 0x{data[exc.start]:02x} at offset {exc.start}); "
-                         "a track is a JSON text file") from None
-    depth = _nesting_depth(text)
-    if depth > MAX_NESTING_DEPTH:
-        raise BadInput(f"{source}: brackets nested {depth} deep; a track needs at most {MAX_NESTING_DEPTH}")
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise BadInput(f"{source}: not valid JSON ({exc})") from None
-
-
-def _nesting_depth(text: str) -> int:
-    """Deepest bracket nesting outside JSON strings (checked before the parser recurses into it)."""
-    depth = deepest = 0
-    for char in re.sub(r'"(?:[^"\\]|\\.)*"', "", text):
-        if char in "[{":
-            depth += 1
-            deepest = max(deepest, depth)
-        elif char in "]}":
-            depth -= 1
-    return deepest
+    """The track's JSON, read by the kit's bounded loader (linear time; depth, values, integer length and
+    duplicate keys checked, each refusal naming the file and the field)."""
+    return parse_json(data, source, TRACK_JSON_LIMITS, bom="refuse")
 
 
 def parse_track(spec: dict, source: str = "<dict>") -> TrackSpec:

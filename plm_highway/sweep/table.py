@@ -12,13 +12,13 @@ latency profile, mean over the seeds with a 95% t-interval (none for a single se
 
 from __future__ import annotations
 
+import json
 import math
-import re
 from pathlib import Path
 
 import numpy as np
 
-from plm_highway.io import file_kind, pyplot, save_figure_into
+from plm_highway.io import file_kind, pyplot, save_figure_into, unique_file_names
 from plm_highway.metrics.steering import common_span, steering_mae
 from plm_highway.sweep.grid import SweepCell, SweepGrid
 
@@ -64,9 +64,12 @@ def mean_ci95(values) -> tuple[float, float]:
 
 
 def figure_names(grid: SweepGrid) -> list[tuple[str, str, str]]:
-    """(condition, track, file name) of each figure."""
-    return [(c, t, re.sub(r"[^A-Za-z0-9.+-]+", "-", f"sweep_{c}_{Path(t).stem}") + ".png")
-            for c in grid.conditions for t in grid.tracks]
+    """(condition, track, file name) of each figure: one name per condition and track, even for two
+    tracks with one file name in different folders."""
+    pairs = [(c, t) for c in grid.conditions for t in grid.tracks]
+    names = unique_file_names([f"sweep_{c}_{Path(t).stem}" for c, t in pairs],
+                              [json.dumps([c, t]) for c, t in pairs], ".png")
+    return [(c, t, name) for (c, t), name in zip(pairs, names)]
 
 
 def save_figures(rows: list[dict], grid: SweepGrid, directory: Path) -> list[Path]:
