@@ -189,6 +189,19 @@ def test_paper_conditions_drive_the_runs_as_reproduce_does(tmp_path, capsys):
         np.testing.assert_allclose(written, log.columns["steering"], rtol=1e-5)  # the CSV's 6 significant digits
 
 
-def test_the_ekf_is_refused_under_paper_conditions(capsys):
-    assert cli.main(["evaluate", "--conditions", "paper", "--policy", "ekf", "--max-steps", "5"]) == 2
-    assert "--conditions paper" in capsys.readouterr().err
+def test_the_ekf_drives_under_paper_conditions_with_their_plant(tmp_path):
+    from plm_highway.estimation.lateral_control import LoopTiming
+    from plm_highway.rollout.conditions import CONDITIONS
+    from plm_highway.rollout.policies import ekf_plant, make_policy
+
+    plant = ekf_plant(CONDITIONS["paper"])
+    assert plant["timing"] == LoopTiming(1 / 30, 0.1, 2) and plant["max_steering_rad"] == 0.4
+    assert plant["camera"].height_px == 160 and plant["camera"].crop_rows_px == 140
+    policy = make_policy("ekf", conditions=CONDITIONS["paper"], compensate_delay=False)
+    assert policy.controller.timing == plant["timing"] and not policy.estimator.compensate_delay
+    out = tmp_path / "e.json"
+    assert cli.main(["evaluate", "--conditions", "paper", "--policy", "ekf", "--latency", "const:0.2",
+                     "--max-steps", "12", "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["conditions"] == "paper" and set(result["runs"]) == {"reference", "baseline", "mitigated"}
+    assert all(run["steps"] == 12 for run in result["runs"].values())

@@ -21,7 +21,8 @@ def configure(parser) -> None:
                         help="latency profile, e.g. const:0.2 or steps:0.0-0.35:1.0")
     parser.add_argument("--policy", choices=POLICY_NAMES, default=d["policy"],
                         help="plm: reference + BM baseline + PLM-Net; bm: the first two; expert: the expert twice; "
-                             "ekf: the lane EKF policy without latency, without and with delay compensation")
+                             "ekf: the EKF lane keeper without latency, without and with delay compensation, its LQR "
+                             "designed for the conditions' loop, actuator and processing delay")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: shipped)")
     parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],
                         help="ideal: this simulator's setup; paper: the paper's loop, pipeline, camera, latency "

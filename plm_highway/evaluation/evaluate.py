@@ -5,8 +5,10 @@
 - ``mitigated`` (``--policy plm``): PLM-Net fed the delayed observations and told their age.
 
 With ``--policy ekf`` the three runs are the model-based policy's own (seed paper 004): the EKF
-policy without latency, the EKF fusing each late frame as if it were current (no delay
-compensation), and the EKF re-stamping it at its measured capture time and re-estimating to now.
+lane keeper without latency, fusing each late frame as if it were current (no delay
+compensation), and re-stamping it at its measured capture time and re-estimating to now; under
+``--conditions paper`` its controller's plant is those conditions' loop, actuator, processing delay
+and steering range (:func:`~plm_highway.rollout.policies.ekf_plant`).
 All runs share the track and the seed, so the same latency realisation.
 
 The JSON holds ``track``, ``latency``, ``policy``, ``seed``, ``runs`` (per-run summary),
@@ -27,7 +29,7 @@ from plm_highway.evaluation.trajectory import trajectory_method, trajectory_metr
 from plm_highway.io import directory_kind, file_kind, json_text, write_csv_into, write_outputs
 from plm_highway.latency import LatencyProfile, parse_profile
 from plm_highway.road.track import TrackSpec, resolve_track
-from plm_highway.rollout.cells import Cell, run_cells, runs_under
+from plm_highway.rollout.cells import Cell, drive_options, run_cells, runs_under
 from plm_highway.rollout.closed_loop import LOG_COLUMNS, RunLog, drive, make_env
 from plm_highway.rollout.conditions import CONDITIONS, Conditions, baseline_latency, scored_steps, with_injection
 from plm_highway.rollout.policies import make_policy
@@ -86,18 +88,23 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
     """
     if conditions not in CONDITIONS:
         raise BadInput(f"--conditions {conditions!r}: expected one of {list(CONDITIONS)}")
-    if (conditions != "ideal" or injection is not None) and policy == "ekf":
-        raise BadInput(f"--policy ekf with --conditions {conditions}"
-                       f"{'' if injection is None else f' --injection {injection}'}: the EKF policy is built for the "
-                       "ideal conditions' car, loop and latency injection; use --conditions ideal without --injection")
     chosen = with_injection(CONDITIONS[conditions], injection)
     track_label = track.name if isinstance(track, TrackSpec) else str(track)
     track_spec, profile = check_inputs(track, latency, max_steps)
     latency_spec = profile.spec
     max_steps = run_steps(track_spec, max_steps, CONDITIONS[conditions])
-    if seeds is not None or conditions != "ideal" or injection is not None:
-        if policy == "ekf":  # each seed needs its own sensor-noise stream; compare over seeds with 'estimate compare'
+    if policy == "ekf":
+        if seeds is not None:  # each seed needs its own sensor-noise stream; compare over seeds with 'estimate compare'
             raise BadInput("--seeds with --policy ekf: not supported by evaluate; use 'plm-highway estimate compare'")
+        logs = _drive_ekf(track_spec, latency_spec, seed, max_steps, chosen,
+                          as_conditions=conditions != "ideal" or injection is not None)
+        result = compare_runs(logs, track_spec, latency_spec, policy, seed, track_label)
+        if conditions != "ideal":
+            result["conditions"] = conditions
+        if injection is not None:
+            result["injection"] = injection
+        return result, logs
+    if seeds is not None or conditions != "ideal" or injection is not None:
         seed_list = [seed] if seeds is None else parse_seeds(seeds, seed)
         result, logs = _evaluate_seeds(track_label, track_spec, latency_spec, policy, seed_list, max_steps,
                                        checkpoints, chosen)
@@ -109,22 +116,35 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
         if injection is not None:
             result["injection"] = injection
         return result, logs
-    if policy == "ekf":
-        from plm_highway.estimation.policy import ekf_policy
-
-        policies = {"reference": make_policy("ekf", seed=seed), "baseline": ekf_policy(compensate_delay=False, seed=seed),
-                    "mitigated": make_policy("ekf", seed=seed)}
-    else:
-        base_policy = "expert" if policy == "expert" else "bm"
-        policies = {"reference": make_policy(base_policy, checkpoints),
-                    "baseline": make_policy(base_policy, checkpoints)}
-        if policy == "plm":
-            policies["mitigated"] = make_policy("plm", checkpoints)
+    base_policy = "expert" if policy == "expert" else "bm"
+    policies = {"reference": make_policy(base_policy, checkpoints),
+                "baseline": make_policy(base_policy, checkpoints)}
+    if policy == "plm":
+        policies["mitigated"] = make_policy("plm", checkpoints)
     logs = {}
     for name, run_policy in policies.items():
         logs[name] = drive(name, run_policy, track_spec, "const:0" if name == "reference" else profile, seed,
                            max_steps=max_steps)
     return compare_runs(logs, track_spec, latency_spec, policy, seed, track_label), logs
+
+
+def _drive_ekf(track_spec: TrackSpec, latency_spec: str, seed: int, max_steps: int | None, chosen: Conditions,
+               as_conditions: bool) -> dict[str, RunLog]:
+    """The EKF lane keeper's three runs: without latency, late frames fused as if current, late frames re-stamped.
+
+    Its plant (camera, steering range, loop, actuator lag, processing delay, car) is ``chosen``'s
+    (:func:`~plm_highway.rollout.policies.ekf_plant`). ``as_conditions``: drive as ``reproduce`` drives the
+    conditions (their env settings, injection, image noise, start perturbation); otherwise the default env
+    from a centred start, as the other policies' single runs under the ideal conditions.
+    """
+    runs = {"reference": ("const:0", True), "baseline": (latency_spec, False), "mitigated": (latency_spec, True)}
+    logs = {}
+    for role, (latency, compensate) in runs.items():
+        policy = make_policy("ekf", seed=seed, conditions=chosen, compensate_delay=compensate)
+        options = (drive_options(Cell(role, "ekf", latency, seed), chosen, max_steps) if as_conditions
+                   else {"max_steps": max_steps})
+        logs[role] = drive(role, policy, track_spec, latency, seed, **options)
+    return logs
 
 
 def _evaluate_seeds(track_label: str, track_spec: TrackSpec, latency_spec: str, policy: str, seeds: list[int],

@@ -105,19 +105,36 @@ def checkpoint_pair(checkpoint_dir=None, preset: str = SHIPPED_PRESET) -> tuple[
     )
 
 
+def ekf_plant(conditions) -> dict:
+    """What the EKF lane keeper must know of ``conditions`` (a :class:`~plm_highway.rollout.conditions.Conditions`):
+    the camera, the steering range, the loop period, the actuator's lag and the processing delay (its LQR's
+    plant), and the car of the conditions' vehicle model as a linear single-track car (its estimator's model)."""
+    from plm_highway.camera.pinhole import CameraConfig
+    from plm_highway.estimation.lateral_control import LoopTiming, single_track_equivalent
+    from plm_highway.vehicle.models import checked_params, vehicle_model
+
+    params = checked_params(vehicle_model(conditions.vehicle_model), conditions.vehicle_params)
+    return {"camera": CameraConfig.from_dict(conditions.camera or {}), "max_steering_rad": conditions.max_steering_rad,
+            "timing": LoopTiming(1.0 / conditions.policy_frequency_hz, conditions.steering_time_constant_s,
+                                 conditions.processing_delay_steps),
+            "vehicle": single_track_equivalent(params)}
+
+
 def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, latency_source: str = "measured",
-                seed: int = 0, preset: str = SHIPPED_PRESET):
+                seed: int = 0, preset: str = SHIPPED_PRESET, conditions=None, compensate_delay: bool = True):
     """The policy named ``name``; model policies load the shipped ``preset`` checkpoints unless given a dir
     and run batch-invariantly (:mod:`plm_highway.models.batch_invariant`).
 
-    ``seed`` seeds the EKF policy's own sensor noise (the others have none).
+    ``seed`` seeds the EKF policy's own sensor noise (the others have none); ``conditions`` (default: the ideal
+    ones) set its plant (:func:`ekf_plant`) and ``compensate_delay`` whether it re-stamps late frames.
     """
     if name == "expert":
         return ExpertPolicy()
     if name == "ekf":
         from plm_highway.estimation.policy import ekf_policy
 
-        return ekf_policy(latency_bias_s=latency_bias_s, seed=seed)
+        plant = {} if conditions is None else ekf_plant(conditions)
+        return ekf_policy(compensate_delay=compensate_delay, latency_bias_s=latency_bias_s, seed=seed, **plant)
     if name not in POLICY_NAMES:
         raise ValueError(f"--policy {name!r}: expected one of {list(POLICY_NAMES)}")
     from plm_highway.models import checkpoints, inference
