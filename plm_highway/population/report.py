@@ -90,6 +90,7 @@ def publish_report(state, options) -> dict:
         raise BadInput("population: no pair was trained and driven, so there is nothing to report (see the "
                        f"training records under {options.work}/pairs)")
     numbers = analyse(state.plan, state.trainings, rows)
+    numbers["drift"] = drift_numbers(state)
     document = {"plan": state.plan.as_dict(), "command": options.command, "trainings": {
         str(p): t for p, t in sorted(state.trainings.items())}, **numbers}
     with write_output(options.out, POPULATION_REPORT, overwrite=options.overwrite) as staged:
@@ -98,13 +99,63 @@ def publish_report(state, options) -> dict:
                        [[s.get(c) for c in PAIR_COLUMNS] for s in numbers["pair_summaries"]])
         (staged / "population.json").write_text(json_text(document), encoding="utf-8")
         figures = save_figures(state.plan, numbers, staged)
+        if numbers["drift"] is not None:
+            figures.append(save_drift_figure(state.plan, numbers["drift"], staged))
         (staged / "report.md").write_text(render_report(document, figures), encoding="utf-8")
     return {"out": str(options.out), **numbers}
+
+
+def drift_numbers(state) -> dict | None:
+    """:func:`~plm_highway.population.drift.drift_summary` from the work directory's traces and posed gains."""
+    from plm_highway.population.drift import drift_summary, run_bands
+    from plm_highway.population.study import read_traces
+
+    if state.work is None:
+        return None
+    bands: dict[tuple[int, str], list[dict]] = {}
+    for pair, seed in sorted(state.runs):
+        for label, value in run_bands(read_traces(state.work, pair, seed)).items():
+            bands.setdefault((pair, label), []).append(value)
+    return drift_summary(bands, state.feedback, state.plan.latency_settings)
 
 
 # -------------------------------------------------------------------------------------------------
 # figures
 # -------------------------------------------------------------------------------------------------
+
+
+def save_drift_figure(plan: PopulationPlan, drift: dict, directory: Path) -> str:
+    plt = pyplot()
+    settings = list(drift["settings"])
+    labels = [setting_label(s) for s in settings]
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.6))
+    x = range(len(settings))
+    for who, colour, name in (("ref", "tab:blue", "reference BM (no latency)"), ("bm", "tab:green", "BM with latency"),
+                              ("plm", "tab:red", "PLM-Net with latency")):
+        axes[0].plot(x, [drift["settings"][s][f"{who}_slow_rms_m"] for s in settings], "o-", color=colour,
+                     label=f"{name}: slow (< {drift['cutoff_hz']:g} Hz)")
+        axes[0].plot(x, [drift["settings"][s][f"{who}_fast_rms_m"] for s in settings], "s--", color=colour,
+                     label=f"{name}: fast (weave)")
+    axes[0].set_xticks(list(x), labels, rotation=20)
+    axes[0].set_ylabel("lateral-offset RMS [m] (mean over pairs)")
+    axes[0].set_title("Where the offset lies: slow drift vs fast weave")
+    axes[0].legend(fontsize=7)
+    axes[0].grid(alpha=0.3)
+    constant = [s for s in settings if not math.isnan(drift["settings"][s].get("plm_over_bm_offset_gain_per_m",
+                                                                                math.nan))]
+    xc = range(len(constant))
+    axes[1].plot(xc, [drift["settings"][s]["plm_over_bm_offset_gain_per_m"] for s in constant], "o-",
+                 color="tab:red", label="offset gain, PLM-Net / BM")
+    axes[1].plot(xc, [drift["settings"][s]["plm_over_bm_heading_gain_per_rad"] for s in constant], "s--",
+                 color="tab:purple", label="heading gain, PLM-Net / BM")
+    axes[1].axhline(1.0, color="grey", linewidth=0.8)
+    axes[1].set_xticks(list(xc), [setting_label(s) for s in constant], rotation=20)
+    axes[1].set_ylabel("posed feedback gain, PLM-Net over its BM (mean over pairs)")
+    axes[1].set_title("How hard PLM-Net answers the lane, told each latency")
+    axes[1].legend(fontsize=8)
+    axes[1].grid(alpha=0.3)
+    return _save(fig, directory, "drift.png", plt)
+
 
 
 def save_figures(plan: PopulationPlan, numbers: dict, directory: Path) -> list[str]:
@@ -309,6 +360,7 @@ def render_report(document: dict, figures: list[str]) -> str:
                   "errors). A slope below 1 means mitigation removes a share of the BM's error that does not shrink as "
                   "the BM gets worse; it is the number to compare, not a reduction whose denominator is the BM's "
                   "error."]
+    lines += drift_section(document.get("drift"))
     lines += ["", "## Figures", ""]
     captions = {"errors.png": "PLM-Net's error against its BM's error, one point per pair and latency; hollow: the "
                               "paper's five points",
@@ -337,6 +389,35 @@ def render_report(document: dict, figures: list[str]) -> str:
                          f"{seeds['tapm_seed']} | {_f(summary.get('bm_best_val_loss'), 4)} | "
                          f"{_f(summary.get('tapm_best_val_loss'), 4)} | {_f(summary.get('seconds', math.nan) / 60, 1)} |")
     return "\n".join(lines) + "\n"
+
+
+def drift_section(drift: dict | None) -> list[str]:
+    if drift is None:
+        return []
+    lines = ["", "## Why the car drifts while the steering follows", "",
+             f"The lateral offset of every run split at {drift['cutoff_hz']:g} Hz (zero-phase low-pass): the slow part "
+             "(swings longer than 4 s) and the fast part (the weave a late camera causes). Posed gains: the car placed "
+             "on the longest straight at offsets of -1..1 m or heading errors of -0.04..0.04 rad, each policy steering "
+             "from that one frame; PLM-Net's slope over its own BM's (means over pairs, range in brackets).", "",
+             "| setting | slow offset RMS ref / BM / PLM-Net [m] | fast offset RMS ref / BM / PLM-Net [m] | "
+             "offset gain PLM-Net / BM | heading gain PLM-Net / BM |", "|---|---|---|---|---|"]
+    for setting, e in drift["settings"].items():
+        gains = "n/a | n/a"
+        if e.get("plm_over_bm_offset_gain_per_m_range"):
+            low, high = e["plm_over_bm_offset_gain_per_m_range"]
+            h_low, h_high = e["plm_over_bm_heading_gain_per_rad_range"]
+            gains = (f"{_f(e['plm_over_bm_offset_gain_per_m'], 2)} [{_f(low, 2)}, {_f(high, 2)}] | "
+                     f"{_f(e['plm_over_bm_heading_gain_per_rad'], 2)} [{_f(h_low, 2)}, {_f(h_high, 2)}]")
+        lines.append(f"| {setting_label(setting)} | {_f(e['ref_slow_rms_m'])} / {_f(e['bm_slow_rms_m'])} / "
+                     f"{_f(e['plm_slow_rms_m'])} | {_f(e['ref_fast_rms_m'])} / {_f(e['bm_fast_rms_m'])} / "
+                     f"{_f(e['plm_fast_rms_m'])} | {gains} |")
+    fit = drift.get("gain_explains_drift")
+    if fit is not None:
+        lines += ["", f"Across pairs and constant latencies ({fit['points']} points), log(PLM-Net's slow offset RMS "
+                  f"over the reference's) against log(BM offset gain over PLM-Net's): slope {fit['slope']:.2f}, "
+                  f"r = {fit['r']:.2f}. A slope near 1 with a high r means the slow drift grows as the offset gain "
+                  "shrinks, as a loop held by its offset gain alone would."]
+    return lines
 
 
 def _mean(spread: dict | None) -> float | None:

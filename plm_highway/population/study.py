@@ -33,6 +33,7 @@ POPULATION_WORK = directory_kind("population-work", "a plm-highway population wo
 POPULATION_PLAN = file_kind("population-plan", "a population plan JSON file")
 PAIR_TRAINING = file_kind("population-training", "a population pair's training record")
 PAIR_RUNS = file_kind("population-runs", "a population pair's runs under one seed")
+PAIR_FEEDBACK = file_kind("population-feedback", "a population pair's posed feedback gains")
 PAIR_TRACES = file_kind("population-traces", "a population pair's run traces (npz)", None,
                         lambda path: path.suffix == ".npz")
 
@@ -60,6 +61,8 @@ class WorkState:
     plan: PopulationPlan
     trainings: dict[int, dict] = field(default_factory=dict)
     runs: dict[tuple[int, int], list[dict]] = field(default_factory=dict)
+    feedback: dict[int, dict] = field(default_factory=dict)  # posed gains per trained pair
+    work: Path | None = None
 
 
 def run_population(plan: PopulationPlan, options: RunOptions) -> dict:
@@ -76,6 +79,7 @@ def run_population(plan: PopulationPlan, options: RunOptions) -> dict:
         _drive_missing(work, state, backend, options)
     finally:
         backend.close()
+    _measure_feedback_missing(work, state, options.progress)
     return publish_report(state, options)
 
 
@@ -123,11 +127,14 @@ def _read_json(path: Path, kind) -> dict:
 
 def read_state(work: Path, plan: PopulationPlan) -> WorkState:
     """What ``work`` already holds for ``plan``."""
-    state = WorkState(plan)
+    state = WorkState(plan, work=work)
     for seeds in plan.pairs:
         record = work / "pairs" / pair_name(seeds.pair) / "training.json"
         if record.is_file():
             state.trainings[seeds.pair] = _read_json(record, PAIR_TRAINING)
+        feedback = work / "pairs" / pair_name(seeds.pair) / "feedback.json"
+        if feedback.is_file():
+            state.feedback[seeds.pair] = _read_json(feedback, PAIR_FEEDBACK)["gains"]
         for seed in plan.sim_seeds:
             path = runs_path(work, seeds.pair, seed)
             if path.is_file():
@@ -204,3 +211,33 @@ def _write_runs(work: Path, result: DriveResult) -> None:
         staged.write_bytes(result.traces)
     write_json(runs_path(work, result.pair, result.seed), {"pair": result.pair, "seed": result.seed,
                                                            "rows": result.rows}, PAIR_RUNS, overwrite=True)
+
+
+def _measure_feedback_missing(work: Path, state: WorkState, progress: bool) -> None:
+    """Posed feedback gains (:func:`~plm_highway.population.drift.posed_gains`) of every trained pair that has none
+    yet: cheap (a few camera frames per pair), so they run here, after the driving."""
+    from plm_highway.evaluation.policies import single_threaded_inference
+    from plm_highway.evaluation.protocol import constant_latency_s
+    from plm_highway.population.drift import posed_gains
+
+    plan = state.plan
+    latencies_s = [constant_latency_s(s) for s in plan.latency_settings if constant_latency_s(s)]
+    todo = [s.pair for s in plan.pairs if state.trainings.get(s.pair, {}).get("ok") and s.pair not in state.feedback]
+    bar = _progress(len(todo), 0, "population: feedback", "pair", progress and bool(todo))
+    try:
+        for pair in todo:
+            with single_threaded_inference():
+                gains = posed_gains(work / "pairs" / pair_name(pair), plan.conditions, plan.track, latencies_s)
+            write_json(work / "pairs" / pair_name(pair) / "feedback.json", {"pair": pair, "gains": gains},
+                       PAIR_FEEDBACK, overwrite=True)
+            state.feedback[pair] = gains
+            bar.update(1)
+    finally:
+        bar.close()
+
+
+def read_traces(work: Path, pair: int, seed: int) -> dict:
+    """The traces of one pair's runs under one seed (:func:`~plm_highway.population.driving.read_traces`)."""
+    from plm_highway.population.driving import read_traces as decode
+
+    return decode(runs_path(work, pair, seed).with_suffix(".npz").read_bytes())
