@@ -20,9 +20,10 @@ TINY = {"episodes": 4, "max_samples": 40, "epochs": 1}
 TINY_STEPS = 12
 
 
-def tiny_plan(pairs: int = 1, seeds=(0,)):
+def tiny_plan(pairs: int = 1, seeds=(0,), remedies=()):
     recipe = with_overrides(recipe_named(None, "ideal"), **TINY)
-    return make_plan(recipe, "ideal", pairs, settings=("const:0", "const:0.25"), sim_seeds=seeds, max_steps=TINY_STEPS)
+    return make_plan(recipe, "ideal", pairs, settings=("const:0", "const:0.25"), sim_seeds=seeds, max_steps=TINY_STEPS,
+                     remedies=remedies)
 
 
 def options(tmp_path: Path, **changes) -> RunOptions:
@@ -130,3 +131,28 @@ def test_the_smoke_run_completes(tmp_path):
     rows = read_results(tmp_path / "DIR" / "results.csv")
     assert len(rows) == 2 * 5 * 12 and {r["steps_scored"] for r in rows} == {200}
     assert "2 independently trained BM/PLM-Net pairs" in result.stdout
+
+
+@pytest.mark.slow
+def test_a_remedy_is_tried_on_the_same_pairs_and_compared_pair_by_pair(finished, tmp_path):
+    import shutil
+
+    source, plan, _ = finished
+    shutil.copytree(source / "work", tmp_path / "work")
+    base_runs = sorted(p.name for p in (tmp_path / "work" / "runs").iterdir())
+    with_remedy = tiny_plan(pairs=2, seeds=(0, 1), remedies=("onpolicy-tapm",))
+    result = run_population(with_remedy, options(tmp_path))
+    # the base runs were kept, the remedy's were added
+    runs = sorted(p.name for p in (tmp_path / "work" / "runs").iterdir())
+    assert set(base_runs) < set(runs) and "pair-01-seed-1-onpolicy-tapm.json" in runs
+    rows = read_results(tmp_path / "out" / "results.csv")
+    remedy_rows = [r for r in rows if r["remedy"] == "onpolicy-tapm"]
+    assert {(r["role"], r["setting"]) for r in remedy_rows} == {("mitigated", "const:0"), ("mitigated", "const:0.25")}
+    assert len(remedy_rows) == 2 * 2 * 2
+    comparison = result["remedies"]["onpolicy-tapm"]
+    assert comparison["settings"]["const:0.25"]["pairs"] == 2
+    assert comparison["decision"] in ("shipped", "not shipped")
+    record = json.loads((tmp_path / "work" / "pairs" / "pair-00" / "remedy-onpolicy-tapm" / "training.json")
+                        .read_text())
+    assert record["ok"] and record["summary"]["rows_on_policy"] > 0
+    assert "## Remedy `onpolicy-tapm`" in (tmp_path / "out" / "report.md").read_text()

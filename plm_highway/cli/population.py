@@ -14,6 +14,7 @@ def configure(parser) -> None:
     from plm_highway.evaluation.run import CONDITION_NAMES
     from plm_highway.population.plan import DEFAULT_SIM_SEEDS, MAX_PAIRS
     from plm_highway.population.recipe import RECIPES
+    from plm_highway.population.remedies import REMEDIES
     from plm_highway.sweep.backends import BACKENDS, MAX_WORKERS, default_workers
 
     parser.add_argument("--pairs", type=bounded_int(1, MAX_PAIRS), required=True,
@@ -22,6 +23,9 @@ def configure(parser) -> None:
                         help="closed-loop conditions (and the recipe made for them)")
     parser.add_argument("--recipe", choices=tuple(RECIPES),
                         help="the documented recipe every pair is made with (default: the conditions' shipped one)")
+    parser.add_argument("--remedy", action="append", default=[], choices=tuple(REMEDIES),
+                        help="also try this TAPM remedy on the same pairs (repeatable): " + "; ".join(
+                            f"{name}: {text}" for name, text in REMEDIES.items()))
     parser.add_argument("--track", default="test", help="track the pairs are judged on")
     parser.add_argument("--seeds", default=str(DEFAULT_SIM_SEEDS), metavar="N|LIST",
                         help="simulator seeds per pair and setting: a count (5: seeds 0-4) or a list")
@@ -58,7 +62,7 @@ def run(args) -> int:
 
     recipe = with_overrides(recipe_named(args.recipe, args.conditions), args.episodes, args.max_samples, args.epochs)
     plan = make_plan(recipe, args.conditions, args.pairs, args.track, sim_seeds=tuple(parse_seeds(args.seeds)),
-                     max_steps=args.max_steps)
+                     max_steps=args.max_steps, remedies=tuple(args.remedy))
     out = args.out or DEFAULT_OUT[args.conditions]
     work = args.work or DEFAULT_WORK / args.conditions
     options = RunOptions(work, out, args.backend, args.workers, args.address, args.batch_size, args.overwrite,

@@ -186,3 +186,44 @@ def variance_split(rows: Sequence[dict], summaries: Sequence[dict], setting: str
             within.append(float(np.std(values, ddof=1)))
     return {"between_pairs_sd": float(np.std(pair_means, ddof=1)) if len(pair_means) > 1 else math.nan,
             "within_pair_sd": float(np.mean(within)) if within else math.nan}
+
+
+def remedy_comparison(rows: Sequence[dict], remedy: str, settings: Sequence[str], own: Sequence[dict]) -> dict:
+    """The remedy's PLM-Net against each pair's own, paired by pair, per setting, and whether to ship it.
+
+    Shipped only when it lowers the lateral-offset RMS (the 95% CI of the paired difference below 0) at most latency
+    settings and raises the steering MAE (CI above 0) at none.
+    """
+    remedy_rows = [r for r in rows if r.get("remedy") == remedy and r["role"] == "mitigated"]
+    base_rows = [r for r in rows if not r.get("remedy") and r["role"] != "mitigated"]
+    theirs = {(s["pair"], s["setting"]): s for s in pair_summaries([*base_rows, *remedy_rows], settings)}
+    ours = {(s["pair"], s["setting"]): s for s in own}
+    out: dict = {"settings": {}}
+    lowers_offset = raises_mae = 0
+    latency_settings = [s for s in settings if s != "const:0"]
+    for setting in settings:
+        pairs = sorted(p for (p, s) in theirs if s == setting and (p, s) in ours)
+        mae = [theirs[(p, setting)]["plm_steering_mae_paper"] - ours[(p, setting)]["plm_steering_mae_paper"]
+               for p in pairs]
+        offset = [theirs[(p, setting)]["plm_offset_rms_m"] - ours[(p, setting)]["plm_offset_rms_m"] for p in pairs]
+        mae_spread, offset_spread = spread(mae), spread(offset)
+        out["settings"][setting] = {
+            "pairs": len(pairs),
+            "own_mae": _mean([ours[(p, setting)]["plm_steering_mae_paper"] for p in pairs]),
+            "remedy_mae": _mean([theirs[(p, setting)]["plm_steering_mae_paper"] for p in pairs]),
+            "own_offset_rms_m": _mean([ours[(p, setting)]["plm_offset_rms_m"] for p in pairs]),
+            "remedy_offset_rms_m": _mean([theirs[(p, setting)]["plm_offset_rms_m"] for p in pairs]),
+            "own_left_road": sum(ours[(p, setting)]["plm_left_road_seeds"] for p in pairs),
+            "remedy_left_road": sum(theirs[(p, setting)]["plm_left_road_seeds"] for p in pairs),
+            "mae_difference": None if mae_spread is None else mae_spread.as_dict(),
+            "offset_rms_difference_m": None if offset_spread is None else offset_spread.as_dict(),
+        }
+        if setting in latency_settings:
+            lowers_offset += bool(offset_spread and offset_spread.ci_high is not None and offset_spread.ci_high < 0)
+            raises_mae += bool(mae_spread and mae_spread.ci_low is not None and mae_spread.ci_low > 0)
+    ship = lowers_offset > len(latency_settings) / 2 and raises_mae == 0
+    out["decision"] = "shipped" if ship else "not shipped"
+    out["decision_rule"] = (f"offset RMS lower (CI below 0) at {lowers_offset} of {len(latency_settings)} latency "
+                            f"settings, steering MAE higher (CI above 0) at {raises_mae}; shipped only when lower at "
+                            "most and higher at none")
+    return out

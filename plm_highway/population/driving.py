@@ -32,6 +32,8 @@ class DriveTask:
     seed: int
     files: dict  # {"bm"|"tapm": {file name: bytes}}: the pair's checkpoints
     batch_size: int = 16
+    remedy: str = ""  # "": the pair's own PLM-Net and its BM; else only PLM-Net with the remedy's TAPM (and the
+    # reference it is judged against)
 
 
 @dataclass
@@ -40,6 +42,7 @@ class DriveResult:
     seed: int
     rows: list[dict]
     traces: bytes  # np.savez_compressed of every run's TRACE_COLUMNS, keyed "RUN/COLUMN"
+    remedy: str = ""
 
 
 def run_label(role: str, setting: str) -> str:
@@ -47,13 +50,15 @@ def run_label(role: str, setting: str) -> str:
     return role if role == "reference" else f"{role}@{setting}"
 
 
-def plan_runs(plan: PopulationPlan, seed: int, track_name: str, conditions) -> list:
+def plan_runs(plan: PopulationPlan, seed: int, track_name: str, conditions, remedy: str = "") -> list:
     """The cells of one pair under ``seed``: reproduce's reference, BM and PLM-Net per latency setting, and
-    PLM-Net without latency."""
+    PLM-Net without latency; for a remedy, the reference and PLM-Net only."""
     from plm_highway.evaluation.reproduce import plan_cells
     from plm_highway.evaluation.run import Cell
 
     cells = plan_cells(list(plan.latency_settings), [seed], track_name, conditions)
+    if remedy:
+        cells = [c for c in cells if c.role != "baseline"]
     if "const:0" in plan.settings:
         cells.append(Cell("mitigated", "plm", "const:0", seed, f"{track_name}: PLM-Net const:0, seed {seed}",
                           "const:0"))
@@ -72,7 +77,7 @@ def drive_pair_seed(task: DriveTask) -> DriveResult:
     plan = task.plan
     conditions = conditions_named(plan.conditions)
     track_spec = load_track(plan.track)
-    cells = plan_runs(plan, task.seed, track_spec.name, conditions)
+    cells = plan_runs(plan, task.seed, track_spec.name, conditions, task.remedy)
     checkpoints = materialised_checkpoints(task.pair, task.files)
     with single_threaded_inference():
         logs = drive_cells(cells, track_spec, conditions, None, checkpoints, plan.max_steps, None, 0,
@@ -83,9 +88,9 @@ def drive_pair_seed(task: DriveTask) -> DriveResult:
     for cell, log in zip(cells, logs):
         setting = "const:0" if cell.role == "reference" else (cell.setting or cell.latency)
         outcomes = run_outcomes(log, reference, track_spec, conditions.max_steering_rad)
-        rows.append({"pair": task.pair, "seed": task.seed, "role": cell.role, "setting": setting,
-                     "latency_driven": cell.latency, **outcomes})
-    return DriveResult(task.pair, task.seed, rows, _compressed_traces(by_label))
+        rows.append({"pair": task.pair, "seed": task.seed, "role": cell.role, "remedy": task.remedy,
+                     "setting": setting, "latency_driven": cell.latency, **outcomes})
+    return DriveResult(task.pair, task.seed, rows, _compressed_traces(by_label), task.remedy)
 
 
 def _compressed_traces(by_label: dict) -> bytes:

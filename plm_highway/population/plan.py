@@ -35,18 +35,21 @@ class PopulationPlan:
     sim_seeds: tuple[int, ...]
     pairs: tuple[PairSeeds, ...]
     max_steps: int | None = None
+    remedies: tuple[str, ...] = ()  # TAPM variants (plm_highway.population.remedies) tried on the same pairs
 
     def as_dict(self) -> dict:
         return {"format": PLAN_FORMAT, "recipe": self.recipe.as_dict(), "conditions": self.conditions,
                 "track": self.track, "settings": list(self.settings), "sim_seeds": list(self.sim_seeds),
-                "pairs": [asdict(p) for p in self.pairs], "max_steps": self.max_steps}
+                "pairs": [asdict(p) for p in self.pairs], "max_steps": self.max_steps,
+                "remedies": list(self.remedies)}
 
     @classmethod
     def from_dict(cls, data: dict) -> PopulationPlan:
         if data.get("format") != PLAN_FORMAT:
             raise BadInput(f"population plan: format {data.get('format')!r}, expected {PLAN_FORMAT!r}")
         return cls(Recipe.from_dict(data["recipe"]), data["conditions"], data["track"], tuple(data["settings"]),
-                   tuple(data["sim_seeds"]), tuple(PairSeeds(**p) for p in data["pairs"]), data["max_steps"])
+                   tuple(data["sim_seeds"]), tuple(PairSeeds(**p) for p in data["pairs"]), data["max_steps"],
+                   tuple(data.get("remedies", ())))
 
     @property
     def latency_settings(self) -> tuple[str, ...]:
@@ -56,15 +59,20 @@ class PopulationPlan:
 
 def make_plan(recipe: Recipe, conditions: str, pairs: int, track: str = "test",
               settings: tuple[str, ...] = DEFAULT_SETTINGS, sim_seeds: tuple[int, ...] | None = None,
-              max_steps: int | None = None) -> PopulationPlan:
+              max_steps: int | None = None, remedies: tuple[str, ...] = ()) -> PopulationPlan:
     """The plan of ``pairs`` pairs (pair k seeded by :meth:`PairSeeds.of`), checked."""
+    from plm_highway.population.remedies import REMEDIES
+
+    unknown = [name for name in remedies if name not in REMEDIES]
+    if unknown:
+        raise BadInput(f"--remedy {unknown[0]!r}: expected one of {list(REMEDIES)}")
     if isinstance(pairs, bool) or not isinstance(pairs, int) or not 1 <= pairs <= MAX_PAIRS:
         raise BadInput(f"--pairs {pairs!r}: expected an integer in [1, {MAX_PAIRS}]")
     if "const:0" not in settings:
         raise BadInput("population settings: const:0 (the reference) must be among them")
     seeds = tuple(range(DEFAULT_SIM_SEEDS)) if sim_seeds is None else tuple(sim_seeds)
     return PopulationPlan(recipe, conditions, str(track), tuple(settings), seeds,
-                          tuple(PairSeeds.of(k) for k in range(pairs)), max_steps)
+                          tuple(PairSeeds.of(k) for k in range(pairs)), max_steps, tuple(dict.fromkeys(remedies)))
 
 
 def pair_name(pair: int) -> str:

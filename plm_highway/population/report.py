@@ -19,7 +19,8 @@ from plm_highway.population import analysis
 from plm_highway.population.plan import PopulationPlan, pair_name
 
 POPULATION_REPORT = directory_kind("population-report", "a plm-highway population report directory")
-RESULT_COLUMNS = ("pair", "data_seed", "bm_seed", "tapm_seed", "seed", "role", "setting", "latency_driven", *OUTCOMES)
+RESULT_COLUMNS = ("pair", "data_seed", "bm_seed", "tapm_seed", "seed", "role", "remedy", "setting", "latency_driven",
+                  *OUTCOMES)
 PAIR_COLUMNS = ("pair", "setting", "seeds", "bm_steering_mae_paper", "plm_steering_mae_paper", "mae_reduction_pct",
                 "bm_steering_mae_paper_common", "plm_steering_mae_paper_common", "mae_common_reduction_pct",
                 "ref_offset_rms_m", "bm_offset_rms_m", "plm_offset_rms_m", "offset_rms_reduction_pct",
@@ -32,18 +33,25 @@ def result_rows(state) -> list[dict]:
     """Every run's row, with its pair's seeds, in a stable order."""
     seeds_of = {s.pair: s for s in state.plan.pairs}
     settings = list(state.plan.settings)
+    remedies = ["", *state.plan.remedies]
+    chunks = [*state.runs.values(), *(rows for (remedy, _, _), rows in state.remedy_runs.items()
+                                       if remedy in remedies)]
     rows = []
-    for (pair, _), chunk in state.runs.items():
+    for chunk in chunks:
         for row in chunk:
-            pair_seeds = seeds_of[pair]
-            rows.append({**row, "data_seed": pair_seeds.data_seed, "bm_seed": pair_seeds.bm_seed,
-                         "tapm_seed": pair_seeds.tapm_seed})
-    rows.sort(key=lambda r: (r["pair"], settings.index(r["setting"]), ROLE_ORDER[r["role"]], r["seed"]))
+            pair_seeds = seeds_of[row["pair"]]
+            if row.get("remedy") and row["role"] == "reference":
+                continue  # the remedy's chunk drives the reference again only to judge against it: the same run
+            rows.append({**row, "remedy": row.get("remedy", ""), "data_seed": pair_seeds.data_seed,
+                         "bm_seed": pair_seeds.bm_seed, "tapm_seed": pair_seeds.tapm_seed})
+    rows.sort(key=lambda r: (r["pair"], settings.index(r["setting"]), ROLE_ORDER[r["role"]],
+                             remedies.index(r["remedy"]), r["seed"]))
     return rows
 
 
-def analyse(plan: PopulationPlan, trainings: dict, rows: list[dict]) -> dict:
+def analyse(plan: PopulationPlan, trainings: dict, all_rows: list[dict]) -> dict:
     """Every statistic the report states, as plain data (what population.json holds besides the plan)."""
+    rows = [r for r in all_rows if not r.get("remedy")]
     summaries = analysis.pair_summaries(rows, plan.settings)
     constant = [s for s in plan.latency_settings if s.startswith("const:")]
     per_setting = {}
@@ -75,6 +83,8 @@ def analyse(plan: PopulationPlan, trainings: dict, rows: list[dict]) -> dict:
         "verdicts": [v for s in plan.latency_settings if (v := analysis.verdict(s, summaries)) is not None],
         "error_fit": analysis.error_fit(summaries, constant),
         "pair_summaries": summaries,
+        "remedies": {remedy: analysis.remedy_comparison(all_rows, remedy, plan.settings, summaries)
+                     for remedy in plan.remedies},
     }
 
 
@@ -361,6 +371,7 @@ def render_report(document: dict, figures: list[str]) -> str:
                   "the BM gets worse; it is the number to compare, not a reduction whose denominator is the BM's "
                   "error."]
     lines += drift_section(document.get("drift"))
+    lines += remedy_section(document.get("remedies", {}))
     lines += ["", "## Figures", ""]
     captions = {"errors.png": "PLM-Net's error against its BM's error, one point per pair and latency; hollow: the "
                               "paper's five points",
@@ -389,6 +400,25 @@ def render_report(document: dict, figures: list[str]) -> str:
                          f"{seeds['tapm_seed']} | {_f(summary.get('bm_best_val_loss'), 4)} | "
                          f"{_f(summary.get('tapm_best_val_loss'), 4)} | {_f(summary.get('seconds', math.nan) / 60, 1)} |")
     return "\n".join(lines) + "\n"
+
+
+def remedy_section(remedies: dict) -> list[str]:
+    from plm_highway.population.remedies import REMEDIES
+
+    lines = []
+    for name, result in remedies.items():
+        lines += ["", f"## Remedy `{name}`", "", f"{REMEDIES[name]}. Each pair keeps its BM; the remedy's TAPM is "
+                  "trained with the pair's recipe and seed. Differences are paired: the remedy's PLM-Net minus the "
+                  "pair's own, per pair (seed means), mean and 95% CI over pairs.", "",
+                  "| setting | pairs | PLM-Net MAE: own / remedy | difference | offset RMS [m]: own / remedy | "
+                  "difference [m] | left the road own / remedy (runs) |", "|---|---|---|---|---|---|---|"]
+        for setting, e in result["settings"].items():
+            lines.append(f"| {setting_label(setting)} | {e['pairs']} | {_f(e['own_mae'], 4)} / "
+                         f"{_f(e['remedy_mae'], 4)} | {_ci(e['mae_difference'], 4)} | {_f(e['own_offset_rms_m'])} / "
+                         f"{_f(e['remedy_offset_rms_m'])} | {_ci(e['offset_rms_difference_m'])} | "
+                         f"{e['own_left_road']} / {e['remedy_left_road']} |")
+        lines += ["", f"**Decision: {result['decision']}** ({result['decision_rule']})."]
+    return lines
 
 
 def drift_section(drift: dict | None) -> list[str]:

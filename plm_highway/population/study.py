@@ -63,6 +63,8 @@ class WorkState:
     runs: dict[tuple[int, int], list[dict]] = field(default_factory=dict)
     feedback: dict[int, dict] = field(default_factory=dict)  # posed gains per trained pair
     work: Path | None = None
+    remedy_trainings: dict[tuple[str, int], dict] = field(default_factory=dict)  # (remedy, pair) -> record
+    remedy_runs: dict[tuple[str, int, int], list[dict]] = field(default_factory=dict)  # (remedy, pair, seed) -> rows
 
 
 def run_population(plan: PopulationPlan, options: RunOptions) -> dict:
@@ -77,6 +79,9 @@ def run_population(plan: PopulationPlan, options: RunOptions) -> dict:
     try:
         _train_missing(work, state, backend, options.progress)
         _drive_missing(work, state, backend, options)
+        for remedy in plan.remedies:
+            _train_remedy_missing(work, state, remedy, backend, options.progress)
+            _drive_missing(work, state, backend, options, remedy)
     finally:
         backend.close()
     _measure_feedback_missing(work, state, options.progress)
@@ -90,7 +95,7 @@ def open_work(work: Path, plan: PopulationPlan, restart: bool = False) -> Path:
     if work.is_dir() and POPULATION_WORK.recognises(work) and not restart:
         earlier = read_plan(work)
         _check_continues(work, earlier, plan)
-        if earlier != plan:  # more pairs: their seeds go on record before anything of theirs runs
+        if earlier != plan:  # more pairs or remedies: on record before anything of theirs runs
             write_json(work / "plan.json", plan.as_dict(), POPULATION_PLAN, overwrite=True)
         return work
     check_target(work, POPULATION_WORK, overwrite=restart)
@@ -139,11 +144,23 @@ def read_state(work: Path, plan: PopulationPlan) -> WorkState:
             path = runs_path(work, seeds.pair, seed)
             if path.is_file():
                 state.runs[(seeds.pair, seed)] = _read_json(path, PAIR_RUNS)["rows"]
+        for remedy in plan.remedies:
+            record = remedy_dir(work, seeds.pair, remedy) / "training.json"
+            if record.is_file():
+                state.remedy_trainings[(remedy, seeds.pair)] = _read_json(record, PAIR_TRAINING)
+            for seed in plan.sim_seeds:
+                path = runs_path(work, seeds.pair, seed, remedy)
+                if path.is_file():
+                    state.remedy_runs[(remedy, seeds.pair, seed)] = _read_json(path, PAIR_RUNS)["rows"]
     return state
 
 
-def runs_path(work: Path, pair: int, seed: int) -> Path:
-    return work / "runs" / f"{pair_name(pair)}-seed-{seed}.json"
+def runs_path(work: Path, pair: int, seed: int, remedy: str = "") -> Path:
+    return work / "runs" / f"{pair_name(pair)}-seed-{seed}{'-' + remedy if remedy else ''}.json"
+
+
+def remedy_dir(work: Path, pair: int, remedy: str) -> Path:
+    return work / "pairs" / pair_name(pair) / f"remedy-{remedy}"
 
 
 def _progress(total: int, done: int, desc: str, unit: str, enabled: bool):
@@ -177,40 +194,77 @@ def _write_training(work: Path, result: PairTraining) -> dict:
     return record
 
 
-def pair_files(work: Path, pair: int) -> dict[str, dict[str, bytes]]:
+def pair_files(work: Path, pair: int, remedy: str = "") -> dict[str, dict[str, bytes]]:
+    """The checkpoint files a pair drives with: its BM and its TAPM, or the remedy's TAPM."""
     directory = work / "pairs" / pair_name(pair)
-    return {model: {name: (directory / model / name).read_bytes() for name in ("model.pt", "model.json")}
-            for model in ("bm", "tapm")}
+    tapm_dir = remedy_dir(work, pair, remedy) / "tapm" if remedy else directory / "tapm"
+    return {model: {name: (model_dir / name).read_bytes() for name in ("model.pt", "model.json")}
+            for model, model_dir in (("bm", directory / "bm"), ("tapm", tapm_dir))}
 
 
-def _drive_missing(work: Path, state: WorkState, backend, options: RunOptions) -> None:
+def _train_remedy_missing(work: Path, state: WorkState, remedy: str, backend, progress: bool) -> None:
+    from plm_highway.population.remedies import RemedyTask, train_remedy
+
     plan = state.plan
-    trained = [seeds.pair for seeds in plan.pairs if state.trainings.get(seeds.pair, {}).get("ok")]
-    todo = [(pair, seed) for pair in trained for seed in plan.sim_seeds if (pair, seed) not in state.runs]
-    runs_per_chunk = 1 + 2 * len(plan.latency_settings) + ("const:0" in plan.settings)
+    trained = [s for s in plan.pairs if state.trainings.get(s.pair, {}).get("ok")]
+    tasks = [RemedyTask(remedy, plan.recipe, seeds, pair_files(work, seeds.pair)) for seeds in trained
+             if (remedy, seeds.pair) not in state.remedy_trainings]
+    bar = _progress(len(trained), len(trained) - len(tasks), f"population: {remedy}", "pair", progress)
+    try:
+        for _, result in backend.map_unordered(train_remedy, tasks):
+            directory = remedy_dir(work, result.pair, remedy)
+            directory.mkdir(parents=True, exist_ok=True)
+            if result.ok:
+                with write_output(directory / "tapm", CHECKPOINT, overwrite=True) as staged:
+                    for name, data in result.files["tapm"].items():
+                        (staged / name).write_bytes(data)
+            record = {"pair": result.pair, "remedy": remedy, "ok": result.ok, "summary": result.summary,
+                      "error": result.error}
+            write_json(directory / "training.json", record, PAIR_TRAINING, overwrite=True)
+            state.remedy_trainings[(remedy, result.pair)] = record
+            bar.update(1)
+    finally:
+        bar.close()
+
+
+def _drive_missing(work: Path, state: WorkState, backend, options: RunOptions, remedy: str = "") -> None:
+    plan = state.plan
+    if remedy:
+        trained = [s.pair for s in plan.pairs if state.remedy_trainings.get((remedy, s.pair), {}).get("ok")]
+        done = {(pair, seed) for (r, pair, seed) in state.remedy_runs if r == remedy}
+        runs_per_chunk = 1 + len(plan.latency_settings) + ("const:0" in plan.settings)
+    else:
+        trained = [s.pair for s in plan.pairs if state.trainings.get(s.pair, {}).get("ok")]
+        done = set(state.runs)
+        runs_per_chunk = 1 + 2 * len(plan.latency_settings) + ("const:0" in plan.settings)
+    todo = [(pair, seed) for pair in trained for seed in plan.sim_seeds if (pair, seed) not in done]
     total = len(trained) * len(plan.sim_seeds) * runs_per_chunk
-    bar = _progress(total, total - len(todo) * runs_per_chunk, "population: drive", "run", options.progress)
+    bar = _progress(total, total - len(todo) * runs_per_chunk, f"population: drive{' ' + remedy if remedy else ''}",
+                    "run", options.progress)
     files = {}
     tasks = []
     for pair, seed in todo:
         if pair not in files:
-            files[pair] = pair_files(work, pair)
-        tasks.append(DriveTask(plan, pair, seed, files[pair], batch_size=options.batch_size))
+            files[pair] = pair_files(work, pair, remedy)
+        tasks.append(DriveTask(plan, pair, seed, files[pair], batch_size=options.batch_size, remedy=remedy))
     try:
         for _, result in backend.map_unordered(drive_pair_seed, tasks):
             _write_runs(work, result)
-            state.runs[(result.pair, result.seed)] = result.rows
+            if remedy:
+                state.remedy_runs[(remedy, result.pair, result.seed)] = result.rows
+            else:
+                state.runs[(result.pair, result.seed)] = result.rows
             bar.update(len(result.rows))
     finally:
         bar.close()
 
 
 def _write_runs(work: Path, result: DriveResult) -> None:
-    traces = runs_path(work, result.pair, result.seed).with_suffix(".npz")
-    with write_output(traces, PAIR_TRACES, overwrite=True) as staged:
+    path = runs_path(work, result.pair, result.seed, result.remedy)
+    with write_output(path.with_suffix(".npz"), PAIR_TRACES, overwrite=True) as staged:
         staged.write_bytes(result.traces)
-    write_json(runs_path(work, result.pair, result.seed), {"pair": result.pair, "seed": result.seed,
-                                                           "rows": result.rows}, PAIR_RUNS, overwrite=True)
+    write_json(path, {"pair": result.pair, "seed": result.seed, "remedy": result.remedy, "rows": result.rows},
+               PAIR_RUNS, overwrite=True)
 
 
 def _measure_feedback_missing(work: Path, state: WorkState, progress: bool) -> None:
