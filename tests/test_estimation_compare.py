@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 
 import plm_highway  # noqa: F401  (registers the env)
 from plm_highway.errors import OutputRefused
-from plm_highway.estimation.compare import (
+from plm_highway.estimation.policy import EkfLaneKeepingPolicy, EkfPolicyConfig, ekf_policy
+from plm_highway.evaluation.plm_vs_ekf import (
     CompareConfig,
     CompareResult,
     RunRow,
@@ -23,10 +24,9 @@ from plm_highway.estimation.compare import (
     start_pose,
     verdict,
 )
-from plm_highway.estimation.policy import EkfLaneKeepingPolicy, EkfPolicyConfig, ekf_policy
-from plm_highway.evaluation.policies import POLICY_NAMES, make_policy
 from plm_highway.expert import ExpertPolicy
 from plm_highway.latency import LatencyWrapper
+from plm_highway.rollout.policies import POLICY_NAMES, make_policy
 
 
 def test_make_policy_knows_the_ekf():
@@ -128,7 +128,7 @@ def _small_policies(name, latency_bias_s, seed):
 
 
 def test_compare_measures_every_policy_under_the_same_conditions_and_publishes(tmp_path):
-    from plm_highway.estimation.compare_report import publish_comparison
+    from plm_highway.evaluation.plm_vs_ekf_report import publish_comparison
 
     config = CompareConfig(settings=("const:0.2",), biases_s=(0.1,), max_steps=20)
     result = compare(2, config, progress=False, policy_factory=_small_policies)

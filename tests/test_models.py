@@ -1248,13 +1248,14 @@ def test_bench_says_whether_the_approximation_stays_within_the_exact_forms_inter
 
 
 def test_bench_confidence_interval_matches_the_t_table():
-    from plm_highway.bench.models import _mean_ci
+    from plm_highway.bench.models import _mean_ci, mean_within_ci
 
     # mean 2, sample sd 1, n 3: half width t(0.975, 2) / sqrt(3) = 4.3027 / 1.7321 (t from tables)
     figure = _mean_ci([1.0, 2.0, 3.0])
     assert figure["mean"] == 2.0
     assert figure["ci95_half_width"] == pytest.approx(4.3027 / 3**0.5, abs=1e-4)
-    assert _mean_ci([0.5])["ci95_half_width"] == 0.0
+    assert _mean_ci([0.5])["ci95_half_width"] is None  # one seed: no interval, not a zero-width one
+    assert not mean_within_ci([0.5], [0.5])  # nothing to lie within
 
 
 @pytest.mark.slow

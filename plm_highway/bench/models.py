@@ -43,6 +43,8 @@ import time
 import numpy as np
 from tqdm.auto import tqdm
 
+from plm_highway.metrics.intervals import mean_ci
+
 BLOCK_FRAMES = 50
 TARGET_OVERHEAD_RATIO = 1.25
 LATENCY_RANGE_S = (0.0, 0.35)
@@ -284,14 +286,15 @@ def closed_loop_check(conditions: str = "ideal", latency: str = CLOSED_LOOP_LATE
     differences with their intervals, whether the int8 mean lies within the exact form's interval,
     and the largest step-wise steering difference of each fused form from the reference forward.
     """
-    from plm_highway.evaluation.closed_loop import drive
-    from plm_highway.evaluation.policies import VisionPolicy, single_threaded_inference
     from plm_highway.evaluation.reproduce import conditions_named
-    from plm_highway.evaluation.run import Cell, drive_options, scored_steps
     from plm_highway.metrics.steering import common_span, steering_mae
     from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
     from plm_highway.models.shipped import load_shipped_plm_net
     from plm_highway.road.track import load_track
+    from plm_highway.rollout.cells import Cell, drive_options
+    from plm_highway.rollout.closed_loop import drive
+    from plm_highway.rollout.conditions import scored_steps
+    from plm_highway.rollout.policies import VisionPolicy, single_threaded_inference
 
     run_conditions = conditions_named(conditions)
     track_spec = load_track(track)
@@ -338,20 +341,17 @@ def closed_loop_check(conditions: str = "ideal", latency: str = CLOSED_LOOP_LATE
 
 
 def mean_within_ci(values, reference_values) -> bool:
-    """Whether the mean of ``values`` lies within the 95% CI of ``reference_values``' mean."""
+    """Whether the mean of ``values`` lies within the 95% CI of ``reference_values``' mean (False where that
+    interval is undefined: one reference value)."""
     reference = _mean_ci(reference_values)
-    return bool(abs(float(np.mean(values)) - reference["mean"]) <= reference["ci95_half_width"])
+    half_width = reference["ci95_half_width"]
+    return half_width is not None and bool(abs(float(np.mean(values)) - reference["mean"]) <= half_width)
 
 
 def _mean_ci(values) -> dict:
-    """Mean and 95% t-interval half-width (0 for a single value)."""
-    from scipy import stats
-
-    values = np.asarray(values, dtype=float)
-    half_width = 0.0
-    if len(values) > 1:
-        half_width = float(stats.t.ppf(0.975, len(values) - 1) * values.std(ddof=1) / np.sqrt(len(values)))
-    return {"mean": float(values.mean()), "ci95_half_width": half_width, "values": values.tolist()}
+    """Mean, 95% Student-t half-width (None for a single value: no interval) and the values, for the JSON."""
+    estimate = mean_ci(values)
+    return {"mean": estimate.mean, "ci95_half_width": estimate.half_width, "values": list(estimate.values)}
 
 
 def format_report(result: dict) -> str:
@@ -414,7 +414,8 @@ def format_report(result: dict) -> str:
     for check in result.get("closed_loop", {}).values():
 
         def ci(figure: dict) -> str:
-            return f"{figure['mean']:.5f} +- {figure['ci95_half_width']:.5f}"
+            half_width = figure["ci95_half_width"]
+            return f"{figure['mean']:.5f} +- {'(one seed)' if half_width is None else f'{half_width:.5f}'}"
 
         within = "within" if check["int8_mean_within_fused_ci"] else "OUTSIDE"
         lines += [

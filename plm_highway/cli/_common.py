@@ -78,8 +78,8 @@ def publish_figure_and_numbers(args, compute: Callable[[], dict], write: Callabl
     line, ``summary(result)`` lines print."""
     from pathlib import Path
 
-    from plm_highway.evaluation.policies import single_threaded_inference
     from plm_highway.io import FIGURE, check_target
+    from plm_highway.rollout.policies import single_threaded_inference
 
     check_target(args.out, FIGURE, overwrite=args.overwrite)
     check_target(Path(args.out).with_suffix(".json"), numbers_kind, overwrite=args.overwrite)

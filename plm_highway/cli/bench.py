@@ -16,9 +16,8 @@ def configure_estimation(parser) -> None:
 
 
 def run_estimation(args) -> int:
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.estimation.bench import bench_dict, bench_estimation, bench_lines
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
 
     if args.json is not None:
         check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
@@ -49,9 +48,8 @@ def configure_memory(parser) -> None:
 def run_memory(args) -> int:
     from tqdm import tqdm
 
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.bench.memory import memory_lines, memory_run
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
 
     if args.json is not None:
         check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
@@ -91,9 +89,8 @@ def configure_metrics(parser) -> None:
 
 
 def run_metrics(args) -> int:
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.bench import metrics as bench
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
 
     bench.check_settings(args.points, args.repeat)
     if args.json is not None:  # fail now rather than after minutes of benchmarking
@@ -137,9 +134,8 @@ def run_models(args) -> int:
 
     import torch
 
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.bench import models as bench
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
     from plm_highway.models.config_checks import check_int
 
     check_int("--frames", args.frames, 1, bench.MAX_FRAMES)
@@ -186,9 +182,8 @@ def configure_env(parser) -> None:
 
 
 def run_env(args) -> int:
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.bench.env import EnvBenchConfig, bench_env, format_bench
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
 
     config = EnvBenchConfig(args.steps, args.repeats, args.latency, args.track)
     if args.json:
@@ -216,9 +211,8 @@ def configure_sweep(parser) -> None:
 
 
 def run_sweep(args) -> int:
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.bench.sweep import bench_sweep, report_lines
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
 
     if args.json:
         check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
@@ -233,7 +227,7 @@ def run_sweep(args) -> int:
 
 def configure_reproduce(parser) -> None:
     from plm_highway.bench.sweep import bench_reproduce
-    from plm_highway.evaluation.run import CONDITION_NAMES
+    from plm_highway.rollout.conditions import CONDITION_NAMES
 
     d = defaults_of(bench_reproduce)
     parser.add_argument("--seeds", type=bounded_int(1, 1000), default=d["seeds"], help="seeds per setting")
@@ -249,9 +243,8 @@ def configure_reproduce(parser) -> None:
 
 
 def run_reproduce(args) -> int:
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.bench.sweep import bench_reproduce, reproduce_report_lines
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
 
     if args.json:
         check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)

@@ -38,7 +38,7 @@ def run_table3(args) -> int:
 
 def configure_compare(parser) -> None:
     from plm_highway.cli._common import defaults_of
-    from plm_highway.estimation.compare import MAX_SEEDS, CompareConfig, compare
+    from plm_highway.evaluation.plm_vs_ekf import MAX_SEEDS, CompareConfig, compare
 
     d, c = defaults_of(compare), defaults_of(CompareConfig)
     parser.add_argument("--seeds", type=bounded_int(1, MAX_SEEDS), default=d["seeds"],
@@ -63,8 +63,8 @@ def configure_compare(parser) -> None:
 
 def run_compare(args) -> int:
     from plm_highway.errors import BadInput
-    from plm_highway.estimation.compare import CompareConfig, compare, markdown
-    from plm_highway.estimation.compare_report import COMPARE_JSON, COMPARE_REPORT, publish_comparison
+    from plm_highway.evaluation.plm_vs_ekf import CompareConfig, compare, markdown
+    from plm_highway.evaluation.plm_vs_ekf_report import COMPARE_JSON, COMPARE_REPORT, publish_comparison
     from plm_highway.io import check_target
 
     try:

@@ -12,8 +12,8 @@ MAX_STEPS = 10_000_000
 def configure(parser) -> None:
     from plm_highway.cli._common import defaults_of
     from plm_highway.evaluation.evaluate import evaluate
-    from plm_highway.evaluation.policies import POLICY_NAMES
-    from plm_highway.evaluation.run import CONDITION_NAMES, INJECTION_LATENCY_SOURCE
+    from plm_highway.rollout.conditions import CONDITION_NAMES, INJECTION_LATENCY_SOURCE
+    from plm_highway.rollout.policies import POLICY_NAMES
 
     d = defaults_of(evaluate)
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
@@ -42,8 +42,8 @@ def configure(parser) -> None:
 
 def run(args) -> int:
     from plm_highway.evaluation.evaluate import EVALUATION_DIR, EVALUATION_JSON, evaluate, publish_results
-    from plm_highway.evaluation.policies import single_threaded_inference
     from plm_highway.io import check_target, json_text
+    from plm_highway.rollout.policies import single_threaded_inference
 
     for path, kind in ((args.json, EVALUATION_JSON), (args.out, EVALUATION_DIR)):
         if path is not None:

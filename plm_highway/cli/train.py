@@ -3,7 +3,7 @@
 Option bounds are :class:`~plm_highway.training.train.TrainConfig`'s (``--epochs`` in [1, 1000],
 ``--max-samples`` in [2, 10**9], ``--balance-max-per-bin`` 0 (off) or in [1, 10**9], ``--seed``
 in [0, 2**63 - 1]), ``--threads`` in [1, the CPUs this process may use] (more only oversubscribes
-the cores), and ``--delta-grid`` as :func:`~plm_highway.models.tapm.validate_delta_grid` (1 to 32
+the cores; default 2 whatever the CPU affinity, so that one command trains the same bytes everywhere), and ``--delta-grid`` as :func:`~plm_highway.models.tapm.validate_delta_grid` (1 to 32
 latencies in (0, 10] s, increasing). All are checked before the dataset is read.
 """
 
@@ -38,7 +38,8 @@ def _common_options(parser: argparse.ArgumentParser) -> None:
                              "[s] of the same episode (0 to 2; 0 pairs each frame with its own steering, as the "
                              "original did)")
     parser.add_argument("--threads", type=int,
-                        help="torch intra-op threads (default: the CPUs this process may use)")
+                        help="torch intra-op threads (default 2 whatever the CPUs: the thread count changes the "
+                             "weights' last bits, so one command gives one result; recorded in model.json)")
     parser.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
                         help="no progress bars or per-epoch lines (--no-progress, as the other commands spell it)")
     add_overwrite(parser)
@@ -75,9 +76,14 @@ def _set_threads(args) -> None:
     import torch
 
     from plm_highway.models.config_checks import check_int
+    from plm_highway.training.train import DEFAULT_THREADS
 
+    # A fixed default, not the CPUs this process may use: the thread count splits torch's reductions, so
+    # the same command must use the same count on every machine and under every CPU affinity.
     cpus = available_cpus()
-    torch.set_num_threads(cpus if args.threads is None else check_int("--threads", args.threads, 1, cpus))
+    threads = DEFAULT_THREADS if args.threads is None else check_int("--threads", args.threads, 1,
+                                                                       max(cpus, DEFAULT_THREADS))
+    torch.set_num_threads(threads)
 
 
 def run_bm(args) -> int:

@@ -171,7 +171,6 @@ def measure_camera_noise(track="train", seed: int = 0, max_steps: int | None = N
     """
     import gymnasium
 
-    import plm_highway  # noqa: F401  (registers the env)
     from plm_highway.expert import ExpertPolicy
 
     env = gymnasium.make("plm_highway/LaneKeeping-v0",

@@ -38,6 +38,7 @@ from plm_highway.estimation.scenarios import (
     simulate_truth,
 )
 from plm_highway.estimation.sensors import CameraTiming, ImuConfig, SteeringSensorConfig
+from plm_highway.metrics.intervals import Estimate, mean_ci
 
 VARIANTS = ("camera", "ekf", "ekf_dc")  # the paper's three columns
 REPORTED = (*VARIANTS, "camera_held")
@@ -182,32 +183,21 @@ def run_scenario(scenario: Scenario, seed: int, config: SimulationConfig = Simul
                        arrived, steer_log, imu_log)
 
 
-@dataclass(frozen=True)
-class Interval:
-    """Mean over seeds with a 95% Student-t confidence interval."""
-
-    mean: float
-    low: float
-    high: float
-    per_seed: tuple[float, ...]
+def _interval_dict(estimate: Estimate) -> dict:
+    """An estimate as the Table 3 JSON holds it: mean, bounds (NaN when undefined, one seed) and the per-seed values."""
+    return {"mean": estimate.mean, "low": _bound(estimate.low), "high": _bound(estimate.high),
+            "per_seed": list(estimate.values)}
 
 
-def mean_ci(values) -> Interval:
-    from scipy import stats
-
-    values = np.asarray(values, float)
-    mean = float(values.mean())
-    if len(values) < 2:
-        return Interval(mean, math.nan, math.nan, tuple(values.tolist()))
-    half = float(stats.t.ppf(0.975, len(values) - 1) * values.std(ddof=1) / math.sqrt(len(values)))
-    return Interval(mean, mean - half, mean + half, tuple(values.tolist()))
+def _bound(value: float | None) -> float:
+    return math.nan if value is None else value
 
 
 @dataclass(frozen=True)
 class ScenarioResult:
     scenario: Scenario
-    metrics: dict  # variant -> state -> measure -> Interval
-    camera_accuracy: dict  # "d_m" / "dpsi_deg" / "kappa_1pm" -> RMSE Interval of the measurement at capture
+    metrics: dict  # variant -> state -> measure -> Estimate (mean over seeds, 95% Student-t interval)
+    camera_accuracy: dict  # "d_m" / "dpsi_deg" / "kappa_1pm" -> RMSE Estimate of the measurement at capture
     camera_rate_hz: float
     checks: dict  # name -> bool
 
@@ -230,14 +220,14 @@ class Table3Result:
             "scenarios": [{
                 "number": result.scenario.number, "key": result.scenario.key,
                 "description": result.scenario.description,
-                "ours": {variant: {state: {measure: asdict(interval) for measure, interval in by_measure.items()}
+                "ours": {variant: {state: {measure: _interval_dict(interval) for measure, interval in by_measure.items()}
                                    for state, by_measure in by_state.items()}
                          for variant, by_state in result.metrics.items()},
                 "variant_labels": VARIANT_LABELS,
                 "paper": {variant: {state: {measure: PAPER_TABLE3[result.scenario.number][state][measure][i]
                                             for measure in ("rmse", "peak")} for state in STATES}
                           for i, variant in enumerate(VARIANTS)},
-                "camera_accuracy_rmse": {name: asdict(interval) for name, interval in result.camera_accuracy.items()},
+                "camera_accuracy_rmse": {name: _interval_dict(interval) for name, interval in result.camera_accuracy.items()},
                 "camera_rate_hz": result.camera_rate_hz,
                 "checks": result.checks,
             } for result in self.scenarios],
@@ -257,10 +247,10 @@ class Table3Result:
                     cells = []
                     for i, variant in enumerate(VARIANTS):
                         interval = result.metrics[variant][state][measure]
-                        cells.append(f"{interval.mean:.3f} [{interval.low:.3f}, {interval.high:.3f}]")
+                        cells.append(f"{interval.mean:.3f} [{_bound(interval.low):.3f}, {_bound(interval.high):.3f}]")
                         cells.append(f"{PAPER_TABLE3[number][state][measure][i]:.3f}")
                     held = result.metrics["camera_held"][state][measure]
-                    cells.append(f"{held.mean:.3f} [{held.low:.3f}, {held.high:.3f}]")
+                    cells.append(f"{held.mean:.3f} [{_bound(held.low):.3f}, {_bound(held.high):.3f}]")
                     lines.append(f"| {STATE_LABELS[state]} | {measure.upper() if measure == 'rmse' else 'PE'} | "
                                  + " | ".join(cells) + " |")
             accuracy = result.camera_accuracy
@@ -279,7 +269,7 @@ def scenario_checks(number: int, metrics: dict) -> dict[str, bool]:
               for state in STATES}
     checks["ekf gains at most 10% over camera on d"] = rmse["ekf"]["d"].mean >= 0.9 * rmse["camera"]["d"].mean
     paper_d = PAPER_TABLE3[number]["d"]["rmse"][2]
-    checks[f"ekf_dc RMSE of d <= paper's {paper_d} m (upper 95% bound)"] = rmse["ekf_dc"]["d"].high <= paper_d
+    checks[f"ekf_dc RMSE of d <= paper's {paper_d} m (upper 95% bound)"] = _bound(rmse["ekf_dc"]["d"].high) <= paper_d
     return checks
 
 

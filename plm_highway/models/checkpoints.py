@@ -12,8 +12,9 @@ shipped in ``plm_highway/checkpoints``).
 
 Loading checks, in this order, and refuses with a ValueError naming the file and the culprit:
 
-1. the JSON: at most :data:`MAX_DESCRIPTION_BYTES`, UTF-8 (a byte-order mark is accepted), an
-   object with the expected ``format`` and ``kind``;
+1. the JSON: at most :data:`MAX_DESCRIPTION_BYTES`, UTF-8 (a byte-order mark is accepted), read
+   within :data:`DESCRIPTION_LIMITS` (:mod:`plm_highway.io.bounded`: depth, values, no key twice),
+   an object with the expected ``format`` and ``kind``;
 2. ``architecture``: known fields of the right types within the bounds documented in
    :mod:`plm_highway.models.base_model` and :mod:`plm_highway.models.tapm`, before any layer is
    allocated;
@@ -24,7 +25,10 @@ Loading checks, in this order, and refuses with a ValueError naming the file and
    and misshapen keys are named, with both shapes), every value finite;
 5. the weights' sha256 fingerprint equals the recorded ``fingerprint`` (a ``.pt`` swapped for
    other weights of the same shapes is refused), and for a TAPM the BM it is combined with has the
-   recorded ``bm_fingerprint``.
+   recorded ``bm_fingerprint``;
+6. the description's own seal (``description_sha256``, the sha256 of every other field): a latency
+   grid, preset, label lead or any other field edited after saving is refused, even where the
+   weights' shapes would still fit.
 
 Saving refuses non-finite weights (a diverged training run).
 """
@@ -40,7 +44,7 @@ import torch
 from torch import nn
 
 from plm_highway.errors import BadInput
-from plm_highway.io import directory_kind
+from plm_highway.io import JsonLimits, directory_kind, load_json, parse_json, read_bounded
 from plm_highway.models.base_model import BaseModel, BaseModelConfig
 from plm_highway.models.plm_net import PLMNet
 from plm_highway.models.tapm import TAPM, TAPMConfig
@@ -50,13 +54,15 @@ KIND_BASE_MODEL = "base_model"
 KIND_TAPM = "tapm"
 MAX_DESCRIPTION_BYTES = 4 * 1024 * 1024
 MAX_WEIGHTS_BYTES = 1024**3
+DESCRIPTION_LIMITS = JsonLimits(max_bytes=MAX_DESCRIPTION_BYTES, max_depth=16, max_nodes=100_000, max_int_digits=30)
+SEAL_KEY = "description_sha256"
 MAX_NAMED_KEYS = 8  # longer lists of missing/unexpected keys are cut, with the count
 
 
 def _has_checkpoint_description(path: Path) -> bool:
     """Checkpoint directories written before output markers existed: a ``model.json`` of this format."""
     try:
-        return json.loads((path / "model.json").read_text(encoding="utf-8")).get("format") == FORMAT
+        return load_json(path / "model.json", DESCRIPTION_LIMITS).get("format") == FORMAT
     except (OSError, ValueError, AttributeError):
         return False
 
@@ -108,6 +114,8 @@ def save_checkpoint(path: str | Path, model: BaseModel | TAPM, description: dict
     }
     # The identity fields are derived from the model and always win over the caller's.
     document = {"format": FORMAT, **description, **identity}
+    document.pop(SEAL_KEY, None)
+    document[SEAL_KEY] = description_seal(document)
     weights_path.parent.mkdir(parents=True, exist_ok=True)
     torch.save(state, weights_path)
     json_path.write_text(json.dumps(document, indent=2) + "\n", encoding="utf-8")
@@ -123,12 +131,8 @@ def read_description(path: str | Path, kind: str) -> dict:
     size_bytes = json_path.stat().st_size
     if size_bytes > MAX_DESCRIPTION_BYTES:
         raise BadInput(f"{json_path}: {size_bytes} bytes, a checkpoint description is at most {MAX_DESCRIPTION_BYTES}")
-    try:
-        document = json.loads(json_path.read_bytes().decode("utf-8-sig"))
-    except UnicodeDecodeError as exc:
-        raise BadInput(f"{json_path}: not UTF-8 text ({exc})") from exc
-    except json.JSONDecodeError as exc:
-        raise BadInput(f"{json_path}: not valid JSON ({exc})") from exc
+    document = parse_json(read_bounded(json_path, MAX_DESCRIPTION_BYTES, "checkpoint description"), str(json_path),
+                          DESCRIPTION_LIMITS)
     if not isinstance(document, dict):
         raise BadInput(f"{json_path}: expected a JSON object, found {type(document).__name__}")
     if document.get("format") != FORMAT:
@@ -224,7 +228,42 @@ def load_weights(model: nn.Module, path: str | Path, document: dict | None = Non
             f"{weights_path}: the weights' fingerprint {found[:12]}... differs from the one recorded in "
             f"{json_path.name} ({recorded[:12]}...): the .pt was replaced or altered after it was saved"
         )
+    check_seal(document, json_path)
     model.load_state_dict(state)
+
+
+def description_seal(document: dict) -> str:
+    """sha256 of the description without its seal, in canonical JSON: binds the latency grid, preset,
+    label lead, image size, BM fingerprint and every other field to the weights' fingerprint."""
+    body = {key: value for key, value in document.items() if key != SEAL_KEY}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode("utf-8")).hexdigest()
+
+
+def check_seal(document: dict, json_path: Path) -> None:
+    """Refuse a description edited after it was saved (the last check: the specific ones name more)."""
+    recorded = document.get(SEAL_KEY)
+    if not isinstance(recorded, str):
+        raise BadInput(f"{json_path}: field {SEAL_KEY!r} is missing, so the description (latency grid, preset, "
+                       "label lead, ...) cannot be verified against the weights: it was written before descriptions "
+                       "were sealed, or edited. Retrain it (or, after checking it, seal it with "
+                       "plm_highway.models.checkpoints.reseal)")
+    found = description_seal(document)
+    if found != recorded:
+        raise BadInput(f"{json_path}: the description was changed after it was saved (its sha256 {found[:12]}... "
+                       f"differs from the recorded {SEAL_KEY} {recorded[:12]}...): a checkpoint's latency grid, "
+                       "preset, label lead and other fields stay as training wrote them")
+
+
+def reseal(path: str | Path) -> str:
+    """Seal a description written before seals existed (a maintainer's step, after checking it by hand):
+    the file is rewritten with :data:`SEAL_KEY` added; returns the seal."""
+    json_path = checkpoint_paths(path)[1]
+    document = parse_json(read_bounded(json_path, MAX_DESCRIPTION_BYTES, "checkpoint description"), str(json_path),
+                          DESCRIPTION_LIMITS)
+    document.pop(SEAL_KEY, None)
+    document[SEAL_KEY] = description_seal(document)
+    json_path.write_text(json.dumps(document, indent=2) + "\n", encoding="utf-8")
+    return document[SEAL_KEY]
 
 
 def _state_mismatches(expected: dict[str, torch.Tensor], found: dict[str, torch.Tensor]) -> list[str]:

@@ -8,7 +8,9 @@ the factor N does not matter to Adam).
 Repeatability: one seed drives numpy (balancing, subsetting, split), a torch.Generator (batch
 order, augmentation) and torch's global RNG (weight init, dropout), with deterministic
 algorithms on; the same seed on the same machine and thread count gives bit-identical weights
-(and a byte-identical ``model.pt`` and ``model.json``: nothing time-dependent is recorded).
+(and a byte-identical ``model.pt`` and ``model.json``: nothing time-dependent is recorded). The
+command line trains with :data:`DEFAULT_THREADS` unless told otherwise, never with a count that
+follows the CPU affinity, and records the count (``training.threads``).
 
 Argument bounds (:class:`TrainConfig`, checked before the dataset is read): ``epochs`` in [1, 1000],
 ``batch_size`` in [1, 4096], ``learning_rate`` in [0, 1], ``patience_epochs`` in [1, 1000],
@@ -33,7 +35,7 @@ from tqdm import tqdm
 
 from plm_highway.data.dataset import Dataset, read_dataset
 from plm_highway.errors import BadInput
-from plm_highway.io import check_target, write_output
+from plm_highway.io import check_target, refuse_non_ascii_digits, write_output
 from plm_highway.models.base_model import BaseModel, preset_config
 from plm_highway.models.checkpoints import (
     CHECKPOINT,
@@ -61,6 +63,7 @@ from plm_highway.training.samples import (
 )
 
 BALANCE_FIGURE_NAME = "steering_balance.png"
+DEFAULT_THREADS = 2  # torch intra-op threads of `plm-highway train` (the shipped checkpoints' count)
 MAX_EPOCHS = 1000
 MAX_BATCH_SIZE = 4096
 MAX_SEED = 2**63 - 1
@@ -383,6 +386,7 @@ def _training_summary(
 
 def parse_delta_grid(text: str) -> tuple[float, ...]:
     """``--delta-grid`` "0.15,0.2,..." -> latencies in seconds, checked like the TAPM's grid."""
+    refuse_non_ascii_digits(text, "--delta-grid")
     parts = [part.strip() for part in text.split(",")]
     try:
         grid = [float(part) for part in parts if part]

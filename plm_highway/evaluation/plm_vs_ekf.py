@@ -30,6 +30,7 @@ approach is measurably worse there.
 
 from __future__ import annotations
 
+import functools
 import math
 import sys
 import time
@@ -38,7 +39,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from plm_highway.estimation.table3 import mean_ci
+from plm_highway.metrics.intervals import mean_ci
+from plm_highway.rollout.backends import LocalPool
 
 POLICIES = ("bm", "plm", "ekf")
 POLICY_LABELS = {"bm": "Base Model", "plm": "PLM-Net", "ekf": "EKF (delay-compensated)"}
@@ -182,11 +184,11 @@ class CompareResult:
 
 
 def _interval(values) -> dict:
-    if not values:
-        return {"mean": None, "low": None, "high": None, "n": 0}
-    interval = mean_ci(values)
-    finite = [v if math.isfinite(v) else None for v in (interval.mean, interval.low, interval.high)]
-    return {"mean": finite[0], "low": finite[1], "high": finite[2], "n": len(values)}
+    """Mean and 95% interval over the seeds; None where undefined (no values, one value's interval, or a value
+    that is not finite)."""
+    if not values or not all(math.isfinite(v) for v in values):
+        return {"mean": None, "low": None, "high": None, "n": len(values)}
+    return mean_ci(values).as_dict()
 
 
 def planned_runs(config: CompareConfig) -> list[tuple[str, str, float]]:
@@ -205,7 +207,7 @@ def compare(seeds: int = 5, config: CompareConfig = CompareConfig(), checkpoints
 
     ``workers`` > 1 drives that many seeds at once in worker processes (the results do not depend on it).
     ``policy_factory(name, latency_bias_s, seed)`` makes a policy (default:
-    :func:`plm_highway.evaluation.policies.make_policy` with ``checkpoints``); tests pass small ones.
+    :func:`plm_highway.rollout.policies.make_policy` with ``checkpoints``); tests pass small ones.
     """
     from plm_highway.evaluation.evaluate import check_inputs
 
@@ -217,7 +219,7 @@ def compare(seeds: int = 5, config: CompareConfig = CompareConfig(), checkpoints
     for spec in config.settings:
         check_inputs(config.track, spec)
     if policy_factory is None:
-        from plm_highway.evaluation.policies import checkpoint_pair
+        from plm_highway.rollout.policies import checkpoint_pair
 
         checkpoint_pair(checkpoints)  # missing checkpoints fail now, not in the first worker
     result = CompareResult(config, tuple(range(seeds)))
@@ -227,30 +229,32 @@ def compare(seeds: int = 5, config: CompareConfig = CompareConfig(), checkpoints
         for seed in result.seeds:
             result.rows += run_seed(seed, config, checkpoints, policy_factory, bar)
     else:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            futures = [pool.submit(run_seed, seed, config, checkpoints) for seed in result.seeds]
-            for future in futures:
-                result.rows += future.result()
+        by_seed: dict[int, list[RunRow]] = {}
+        with LocalPool(workers) as pool:
+            for index, rows in pool.map_unordered(functools.partial(run_seed, config=config, checkpoints=checkpoints),
+                                                  result.seeds):
+                by_seed[index] = rows
                 bar.update(runs_per_seed)
+        for index in range(len(result.seeds)):
+            result.rows += by_seed[index]
     bar.close()
     return result
 
 
 def run_seed(seed: int, config: CompareConfig, checkpoints=None, policy_factory=None, bar=None) -> list[RunRow]:
     """Every planned run of one seed, measured."""
-    from plm_highway.evaluation.closed_loop import drive
     from plm_highway.evaluation.evaluate import run_steps
-    from plm_highway.evaluation.policies import make_policy, single_threaded_inference
     from plm_highway.evaluation.trajectory import LaneCentre, run_trajectory_metrics, start_lane_offset_m
     from plm_highway.metrics.steering import common_span, steering_mae
-    from plm_highway.road.track import load_track
+    from plm_highway.road.track import resolve_track
+    from plm_highway.rollout.cells import run_cells
+    from plm_highway.rollout.closed_loop import RunCell
+    from plm_highway.rollout.policies import make_policy, single_threaded_inference
 
     if policy_factory is None:
         def policy_factory(name, latency_bias_s, seed):
             return make_policy(name, checkpoints, latency_bias_s=latency_bias_s, seed=seed)
-    track_spec = load_track(config.track)
+    track_spec = resolve_track(config.track)
     max_steps = run_steps(track_spec, config.max_steps)
     centre = LaneCentre(track_spec, start_lane_offset_m(track_spec))
     pose = start_pose(seed, config)
@@ -260,8 +264,9 @@ def run_seed(seed: int, config: CompareConfig, checkpoints=None, policy_factory=
         for policy_name, spec, bias in planned_runs(config):
             if bar is not None:
                 bar.set_postfix_str(f"seed {seed} {policy_name} {spec} {bias:+.2f}", refresh=False)
-            timed = TimedPolicy(policy_factory(policy_name, bias, seed))
-            log = drive(policy_name, timed, config.track, spec, seed, env_config=pose, max_steps=max_steps)
+            timed = TimedPolicy(policy_factory(policy_name, bias, seed))  # made per run: one model at a time
+            [log] = run_cells([RunCell(policy_name, timed, track_spec, spec, seed, env_config=pose, max_steps=max_steps)],
+                              serial=True)
             if bar is not None:
                 bar.update()
             if spec == "const:0":

@@ -17,6 +17,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from plm_highway.expert import ExpertPolicy
+from plm_highway.rollout.closed_loop import Policy
+from plm_highway.rollout.conditions import Conditions
 
 POLICY_NAMES = ("expert", "bm", "plm", "ekf")
 LATENCY_SOURCES = {"measured": "observation_age_s", "requested": "latency_s"}  # what PLM-Net is told -> info key
@@ -127,3 +129,19 @@ def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, lat
         return VisionPolicy(inference.BaseModelPolicy(checkpoints.load_base_model(bm_path), batch_invariant=True))
     return VisionPolicy(inference.PLMNetPolicy(checkpoints.load_plm_net(bm_path, tapm_path), batch_invariant=True),
                         latency_bias_s, latency_source)
+
+
+def biased(policy: Policy, latency_bias_s: float) -> Policy:
+    """``policy``, told its latency + ``latency_bias_s`` if that is not 0 (a model policy: a wrong latency estimate)."""
+    if not latency_bias_s:
+        return policy
+    if not isinstance(policy, VisionPolicy):
+        raise ValueError(f"a latency bias of {latency_bias_s} s needs a model policy, not a {type(policy).__name__}")
+    return VisionPolicy(policy.model_policy, latency_bias_s, policy.latency_source)
+
+
+def make_policies(checkpoints, conditions: Conditions) -> dict[str, Policy]:
+    """``{"bm": Base Model, "plm": PLM-Net}`` from one checkpoint pair, PLM-Net told the latency these conditions say."""
+    return {"bm": make_policy("bm", checkpoints, preset=conditions.checkpoint_preset),
+            "plm": make_policy("plm", checkpoints, latency_source=conditions.latency_source,
+                               preset=conditions.checkpoint_preset)}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from plm_highway.estimation.compare import RUN_METRICS, CompareResult, markdown, plot_comparison
+from plm_highway.evaluation.plm_vs_ekf import RUN_METRICS, CompareResult, markdown, plot_comparison
 from plm_highway.io import directory_kind, file_kind, json_text, write_csv_into, write_outputs
 
 COMPARE_JSON = file_kind("estimation-compare", "a PLM-Net vs EKF comparison JSON file")
