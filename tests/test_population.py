@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from plm_highway.population import study
+from plm_highway.population import layout
 from plm_highway.population.plan import make_plan
 from plm_highway.population.recipe import recipe_named, with_overrides
 from plm_highway.population.report import RESULT_COLUMNS, read_results, render_report
@@ -78,8 +78,8 @@ def test_a_resumed_run_redrives_only_what_is_missing_and_gives_the_same_rows(fin
     import shutil
 
     shutil.copytree(source / "work", tmp_path / "work")
-    removed = study.runs_path(tmp_path / "work", 1, 1)
-    kept = study.runs_path(tmp_path / "work", 0, 0)
+    removed = layout.runs_path(tmp_path / "work", 1, 1)
+    kept = layout.runs_path(tmp_path / "work", 0, 0)
     kept_before = kept.stat().st_mtime_ns
     removed.unlink()
     run_population(plan, options(tmp_path))

@@ -11,11 +11,11 @@ DEFAULT_WORK = Path("runs/population")
 
 
 def configure(parser) -> None:
-    from plm_highway.evaluation.run import CONDITION_NAMES
     from plm_highway.population.plan import DEFAULT_SIM_SEEDS, MAX_PAIRS
     from plm_highway.population.recipe import RECIPES
     from plm_highway.population.remedies import REMEDIES
-    from plm_highway.sweep.backends import BACKENDS, MAX_WORKERS, default_workers
+    from plm_highway.rollout.backends import BACKENDS, MAX_WORKERS, default_workers
+    from plm_highway.rollout.conditions import CONDITION_NAMES
 
     parser.add_argument("--pairs", type=bounded_int(1, MAX_PAIRS), required=True,
                         help="how many BM/TAPM pairs to train (pair k: data seed 1+k, training seeds k)")
@@ -54,11 +54,11 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    from plm_highway.evaluation.protocol import parse_seeds
     from plm_highway.population.plan import make_plan
     from plm_highway.population.recipe import recipe_named, with_overrides
     from plm_highway.population.report import headline
     from plm_highway.population.study import RunOptions, run_population
+    from plm_highway.rollout.seeds import parse_seeds
 
     recipe = with_overrides(recipe_named(args.recipe, args.conditions), args.episodes, args.max_samples, args.epochs)
     plan = make_plan(recipe, args.conditions, args.pairs, args.track, sim_seeds=tuple(parse_seeds(args.seeds)),

@@ -52,8 +52,8 @@ def collect_on_policy(policy, conditions_name: str, track: str = "train", config
     from plm_highway.camera.pinhole import PAPER_CAMERA
     from plm_highway.data.collect import make_demonstrator
     from plm_highway.envs import ENV_ID
-    from plm_highway.evaluation.closed_loop import add_image_noise
-    from plm_highway.evaluation.run import CONDITIONS
+    from plm_highway.rollout.closed_loop import add_image_noise
+    from plm_highway.rollout.conditions import CONDITIONS
 
     conditions = CONDITIONS[conditions_name]
     camera = dict(PAPER_CAMERA) if conditions.camera else {}

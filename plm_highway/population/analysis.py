@@ -27,7 +27,8 @@ import numpy as np
 from scipy import stats
 
 from plm_highway.evaluation import paper_results as paper
-from plm_highway.evaluation.protocol import mean_ci, paper_key
+from plm_highway.evaluation.protocol import paper_key
+from plm_highway.metrics.intervals import mean_ci
 from plm_highway.metrics.steering import reduction_pct
 
 CONFIDENCE = 0.95

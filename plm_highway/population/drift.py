@@ -62,12 +62,12 @@ def posed_gains(checkpoints, conditions_name: str, track: str, latencies_s: Sequ
     import gymnasium
 
     from plm_highway.envs import ENV_ID
-    from plm_highway.evaluation.policies import checkpoint_pair
     from plm_highway.evaluation.response import demonstrator_law, longest_segment_middle_m
-    from plm_highway.evaluation.run import CONDITIONS
     from plm_highway.expert.controller import expert_steering
     from plm_highway.models.checkpoints import load_base_model, load_plm_net
     from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
+    from plm_highway.rollout.conditions import CONDITIONS
+    from plm_highway.rollout.policies import checkpoint_pair
 
     conditions = CONDITIONS[conditions_name]
     bm_path, tapm_path = checkpoint_pair(checkpoints, conditions.checkpoint_preset)

@@ -54,7 +54,7 @@ def plan_runs(plan: PopulationPlan, seed: int, track_name: str, conditions, reme
     """The cells of one pair under ``seed``: reproduce's reference, BM and PLM-Net per latency setting, and
     PLM-Net without latency; for a remedy, the reference and PLM-Net only."""
     from plm_highway.evaluation.reproduce import plan_cells
-    from plm_highway.evaluation.run import Cell
+    from plm_highway.rollout.cells import Cell
 
     cells = plan_cells(list(plan.latency_settings), [seed], track_name, conditions)
     if remedy:
@@ -68,20 +68,20 @@ def plan_runs(plan: PopulationPlan, seed: int, track_name: str, conditions, reme
 def drive_pair_seed(task: DriveTask) -> DriveResult:
     """Drive every run of ``task.pair`` under ``task.seed`` batched in this process; one row per run."""
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    from plm_highway.evaluation.cell_runner import drive_cells
     from plm_highway.evaluation.outcomes import run_outcomes
-    from plm_highway.evaluation.policies import single_threaded_inference
     from plm_highway.evaluation.reproduce import conditions_named
-    from plm_highway.road.track import load_track
+    from plm_highway.road.track import resolve_track
+    from plm_highway.rollout.cells import run_cells, runs_under
+    from plm_highway.rollout.policies import single_threaded_inference
 
     plan = task.plan
     conditions = conditions_named(plan.conditions)
-    track_spec = load_track(plan.track)
+    track_spec = resolve_track(plan.track)
     cells = plan_runs(plan, task.seed, track_spec.name, conditions, task.remedy)
     checkpoints = materialised_checkpoints(task.pair, task.files)
     with single_threaded_inference():
-        logs = drive_cells(cells, track_spec, conditions, None, checkpoints, plan.max_steps, None, 0,
-                           task.batch_size)
+        logs = run_cells(runs_under(cells, track_spec, conditions, None, plan.max_steps), checkpoints,
+                         preset=conditions.checkpoint_preset, batch_size=task.batch_size)
     by_label = {run_label(c.role, c.setting or c.latency): log for c, log in zip(cells, logs)}
     reference = by_label["reference"]
     rows = []

@@ -118,7 +118,7 @@ def publish_report(state, options) -> dict:
 def drift_numbers(state) -> dict | None:
     """:func:`~plm_highway.population.drift.drift_summary` from the work directory's traces and posed gains."""
     from plm_highway.population.drift import drift_summary, run_bands
-    from plm_highway.population.study import read_traces
+    from plm_highway.population.layout import read_traces
 
     if state.work is None:
         return None

@@ -26,6 +26,7 @@ from plm_highway.errors import BadInput
 from plm_highway.io import JSON_MARKER_KEY, check_target, directory_kind, file_kind, json_text, write_json, write_output
 from plm_highway.models.checkpoints import CHECKPOINT
 from plm_highway.population.driving import DriveResult, DriveTask, drive_pair_seed
+from plm_highway.population.layout import remedy_dir, runs_path
 from plm_highway.population.plan import PopulationPlan, pair_name
 from plm_highway.population.training import PairTraining, TrainTask, train_pair
 
@@ -70,7 +71,7 @@ class WorkState:
 def run_population(plan: PopulationPlan, options: RunOptions) -> dict:
     """Train, drive and report the population ``plan`` (resuming what ``options.work`` already holds)."""
     from plm_highway.population.report import POPULATION_REPORT, publish_report
-    from plm_highway.sweep.backends import make_backend
+    from plm_highway.rollout.backends import make_backend
 
     check_target(options.out, POPULATION_REPORT, overwrite=options.overwrite)
     work = open_work(options.work, plan, options.restart)
@@ -155,12 +156,7 @@ def read_state(work: Path, plan: PopulationPlan) -> WorkState:
     return state
 
 
-def runs_path(work: Path, pair: int, seed: int, remedy: str = "") -> Path:
-    return work / "runs" / f"{pair_name(pair)}-seed-{seed}{'-' + remedy if remedy else ''}.json"
 
-
-def remedy_dir(work: Path, pair: int, remedy: str) -> Path:
-    return work / "pairs" / pair_name(pair) / f"remedy-{remedy}"
 
 
 def _progress(total: int, done: int, desc: str, unit: str, enabled: bool):
@@ -270,9 +266,9 @@ def _write_runs(work: Path, result: DriveResult) -> None:
 def _measure_feedback_missing(work: Path, state: WorkState, progress: bool) -> None:
     """Posed feedback gains (:func:`~plm_highway.population.drift.posed_gains`) of every trained pair that has none
     yet: cheap (a few camera frames per pair), so they run here, after the driving."""
-    from plm_highway.evaluation.policies import single_threaded_inference
     from plm_highway.evaluation.protocol import constant_latency_s
     from plm_highway.population.drift import posed_gains
+    from plm_highway.rollout.policies import single_threaded_inference
 
     plan = state.plan
     latencies_s = [constant_latency_s(s) for s in plan.latency_settings if constant_latency_s(s)]
@@ -289,9 +285,3 @@ def _measure_feedback_missing(work: Path, state: WorkState, progress: bool) -> N
     finally:
         bar.close()
 
-
-def read_traces(work: Path, pair: int, seed: int) -> dict:
-    """The traces of one pair's runs under one seed (:func:`~plm_highway.population.driving.read_traces`)."""
-    from plm_highway.population.driving import read_traces as decode
-
-    return decode(runs_path(work, pair, seed).with_suffix(".npz").read_bytes())
