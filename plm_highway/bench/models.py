@@ -517,3 +517,42 @@ def format_summary(result: dict) -> list[str]:
         )
     return lines
 
+
+
+def format_runs(results: list[dict]) -> list[str]:
+    """Several ``bench models`` runs side by side and the median of their ratios (the target is judged on the
+    median of runs; each run's ratio is itself the median of its repeats). What the README shows, rendered
+    from the committed result files."""
+    target = results[0]["target_overhead_ratio"]
+    presets = list(results[0]["presets"])
+    lines = []
+    for index, result in enumerate(results, start=1):
+        conditions = result["conditions"]
+        lines.append(f"run {index}: $ {result.get('command', 'plm-highway bench models')}")
+        lines.append(f"  {conditions['device']}, {conditions['threads']} torch thread(s), {conditions['weights']} "
+                     f"weights, load average {conditions['load_average_1min']:.1f} on {conditions['cpus']} CPUs, "
+                     f"{conditions['repeats']} repeats of {conditions['frames']} frames per side")
+        for preset in presets:
+            figures = result["presets"][preset]
+            repeats = ", ".join(f"{r['overhead_ratio']:.3f}" for r in figures["repeats"])
+            throughput, training = figures["throughput_samples_per_s"], figures["training_samples_per_s"]
+            lines.append(
+                f"  {preset:8s} BM {figures['bm_ms_median']:6.3f} ms, PLM-Net {figures['plm_ms_median']:6.3f} ms: "
+                f"{figures['overhead_ratio']:.3f} (repeats {repeats}; CPU time {figures['overhead_ratio_cpu']:.3f}); "
+                f"reference forward {figures['reference_overhead_ratio']:.3f}; nonzero image features "
+                f"{figures['image_features_nonzero_fraction']:.1%}"
+            )
+            lines.append(
+                f"  {'':8s} samples/s at batch " + ", ".join(throughput["bm"]) + ": BM "
+                + " / ".join(f"{v:,.0f}" for v in throughput["bm"].values()) + ", PLM-Net "
+                + " / ".join(f"{v:,.0f}" for v in throughput["plm"].values())
+                + f"; training BM {training['bm']:,.0f}, TAPM {training['tapm']:,.0f}"
+            )
+    medians = {preset: float(np.median([r["presets"][preset]["overhead_ratio"] for r in results]))
+               for preset in presets}
+    lines.append(f"PLM-Net / BM at batch size 1, median of {len(results)} runs (target <= {target}): " + ", ".join(
+        f"{preset} {ratio:.3f} {'meets' if ratio <= target else 'MISSES'}" for preset, ratio in medians.items()))
+    paper = results[0]["paper"]
+    lines.append(f"the paper's, 160x160 px: BM {paper['bm_ms']:.3f} ms, PLM-Net {paper['plm_net_ms']:.3f} ms, ratio "
+                 f"{paper['plm_net_ms'] / paper['bm_ms']:.3f} ({paper['device']}; its {paper['source']})")
+    return lines
