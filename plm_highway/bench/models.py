@@ -16,9 +16,11 @@ the report gives the fraction of nonzero image features over the timed frames.
 1. **Overhead at batch size 1**, what the closed loop runs: the BM policy, the PLM-Net policy in
    its exact inference form (:class:`FusedPLMNet`, fp32), on the CPU the same with the TAPM's large layers
    in int8 (``tapm_int8=True``, an approximation; PyTorch's quantised kernels are CPU kernels) and the
-   PLM-Net reference (:meth:`PLMNet.forward`, every head) are timed frame by frame in interleaved blocks
-   of :data:`BLOCK_FRAMES` frames (rotating which goes first), so that a slow spell of a shared machine
-   hits all sides alike. A call takes numpy frames and returns the steering to the host, so on a GPU every
+   PLM-Net reference (:meth:`PLMNet.forward`, every head) are timed frame by frame, the sides taking
+   turns on every frame (:data:`BLOCK_FRAMES` = 1; the one going first rotates), so that a slow spell of a
+   shared machine hits all sides alike and every call finds the caches as the other sides left them, as a
+   closed loop's env step between two calls leaves them. (Blocks of 50 frames per side let a spell of
+   other jobs, seconds long, fall on one side's blocks: ratios of one run spread from 1.5 to 5.3.) A call takes numpy frames and returns the steering to the host, so on a GPU every
    timed call includes the copies and waits for the GPU to finish. The ratio of median times is taken per
    repeat; the report gives the median over ``--repeats`` (3) and each repeat's, for wall time and for the
    calling thread's CPU time (which other processes disturb less), and a table of both presets' ratios
@@ -56,7 +58,8 @@ import time
 import numpy as np
 from tqdm.auto import tqdm
 
-BLOCK_FRAMES = 50
+THROUGHPUT_BLOCK_SAMPLES = 50
+BLOCK_FRAMES = 1  # frames per side and turn (batch size 1); the throughput's turns take 50 samples
 TARGET_OVERHEAD_RATIO = 1.25
 LATENCY_RANGE_S = (0.0, 0.35)
 SPEED_MPS = 16.7
@@ -266,7 +269,7 @@ def _throughput(policies: dict, frames: np.ndarray, latencies_s: np.ndarray, n_f
             fn(0)
         medians = {name: [] for name in calls}
         for repeat in range(repeats):
-            times = _time_interleaved(calls, range(n_calls), block=max(1, BLOCK_FRAMES // batch_size), shift=repeat)
+            times = _time_interleaved(calls, range(n_calls), block=max(1, THROUGHPUT_BLOCK_SAMPLES // batch_size), shift=repeat)
             for name, (wall, _) in times.items():
                 medians[name].append(float(np.median(wall)))
         for name in calls:
