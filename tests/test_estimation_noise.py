@@ -126,14 +126,15 @@ def test_the_delay_alone_row_is_the_camera_row_without_measurement_error(scenari
 
 
 def test_report_judges_the_camera_row_within_the_stated_factor(scenario1_runs):
-    from plm_highway.estimation.table3 import Interval, ScenarioResult
+    from plm_highway.estimation.table3 import ScenarioResult
+    from plm_highway.metrics.intervals import Estimate
 
     def result(measurement, camera_d_rmse):
-        metrics = {v: {s: {"rmse": Interval(1.0, 0.9, 1.1, ()), "peak": Interval(1.0, 0.9, 1.1, ())}
+        metrics = {v: {s: {"rmse": Estimate(1.0, 0.9, 1.1, 5), "peak": Estimate(1.0, 0.9, 1.1, 5)}
                        for s in ("d", "dpsi", "vn")} for v in ("camera", "ekf", "ekf_dc", "camera_held", "camera_lag")}
-        metrics["camera"]["d"]["rmse"] = Interval(camera_d_rmse, camera_d_rmse, camera_d_rmse, ())
-        metrics["camera"]["dpsi"]["rmse"] = Interval(1.003, 1.0, 1.0, ())  # the paper's S1 values
-        metrics["camera"]["vn"]["rmse"] = Interval(0.271, 0.27, 0.27, ())
+        metrics["camera"]["d"]["rmse"] = Estimate(camera_d_rmse, camera_d_rmse, camera_d_rmse, 5)
+        metrics["camera"]["dpsi"]["rmse"] = Estimate(1.003, 1.0, 1.0, 5)  # the paper's S1 values
+        metrics["camera"]["vn"]["rmse"] = Estimate(0.271, 0.27, 0.27, 5)
         return Table3Result((0,), (ScenarioResult(SCENARIOS[0], metrics, {}, 3.0, {}),), SimulationConfig(),
                             measurement)
 

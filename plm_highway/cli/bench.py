@@ -2,7 +2,15 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_overwrite, bounded_float, bounded_int, defaults_of
+from plm_highway.cli._common import (
+    Command,
+    add_device,
+    add_overwrite,
+    bounded_float,
+    bounded_int,
+    defaults_of,
+    device_of,
+)
 
 GROUP_HELP = "benchmarks: both sides of a comparison in one run, and their ratio"
 
@@ -123,6 +131,11 @@ def configure_models(parser) -> None:
                              "preset under its conditions (default: ideal, paper: paper)")
     parser.add_argument("--closed-loop-steps", type=bounded_int(10, 1_000_000), default=None,
                         help="stop each closed-loop run after this many policy steps (default: the scored track)")
+    parser.add_argument("--weights", choices=bench.WEIGHTS, default="shipped",
+                        help="shipped: each preset's shipped checkpoints on frames the simulator renders under its "
+                             "conditions (what the closed loop runs); random: fresh weights on random frames "
+                             "(PLM-Net's one-frame cost depends on how many image features are zero)")
+    add_device(parser)
     parser.add_argument("--json", metavar="OUT.json", help="write the results to this JSON file")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random weights and inputs")
@@ -144,12 +157,14 @@ def run_models(args) -> int:
     check_int("--train-batches", args.train_batches, 1, 10_000)
     check_int("--threads", args.threads, 1, os.cpu_count() or 1)
     check_int("--seed", args.seed, 0, 2**32 - 1)
+    device = device_of(args)
     if args.json:  # refuse before the benchmark runs, not after
         check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
     torch.set_num_threads(args.threads)
     presets = bench.PRESETS if args.preset == "both" else (args.preset,)
     result = bench.benchmark_models(presets, args.frames, args.warmup, args.repeats, args.train_batches, args.seed,
-                                    args.closed_loop, args.closed_loop_steps)
+                                    args.closed_loop, args.closed_loop_steps, device, args.weights)
+    result["command"] = args.command_line
     print(bench.format_report(result))
     if args.json:
         write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)

@@ -121,12 +121,17 @@ def ekf_plant(conditions) -> dict:
 
 
 def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, latency_source: str = "measured",
-                seed: int = 0, preset: str = SHIPPED_PRESET, conditions=None, compensate_delay: bool = True):
+                seed: int = 0, preset: str = SHIPPED_PRESET, conditions=None, compensate_delay: bool = True,
+                device="cpu"):
     """The policy named ``name``; model policies load the shipped ``preset`` checkpoints unless given a dir
     and run batch-invariantly (:mod:`plm_highway.models.batch_invariant`).
 
     ``seed`` seeds the EKF policy's own sensor noise (the others have none); ``conditions`` (default: the ideal
     ones) set its plant (:func:`ekf_plant`) and ``compensate_delay`` whether it re-stamps late frames.
+    ``device`` (``cpu``, ``cuda``, ``auto`` or a torch.device; see :func:`plm_highway.models.device.resolve_device`)
+    is where a model policy's model and input tensors live; its steering comes back as Python floats whatever the
+    device. The batch-invariant kernels, and with them the guarantee that batched and one-env runs agree bit for
+    bit, are the CPU's. The expert and the EKF run on the host and ignore it.
     """
     if name == "expert":
         return ExpertPolicy()
@@ -138,14 +143,17 @@ def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, lat
     if name not in POLICY_NAMES:
         raise ValueError(f"--policy {name!r}: expected one of {list(POLICY_NAMES)}")
     from plm_highway.models import checkpoints, inference
+    from plm_highway.models.device import resolve_device
 
+    device = resolve_device(device)  # refused (cuda without CUDA) before any checkpoint is read
     bm_path, tapm_path = checkpoint_pair(checkpoint_dir, preset)
     # Batch-invariant kernels: a run's result does not depend on which runs shared its batch (or on
     # running alone), so batched, pooled and one-env runs of one seed give the same numbers.
     if name == "bm":
-        return VisionPolicy(inference.BaseModelPolicy(checkpoints.load_base_model(bm_path), batch_invariant=True))
-    return VisionPolicy(inference.PLMNetPolicy(checkpoints.load_plm_net(bm_path, tapm_path), batch_invariant=True),
-                        latency_bias_s, latency_source)
+        return VisionPolicy(inference.BaseModelPolicy(checkpoints.load_base_model(bm_path, device),
+                                                      batch_invariant=True))
+    return VisionPolicy(inference.PLMNetPolicy(checkpoints.load_plm_net(bm_path, tapm_path, device),
+                                               batch_invariant=True), latency_bias_s, latency_source)
 
 
 def biased(policy: Policy, latency_bias_s: float) -> Policy:
