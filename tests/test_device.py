@@ -16,7 +16,6 @@ import torch
 
 from plm_highway import cli
 from plm_highway.errors import BadInput
-from plm_highway.evaluation.policies import make_policy
 from plm_highway.models.base_model import BaseModel
 from plm_highway.models.checkpoints import (
     host_state_dict,
@@ -30,6 +29,7 @@ from plm_highway.models.device import module_device, resolve_device
 from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
 from plm_highway.models.plm_net import FusedPLMNet, PLMNet
 from plm_highway.models.tapm import TAPM, TAPMConfig
+from plm_highway.rollout.policies import make_policy
 
 CUDA = torch.cuda.is_available()
 needs_cuda = pytest.mark.skipif(
