@@ -32,11 +32,12 @@ def _drive(policy, latency: str, max_steps: int | None = None):
 
 @pytest.mark.slow
 def test_ekf_policy_stays_on_the_road_with_a_quarter_second_latency():
-    from plm_highway.evaluation.evaluate import run_steps
+    from plm_highway.road.track import resolve_track
+    from plm_highway.rollout.conditions import CONDITIONS, scored_steps
 
     # The scored stretch: until the camera could first see the road's end (beyond it no lane is there to keep).
     policy = EkfLaneKeepingPolicy(EkfPolicyConfig(), seed=0)
-    steps = run_steps("test", None)
+    steps = scored_steps(resolve_track("test"), CONDITIONS["ideal"])
     info, terminated, offsets, estimated = _drive(policy, "const:0.25", max_steps=steps)
     assert not terminated and info["on_road"] and len(offsets) == steps
     assert np.abs(offsets).max() < 2.5  # never beyond the next lane's centre on 4 m lanes

@@ -129,7 +129,14 @@ def test_the_smoke_run_completes(tmp_path):
                             capture_output=True, text=True, timeout=1800)
     assert result.returncode == 0, result.stderr[-3000:]
     rows = read_results(tmp_path / "DIR" / "results.csv")
-    assert len(rows) == 2 * 5 * 12 and {r["steps_scored"] for r in rows} == {200}
+    assert len(rows) == 2 * 5 * 12
+    # The yardstick is each pair's own BM without latency: a BM trained on 500 samples may leave the road before
+    # step 200, and then every run of that pair and seed is scored over the reference's span, never beyond 200.
+    scored = {}
+    for r in rows:
+        scored.setdefault((r["pair"], r["seed"]), set()).add(r["steps_scored"])
+    assert all(len(s) == 1 and 0 < next(iter(s)) <= 200 for s in scored.values()), scored
+    assert all(r["steps_driven"] <= 200 for r in rows)
     assert "2 independently trained BM/PLM-Net pairs" in result.stdout
 
 

@@ -60,8 +60,8 @@ def spread(values: Iterable[float], confidence: float = CONFIDENCE) -> Spread | 
     estimate = mean_ci(data, confidence)
     if data.size < 2:
         return Spread(estimate.mean, None, None, None, None, int(data.size))
-    t = float(stats.t.ppf(0.5 + confidence / 2.0, data.size - 1))
-    half = t * float(np.std(data, ddof=1)) * math.sqrt(1.0 + 1.0 / data.size)
+    # A prediction interval for one more pair: the CI's half-width scaled from the mean's spread to a draw's.
+    half = (estimate.high - estimate.mean) * math.sqrt(data.size + 1.0)
     return Spread(estimate.mean, estimate.low, estimate.high, estimate.mean - half, estimate.mean + half,
                   int(data.size))
 
