@@ -15,8 +15,8 @@ import pytest
 from plm_highway import cli
 from plm_highway.evaluation.latency_estimation import LatencySuite, Results, RunSpec, drive_run, plan
 from plm_highway.evaluation.latency_estimation_report import render_markdown, write_latency_report
-from plm_highway.evaluation.policies import LATENCY_SOURCES, VisionPolicy
 from plm_highway.latency.synthetic import StreamSpec, Weave, synthetic_stream
+from plm_highway.rollout.policies import LATENCY_SOURCES, VisionPolicy
 
 ESTIMATE_COLUMNS = ("latency_estimate_s", "latency_estimate_std_s", "latency_estimable")
 
@@ -44,8 +44,8 @@ def test_evaluate_with_the_estimated_latency_logs_it_beside_the_true_age(tmp_pat
 
 
 def test_without_the_estimated_source_no_estimate_is_logged(tmp_path):
-    from plm_highway.evaluation.closed_loop import drive
     from plm_highway.expert import ExpertPolicy
+    from plm_highway.rollout.closed_loop import drive
 
     log = drive("expert", ExpertPolicy(), "test", "const:0.1", 0, max_steps=5)
     assert not set(ESTIMATE_COLUMNS) & set(log.columns)
@@ -102,6 +102,34 @@ def test_the_ekf_policy_restamps_by_the_estimate():
     assert stamps == [pytest.approx(1.7)]
     with pytest.raises(ValueError, match="latency_estimate_s"):
         policy(np.zeros((66, 200), np.uint8), {k: v for k, v in info.items() if k != "latency_estimate_s"})
+
+
+def test_runs_under_estimated_conditions_carry_the_estimator_and_the_source():
+    """What reproduce and evaluate --seeds drive: every run cell estimates its latency and PLM-Net is told that."""
+    from plm_highway.road.track import load_track
+    from plm_highway.rollout.cells import Cell, runs_under
+    from plm_highway.rollout.conditions import CONDITIONS, with_latency_source
+
+    for name in ("ideal", "paper"):
+        chosen = with_latency_source(CONDITIONS[name], "estimated")
+        runs = runs_under([Cell("mitigated", "plm", "const:0.2", 1), Cell("baseline", "bm", "const:0.2", 1)],
+                          load_track("test"), chosen, max_steps=5)
+        assert all(run.latency_estimation is chosen.latency_estimation is not None for run in runs)
+        assert {run.latency_source for run in runs} == {"estimated"}
+    measured = runs_under([Cell("mitigated", "plm", "const:0.2", 1)], load_track("test"),
+                          with_latency_source(CONDITIONS["paper"], "measured"), max_steps=5)
+    assert measured[0].latency_estimation is None and measured[0].latency_source == "measured"
+
+
+@pytest.mark.slow
+def test_evaluate_the_ekf_with_the_estimated_latency(tmp_path):
+    out = tmp_path / "eval"
+    code = cli.main(["evaluate", "--policy", "ekf", "--latency", "const:0.25", "--latency-source", "estimated",
+                     "--max-steps", "20", "--out", str(out)])
+    assert code == 0
+    assert json.loads((out / "result.json").read_text())["latency_source"] == "estimated"
+    for run in ("reference", "baseline", "mitigated"):  # the re-stamping run would refuse without the estimate
+        assert set(ESTIMATE_COLUMNS) <= set(read_csv(out / f"{run}.csv")[0])
 
 
 def test_the_plan_covers_the_suite():
@@ -198,7 +226,8 @@ def lane_log(stream: dict) -> SimpleNamespace:
 
 
 def test_the_perception_delay_of_a_recording_with_a_lane_signal(tmp_path):
-    from plm_highway.sim2real.perception_delay import perception_delay, perception_delay_lines, write_lane_recording
+    from plm_highway.latency.lane_recording import write_lane_recording
+    from plm_highway.sim2real.perception_delay import perception_delay, perception_delay_lines
 
     stream = synthetic_stream(StreamSpec(duration_s=15.0, latency=0.3, weave=Weave((0.02,), (0.6,), (0.0,)),
                                          drop_fraction=0.1), np.random.default_rng(2))
@@ -222,7 +251,7 @@ def test_a_recording_without_a_lane_signal_says_so(tmp_path):
 
 def test_a_lane_recording_with_a_bad_value_is_refused_by_line(tmp_path):
     from plm_highway.errors import BadInput
-    from plm_highway.sim2real.perception_delay import read_lane_recording
+    from plm_highway.latency.lane_recording import read_lane_recording
 
     path = tmp_path / "rec.csv"
     path.write_text("t,steer,speed,yaw_rate,lane_offset,lane_heading\n0,0,10,0,0.1,0\n0.1,0,ten,0,0.1,0\n")
@@ -232,7 +261,7 @@ def test_a_lane_recording_with_a_bad_value_is_refused_by_line(tmp_path):
 
 @pytest.mark.slow
 def test_the_sim2real_report_puts_the_perception_delay_beside_its_own(tmp_path):
-    from plm_highway.sim2real.perception_delay import write_lane_recording
+    from plm_highway.latency.lane_recording import write_lane_recording
 
     stream = synthetic_stream(StreamSpec(duration_s=20.0, latency=0.25, weave=Weave((0.02, 0.01), (0.4, 0.9),
                                                                                     (0.0, 1.0))),

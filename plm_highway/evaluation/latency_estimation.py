@@ -79,7 +79,7 @@ class LatencySuite:
     table3_seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
 
     def __post_init__(self):
-        from plm_highway.evaluation.run import CONDITIONS
+        from plm_highway.rollout.conditions import CONDITIONS
 
         unknown = [c for c in self.conditions if c not in CONDITIONS]
         if unknown:
@@ -91,7 +91,7 @@ class LatencySuite:
 
     def max_steps(self, conditions: str) -> int | None:
         """Policy steps per run under ``conditions`` (None: the whole scored track)."""
-        from plm_highway.evaluation.run import CONDITIONS
+        from plm_highway.rollout.conditions import CONDITIONS
 
         return None if self.duration_s is None else round(self.duration_s * CONDITIONS[conditions].policy_frequency_hz)
 
@@ -171,9 +171,9 @@ class JitteredProfile(LatencyProfile):
 
 
 def run_conditions(spec: RunSpec):
-    """The :class:`~plm_highway.evaluation.run.Conditions` a run is driven under (its role's latency source)."""
+    """The :class:`~plm_highway.rollout.conditions.Conditions` a run is driven under (its role's latency source)."""
     from plm_highway.estimation.latency_stream import LatencyEstimation
-    from plm_highway.evaluation.run import CONDITIONS, with_latency_source
+    from plm_highway.rollout.conditions import CONDITIONS, with_latency_source
 
     conditions = CONDITIONS[spec.conditions]
     if spec.role in ("true", "reference"):  # no estimator: PLM-Net told the conditions' own latency; the BM at 0 s
@@ -194,7 +194,7 @@ _POLICIES: dict = {}
 
 def _policy(name: str, conditions, checkpoints):
     """The model policies, loaded once per process (each run resets them)."""
-    from plm_highway.evaluation.policies import make_policy
+    from plm_highway.rollout.policies import make_policy
 
     key = (name, conditions.latency_source, conditions.checkpoint_preset, checkpoints)
     if key not in _POLICIES:
@@ -206,9 +206,10 @@ def _policy(name: str, conditions, checkpoints):
 def drive_run(spec: RunSpec, max_steps: int | None = None, checkpoints=None, keep_trace: bool = False) -> dict:
     """Drive one run of the suite; its record: the run's summary, the estimate's scores and (``keep_trace``) the
     per-step columns the report plots."""
-    from plm_highway.evaluation.closed_loop import drive
-    from plm_highway.evaluation.run import Cell, drive_options, scored_steps
     from plm_highway.road.track import load_track
+    from plm_highway.rollout.cells import Cell, drive_options
+    from plm_highway.rollout.closed_loop import drive
+    from plm_highway.rollout.conditions import scored_steps
 
     conditions = run_conditions(spec)
     track_spec = load_track(spec.track)
@@ -262,7 +263,7 @@ def recording_round_trip(log, conditions) -> dict:
 
     from plm_highway.estimation.latency_stream import env_sensor_shift_s
     from plm_highway.latency.estimate import LatencyEstimatorConfig
-    from plm_highway.sim2real.perception_delay import estimate_recording, read_lane_recording, write_lane_recording
+    from plm_highway.latency.lane_recording import estimate_recording, read_lane_recording, write_lane_recording
 
     with tempfile.TemporaryDirectory() as directory:
         path = Path(directory) / "stream.csv"
@@ -316,7 +317,7 @@ def _worker(args) -> tuple[int, dict]:
     import os
 
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    from plm_highway.evaluation.policies import single_threaded_inference
+    from plm_highway.rollout.policies import single_threaded_inference
 
     with single_threaded_inference():
         return index, drive_run(spec, max_steps, checkpoints, keep_trace)

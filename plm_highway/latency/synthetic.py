@@ -72,15 +72,16 @@ class StreamSpec:
 
 def _lane_state(x_m, y_m, heading_rad, curvature_1pm: float) -> tuple[np.ndarray, np.ndarray]:
     """(offset left of the lane centre [m], heading minus the lane's [rad]) on a lane through the origin along +x,
-    curving left with ``curvature_1pm`` (a circle centred at (0, 1/kappa))."""
-    if curvature_1pm == 0.0:
-        return np.asarray(y_m, float), np.asarray(heading_rad, float)
-    radius_m = 1.0 / curvature_1pm
-    dx, dy = np.asarray(x_m, float), np.asarray(y_m, float) - radius_m
-    distance_m = np.hypot(dx, dy)
-    offset_m = np.sign(radius_m) * (abs(radius_m) - distance_m)
-    # Tangent of the circle, in the direction of travel (counter-clockwise for a left curve).
-    tangent_rad = np.arctan2(dy, dx) + math.copysign(math.pi / 2, radius_m)
+    curving left with ``curvature_1pm`` (a circle centred at (0, 1/kappa)).
+
+    Written in kappa, not the radius, so that a straight lane (kappa 0) and a nearly straight one (a radius beyond
+    what a float holds) are the same formula: with s = |kappa| * (distance from the centre),
+    offset = (1 - s) / kappa = (2y - kappa (x^2 + y^2)) / (1 + s), and the tangent is the angle of
+    (kappa x, kappa y - 1) turned by 90 degrees, whatever kappa's sign."""
+    x, y, k = np.asarray(x_m, float), np.asarray(y_m, float), float(curvature_1pm)
+    s = np.hypot(k * x, k * y - 1.0)
+    offset_m = (2.0 * y - k * (x * x + y * y)) / (1.0 + s)
+    tangent_rad = np.arctan2(k * y - 1.0, k * x) + math.pi / 2
     return offset_m, np.remainder(np.asarray(heading_rad, float) - tangent_rad + math.pi, 2 * math.pi) - math.pi
 
 

@@ -15,12 +15,14 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.estimation.latency_stream import LatencyEstimation
-from plm_highway.evaluation.closed_loop import drive
-from plm_highway.evaluation.policies import make_policy
-from plm_highway.evaluation.run import CONDITIONS, Cell, drive_options, scored_steps
+from plm_highway.latency.lane_recording import write_lane_recording
 from plm_highway.road.track import load_track
+from plm_highway.rollout.cells import Cell, drive_options
+from plm_highway.rollout.closed_loop import drive
+from plm_highway.rollout.conditions import CONDITIONS, scored_steps
+from plm_highway.rollout.policies import make_policy
 from plm_highway.sim2real.diagnose import diagnose
-from plm_highway.sim2real.perception_delay import diagnosis_delays, perception_delay, write_lane_recording
+from plm_highway.sim2real.perception_delay import diagnosis_delays, perception_delay
 from plm_highway.sim2real.recording import read_recording
 
 SIMULATED_CONDITIONS = "paper"
