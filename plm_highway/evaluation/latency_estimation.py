@@ -58,7 +58,7 @@ TRACE_SEED = 1  # the runs whose estimate traces the report plots (a displaced s
 
 @dataclass(frozen=True)
 class LatencySuite:
-    """What the measurement drives (every field is data; the defaults are the committed report's)."""
+    """What the measurement drives (every field is data; the defaults are ``plm-highway estimate latency``'s)."""
 
     conditions: tuple[str, ...] = ("ideal", "paper")
     tracks: tuple[str, ...] = ("test", "unseen")
@@ -73,8 +73,8 @@ class LatencySuite:
     robustness_setting: str = "const:0.25"
     robustness_track: str = "test"
     # Each run is the scored track's first duration_s seconds (None: the whole scored track). 30 s holds the first
-    # straight, two or three curves and, at 0.05-0.35 s, the estimator's lock; it is what the 2-core machine the
-    # report was measured on could drive for every run of the suite.
+    # straight, two or three curves and, at 0.05-0.35 s, the time the estimator is given to lock (the target asks
+    # for 2 s of driving with steering). --whole-track drives each run to the end instead.
     duration_s: float | None = 30.0
     table3_seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
 

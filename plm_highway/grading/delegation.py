@@ -90,7 +90,7 @@ REFERENCES: tuple[Reference, ...] = (
     Reference("lesson5.fuse_late", "plm_highway.estimation.ekf:reestimate", "re-estimation"),
     Reference("lesson5.fuse_late", "plm_highway.grading.lesson5:reference_fuse_late", "delay compensation"),
     Reference("lesson5.fuse_late", "plm_highway.grading.lesson5:reference_reestimate", "re-estimation"),
-    # Lesson 5, part 6: the hidden latency
+    # Lesson 5, part 7: the hidden latency
     Reference("lesson5.alignment_cost", "plm_highway.grading.lesson5:reference_alignment_cost", "alignment cost"),
     Reference("lesson5.alignment_cost", "plm_highway.grading.lesson5:reference_heading", "integrated heading"),
     Reference("lesson5.alignment_cost", "plm_highway.latency.estimate:fit_alignment", "alignment cost"),

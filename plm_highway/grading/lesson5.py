@@ -163,7 +163,7 @@ def phase_lag_s(estimate, truth, step_s: float, max_lag_s: float = 0.6) -> float
 
 
 # ------------------------------------------------------------------------------------------------------------
-# Part 6: how late is the camera? A hidden latency estimated from a short log (no capture timestamps).
+# Part 7: how late is the camera? A hidden latency estimated from a short log (no capture timestamps).
 # ------------------------------------------------------------------------------------------------------------
 
 LOG_RATE_HZ = 20.0  # the log's loop rate: one frame period is 0.05 s
