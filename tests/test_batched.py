@@ -7,9 +7,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from plm_highway.evaluation.batched import RunCell, run_cells
-from plm_highway.evaluation.closed_loop import LOG_COLUMNS, drive
-from plm_highway.evaluation.policies import make_policy
+from plm_highway.rollout.cells import RunCell, run_cells
+from plm_highway.rollout.closed_loop import LOG_COLUMNS, drive
+from plm_highway.rollout.policies import make_policy
 
 # Different seeds, latency profiles (a random one among them), tracks and lengths, so the batch shrinks.
 MODEL_CELLS = [

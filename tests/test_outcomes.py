@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plm_highway.evaluation.closed_loop import RunLog
 from plm_highway.evaluation.outcomes import OUTCOMES, path_frechet_m, run_outcomes
+from plm_highway.rollout.closed_loop import RunLog
 
 # the paper's unit per normalised steering at 0.4 rad: 0.4 rad x 12 (steering ratio) / 450 deg, worked by hand
 PAPER_UNIT_PER_STEERING_AT_04 = 0.4 * 12.0 / math.radians(450.0)

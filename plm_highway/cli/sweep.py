@@ -8,8 +8,8 @@ from plm_highway.cli._common import Command, add_overwrite, bounded_int, default
 def configure(parser) -> None:
     import argparse
 
-    from plm_highway.evaluation.policies import POLICY_NAMES
-    from plm_highway.sweep.backends import BACKENDS, MAX_WORKERS, default_workers
+    from plm_highway.rollout.backends import BACKENDS, MAX_WORKERS, default_workers
+    from plm_highway.rollout.policies import POLICY_NAMES
     from plm_highway.sweep.grid import MAX_STEPS, SweepGrid
     from plm_highway.sweep.runner import run_sweep
 

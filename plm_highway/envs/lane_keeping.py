@@ -28,7 +28,6 @@ dicts are made only when read, and track look-ups are built once per track.
 from __future__ import annotations
 
 import math
-import os
 from collections import deque
 from typing import NamedTuple
 
@@ -49,7 +48,7 @@ from plm_highway.envs.speed import SharpTurnBraking, SpeedSchedule, parse_sharp_
 from plm_highway.errors import BadInput
 from plm_highway.road.builder import BuiltRoad, build_road
 from plm_highway.road.geometry import SegmentLookup, reference_pose_at
-from plm_highway.road.track import TrackSpec, load_track, parse_track
+from plm_highway.road.track import TrackSpec, resolve_track
 from plm_highway.vehicle.models import checked_params, vehicle_model
 
 ACTION_RANGE = (-1, 1)  # normalised steering
@@ -319,15 +318,7 @@ class LaneKeepingCameraEnv(AbstractEnv):
         self._ego = vehicle  # the same car, without highway-env's property lookup in the hot path
 
     def _track_from_config(self) -> TrackSpec:
-        track = self.config["track"]
-        if isinstance(track, TrackSpec):
-            return track
-        if isinstance(track, dict):
-            return parse_track(track, source="config['track']")
-        if not isinstance(track, (str, os.PathLike)):
-            raise BadInput(f"config['track'] = {track!r:.60}: must be a shipped track's name, a path to a track "
-                           "JSON file or a track dict")
-        return load_track(track)
+        return resolve_track(self.config["track"], source="config['track']")
 
     @property
     def start_lane(self) -> int:

@@ -1,7 +1,7 @@
 """The reproduction's result, one typed object, rendered to Markdown (a Jinja2 template), CSV and figures.
 
 :class:`Reproduction` is what ``plm-highway reproduce`` measured: the conditions, the seeds, per
-track and setting the estimates over seeds (:class:`~plm_highway.evaluation.protocol.Estimate`), the
+track and setting the estimates over seeds (:class:`~plm_highway.metrics.intervals.Estimate`), the
 targets judged, the sentences saying where PLM-Net is worse, the sweep. :func:`write_report`
 publishes ``report.md``, the CSV tables, ``results.json`` and the figures in one step.
 """
@@ -15,15 +15,7 @@ import jinja2
 
 from plm_highway.evaluation import paper_results as paper
 from plm_highway.evaluation import protocol
-from plm_highway.evaluation.protocol import Estimate, is_constant, paper_key, setting_label, setting_tag
-from plm_highway.evaluation.run import (
-    PAPER_CONDITION_ITEMS,
-    PAPER_CONDITIONS_NOT_REPRODUCED,
-    Conditions,
-    baseline_latency,
-    scored_steps,
-    sight_m,
-)
+from plm_highway.evaluation.protocol import is_constant, paper_key, setting_label, setting_tag
 from plm_highway.evaluation.trajectory import METRIC_LABELS, METRICS, PARTS, RESAMPLE_SPACING_M, representative_segment
 from plm_highway.io import (
     JsonLimits,
@@ -34,8 +26,17 @@ from plm_highway.io import (
     write_csv_into,
     write_output,
 )
+from plm_highway.metrics.intervals import Estimate, mean_ci
 from plm_highway.metrics.steering import ERROR_NAMES, reduction_pct
 from plm_highway.road.track import TrackSpec
+from plm_highway.rollout.conditions import (
+    PAPER_CONDITION_ITEMS,
+    PAPER_CONDITIONS_NOT_REPRODUCED,
+    Conditions,
+    baseline_latency,
+    scored_steps,
+    sight_m,
+)
 
 RUNS = ("reference", "baseline", "mitigated")
 RUN_ROW_LABELS = {"reference": "BM, no latency (ref)", "baseline": "BM, latency {label}",
@@ -315,7 +316,7 @@ def injection_differences(r: Reproduction) -> dict[str, dict[str, Estimate]]:
     for spec in r.injection_comparison.settings:
         runs = injection_runs(r, spec)
         pairs = list(zip(runs["legacy-fifo"][1]["per_seed"], runs["time"][1]["per_seed"]))
-        out[spec] = {name: protocol.mean_ci([value(a) - value(b) for a, b in pairs]) for name, value in values.items()}
+        out[spec] = {name: mean_ci([value(a) - value(b) for a, b in pairs]) for name, value in values.items()}
     return out
 
 

@@ -71,7 +71,7 @@ HUMAN_PARAM_SOURCES = {
     "heading_noise_rad": "calibrated with offset_noise_m",
     "wander_time_constant_s": "the slow lateral wander of human lane keeping (seconds)",
     "motor_noise_rad": "calibrated with offset_noise_m: per-step hand noise, smoothed by the hand's lag",
-    "max_steering_rad": "the car's full scale: the paper conditions' 0.4 rad (plm_highway.evaluation.run)",
+    "max_steering_rad": "the car's full scale: the paper conditions' 0.4 rad (plm_highway.rollout.conditions)",
 }
 
 

@@ -20,6 +20,7 @@ from plm_highway.io.bounded import (
     refuse_non_ascii_digits,
 )
 from plm_highway.io.formats import (
+    BENCH_RESULT,
     FIGURE,
     command_line,
     format_cell,
@@ -49,6 +50,7 @@ from plm_highway.io.outputs import (
 )
 
 __all__ = [
+    "BENCH_RESULT",
     "FIGURE",
     "JSON_MARKER_KEY",
     "MARKER_NAME",

@@ -19,6 +19,8 @@ from pathlib import Path
 from plm_highway.io.outputs import JSON_MARKER_KEY, PNG_SOFTWARE, OutputKind, file_kind, write_output, write_outputs
 
 FIGURE = file_kind("figure", "a figure (PNG)")
+# What `plm-highway bench ... --json` writes (the bench commands and the sim2real benchmarks alike).
+BENCH_RESULT = file_kind("bench-result", "a benchmark result JSON file")
 
 
 def json_safe(value):

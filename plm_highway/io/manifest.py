@@ -61,7 +61,7 @@ def read_marker(directory: Path) -> Manifest | None:
 
 
 def marker_text(kind: str, files: dict[str, dict] | None = None, dirs=()) -> str:
-    from plm_highway import __version__
+    from plm_highway._version import __version__
 
     document = {"tool": "plm-highway", "version": __version__, "kind": kind}
     if files is not None:

@@ -30,7 +30,10 @@ Loading checks, in this order, and refuses with a ValueError naming the file and
    grid, preset, label lead or any other field edited after saving is refused, even where the
    weights' shapes would still fit.
 
-Saving refuses non-finite weights (a diverged training run).
+Saving refuses non-finite weights (a diverged training run). Devices: weights are saved from CPU copies of
+the ``state_dict`` (a model on a GPU writes the same bytes as the same weights on the CPU) and loaded on the
+CPU (``map_location="cpu"``, memory-mapped), checked, and then moved to the ``device`` the loader is asked
+for (``load_base_model(path, device="cuda")``; default the CPU, for a TAPM its BM's device).
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ from torch import nn
 from plm_highway.errors import BadInput
 from plm_highway.io import JsonLimits, directory_kind, load_json, parse_json, read_bounded
 from plm_highway.models.base_model import BaseModel, BaseModelConfig
+from plm_highway.models.device import module_device, resolve_device
 from plm_highway.models.plm_net import PLMNet
 from plm_highway.models.tapm import TAPM, TAPMConfig
 
@@ -100,7 +104,7 @@ def save_checkpoint(path: str | Path, model: BaseModel | TAPM, description: dict
     does), so the checkpoint is published whole or not at all.
     """
     weights_path, json_path = checkpoint_paths(path)
-    state = model.state_dict()
+    state = host_state_dict(model)
     problems = _non_finite(state)
     if problems:
         raise BadInput(f"{weights_path}: refusing to save non-finite weights ({'; '.join(problems)})")
@@ -120,6 +124,18 @@ def save_checkpoint(path: str | Path, model: BaseModel | TAPM, description: dict
     torch.save(state, weights_path)
     json_path.write_text(json.dumps(document, indent=2) + "\n", encoding="utf-8")
     return weights_path
+
+
+def host_state_dict(model: nn.Module) -> dict[str, torch.Tensor]:
+    """``model.state_dict()`` with every tensor on the CPU (the same tensors where they are there already),
+    keeping the dict's type and its ``_metadata``, which ``torch.save`` writes too: the bytes saved do not
+    depend on the device the model is on."""
+    state = model.state_dict()
+    host = type(state)((key, tensor.cpu()) for key, tensor in state.items())
+    metadata = getattr(state, "_metadata", None)
+    if metadata is not None:
+        host._metadata = metadata
+    return host
 
 
 def read_description(path: str | Path, kind: str) -> dict:
@@ -142,8 +158,8 @@ def read_description(path: str | Path, kind: str) -> dict:
     return document
 
 
-def load_base_model(path: str | Path) -> BaseModel:
-    """The BM described at ``path``, verified against its fingerprint, in eval mode."""
+def load_base_model(path: str | Path, device: str | torch.device = "cpu") -> BaseModel:
+    """The BM described at ``path``, verified against its fingerprint, in eval mode, on ``device``."""
     document = read_description(path, KIND_BASE_MODEL)
     config = _config_from(BaseModelConfig, document, path)
     image_size_px = document.get("image_size_px")
@@ -154,13 +170,15 @@ def load_base_model(path: str | Path) -> BaseModel:
             f"{checkpoint_paths(path)[1]}: image_size_px {image_size_px} disagrees with the architecture's "
             f"{list(config.image_size_px)}"
         )
+    device = resolve_device(device)  # refused before anything is read
     model = BaseModel(config)
     load_weights(model, path, document)
-    return model.eval()
+    return model.to(device).eval()
 
 
-def load_tapm(path: str | Path, bm: BaseModel) -> TAPM:
-    """The TAPM described at ``path``, verified against its fingerprint and the BM it will read; eval mode."""
+def load_tapm(path: str | Path, bm: BaseModel, device: str | torch.device | None = None) -> TAPM:
+    """The TAPM described at ``path``, verified against its fingerprint and the BM it will read; eval mode,
+    on ``device`` (default: the BM's)."""
     document = read_description(path, KIND_TAPM)
     config = _config_from(TAPMConfig, document, path)
     json_path = checkpoint_paths(path)[1]
@@ -181,13 +199,15 @@ def load_tapm(path: str | Path, bm: BaseModel) -> TAPM:
             f"{json_path}: TAPM was trained on the features of another BM (fingerprint "
             f"{expected_bm[:12]}..., this BM has {bm_fingerprint[:12]}...)"
         )
+    device = module_device(bm) if device is None else resolve_device(device)
     model = TAPM(config)
     load_weights(model, path, document)
-    return model.eval()
+    return model.to(device).eval()
 
 
-def load_plm_net(bm_path: str | Path, tapm_path: str | Path) -> PLMNet:
-    bm = load_base_model(bm_path)
+def load_plm_net(bm_path: str | Path, tapm_path: str | Path, device: str | torch.device = "cpu") -> PLMNet:
+    """The BM and TAPM pair as one PLM-Net on ``device``."""
+    bm = load_base_model(bm_path, device)
     return PLMNet(bm, load_tapm(tapm_path, bm)).eval()
 
 

@@ -39,7 +39,7 @@ a track that spans too large an area (e.g. a closed circle of 1.5 km radius) is 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
 
@@ -47,6 +47,8 @@ import numpy as np
 
 from plm_highway.errors import BadInput
 from plm_highway.io.bounded import JsonLimits, parse_json
+from plm_highway.road.geometry import sample_reference
+from plm_highway.road.spec import Segment, TrackSpec, end_pose
 
 TRACK_KEYS = {"name", "lanes", "lane_width_m", "segments", "closed"}
 SEGMENT_KEYS = {
@@ -72,40 +74,6 @@ CLOSE_POSITION_TOL_M = 0.5
 CLOSE_HEADING_TOL_RAD = math.radians(1.0)
 
 
-@dataclass(frozen=True)
-class Segment:
-    kind: str  # "straight" | "arc"
-    length_m: float  # along the reference line
-    radius_m: float = math.inf
-    angle_rad: float = 0.0
-    direction: str = "straight"  # "straight" | "left" | "right"
-
-    @property
-    def curvature_1pm(self) -> float:
-        """Signed curvature of the reference line; positive turns left."""
-        if self.kind == "straight":
-            return 0.0
-        return (1.0 if self.direction == "left" else -1.0) / self.radius_m
-
-
-@dataclass(frozen=True)
-class TrackSpec:
-    name: str
-    lanes: int
-    lane_width_m: float
-    segments: tuple[Segment, ...]
-    closed: bool
-    source: str = "<dict>"
-
-    @property
-    def road_half_width_m(self) -> float:
-        return self.lanes * self.lane_width_m / 2.0
-
-    @property
-    def length_m(self) -> float:
-        return sum(seg.length_m for seg in self.segments)
-
-
 def load_track(name_or_path: str | Path) -> TrackSpec:
     """Load a shipped track by name (``train``, ``test``, ``unseen``) or a spec file by path."""
     text_name = str(name_or_path)
@@ -128,6 +96,20 @@ def load_track(name_or_path: str | Path) -> TrackSpec:
         if len(data) > MAX_TRACK_FILE_BYTES:
             raise BadInput(f"{source}: more bytes than a track file may hold ({MAX_TRACK_FILE_BYTES:,} bytes)")
     return parse_track(_json_of(data, source), source=source)
+
+
+def resolve_track(track: TrackSpec | Mapping | str | Path, source: str = "track") -> TrackSpec:
+    """The one boundary a track crosses: a :class:`TrackSpec` as it is, a mapping validated by
+    :func:`parse_track` (``source`` names it in errors), a shipped name or a file path loaded by
+    :func:`load_track`. Everything past it takes the ``TrackSpec``."""
+    if isinstance(track, TrackSpec):
+        return track
+    if isinstance(track, Mapping):
+        return parse_track(dict(track), source=source)
+    if not isinstance(track, (str, Path)):
+        raise BadInput(f"{source} = {track!r:.60}: must be a shipped track's name, a path to a track JSON file or a "
+                       "track dict")
+    return load_track(track)
 
 
 def _json_of(data: bytes, source: str):
@@ -228,8 +210,6 @@ def _check_no_overlap(track: TrackSpec) -> None:
     half a circle of the tightest allowed radius) yet closer than the road is wide."""
     from scipy.spatial import cKDTree
 
-    from plm_highway.road.geometry import sample_reference
-
     ref = sample_reference(track, spacing_m=OVERLAP_SAMPLE_SPACING_M)
     road_width_m = 2.0 * track.road_half_width_m
     min_separation_m = math.pi * (track.road_half_width_m + track.lane_width_m)
@@ -259,24 +239,3 @@ def _check_closes(track: TrackSpec) -> None:
             f"{track.source}: field 'closed' is true but the last segment ends {gap_m:.2f} m and "
             f"{math.degrees(heading_gap_rad):.1f} deg away from the start"
         )
-
-
-def advance_pose(pose: tuple[float, float, float], segment: Segment) -> tuple[float, float, float]:
-    """Pose (x, y, heading) of the reference line at the end of ``segment`` started at ``pose``."""
-    x_m, y_m, heading_rad = pose
-    if segment.kind == "straight":
-        return (x_m + segment.length_m * math.cos(heading_rad),
-                y_m + segment.length_m * math.sin(heading_rad), heading_rad)
-    sign = 1.0 if segment.direction == "left" else -1.0
-    centre_x = x_m - sign * segment.radius_m * math.sin(heading_rad)
-    centre_y = y_m + sign * segment.radius_m * math.cos(heading_rad)
-    new_heading = heading_rad + sign * segment.angle_rad
-    return (centre_x + sign * segment.radius_m * math.sin(new_heading),
-            centre_y - sign * segment.radius_m * math.cos(new_heading), new_heading)
-
-
-def end_pose(track: TrackSpec) -> tuple[float, float, float]:
-    pose = (0.0, 0.0, 0.0)
-    for segment in track.segments:
-        pose = advance_pose(pose, segment)
-    return pose

@@ -30,8 +30,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from plm_highway.errors import BadInput
-from plm_highway.evaluation.policies import POLICY_NAMES
-from plm_highway.io.bounded import JsonLimits, refuse_non_ascii_digits
+from plm_highway.io.bounded import JsonLimits
+from plm_highway.rollout.policies import POLICY_NAMES
+from plm_highway.rollout.seeds import parse_seeds
 
 REFERENCE_LATENCY = "const:0"
 MAX_CELLS = 100_000
@@ -147,23 +148,6 @@ def check_grid(grid: SweepGrid) -> None:
         raise BadInput(f"sweep grid: {grid.size():,} cells; at most {MAX_CELLS:,} per sweep")
 
 
-def parse_seeds(value) -> tuple[int, ...]:
-    """A count ``n`` (seeds 0..n-1), a list of seeds, or text ``"5"`` / ``"0,3,7"``."""
-    if isinstance(value, str):
-        text = refuse_non_ascii_digits(value.strip(), "sweep grid: seeds")
-        try:
-            value = [int(v) for v in text.split(",")] if "," in text else int(text)
-        except ValueError:
-            raise BadInput(f"sweep grid: seeds {text!r}: give a count (5) or a comma-separated list (0,3,7)") from None
-    if isinstance(value, int) and not isinstance(value, bool):
-        if not 1 <= value <= MAX_SEEDS:
-            raise BadInput(f"sweep grid: seeds {value}: a count must lie in [1, {MAX_SEEDS:,}]")
-        return tuple(range(value))
-    if isinstance(value, Sequence) and len(value) <= MAX_SEEDS:
-        return tuple(value)
-    raise BadInput(f"sweep grid: seeds {value!r}: give a count or a list of at most {MAX_SEEDS:,} seeds")
-
-
 def grid_from_mapping(data: Mapping, source: str = "grid") -> SweepGrid:
     if not isinstance(data, Mapping):
         raise BadInput(f"{source}: expected a mapping with keys among {list(GRID_KEYS)}")
@@ -179,7 +163,7 @@ def grid_from_mapping(data: Mapping, source: str = "grid") -> SweepGrid:
                 raise BadInput(f"{source}: '{name}' must be a list, got {raw!r}")
             values[name] = tuple(str(v) for v in raw)
     if "seeds" in data:
-        values["seeds"] = parse_seeds(data["seeds"])
+        values["seeds"] = tuple(parse_seeds(data["seeds"], limit=MAX_SEEDS, what="sweep grid: seeds"))
     if "conditions" in data:
         values["conditions"] = data["conditions"] if data["conditions"] is not None else {}
     if "max_steps" in data:

@@ -10,8 +10,8 @@ the rest (also after a crash or Ctrl-C: what was written is whole); a grid with 
 latencies reuses the cells it shares with the earlier one. ``overwrite=True`` starts afresh.
 
 Cells are run in chunks of at most ``batch_size`` through
-:func:`~plm_highway.evaluation.batched.run_cells` (one batched forward pass per model and step),
-chunks spread over the backend's workers (:mod:`plm_highway.sweep.backends`).
+:func:`~plm_highway.rollout.cells.run_cells` (one batched forward pass per model and step),
+chunks spread over the backend's workers (:mod:`plm_highway.rollout.backends`).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from plm_highway.io import (
     write_json,
     write_output,
 )
-from plm_highway.sweep.backends import make_backend
+from plm_highway.rollout.backends import make_backend
 from plm_highway.sweep.grid import SweepCell, SweepGrid
 from plm_highway.sweep.table import SWEEP_TABLE, TABLE_COLUMNS, cell_result, save_figures, table_rows
 
@@ -66,13 +66,15 @@ def run_chunk(job: ChunkJob) -> list[dict]:
     import os
 
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    from plm_highway.evaluation.batched import RunCell, run_cells
-    from plm_highway.evaluation.policies import single_threaded_inference
+    from plm_highway.road.track import resolve_track
+    from plm_highway.rollout.cells import RunCell, run_cells
+    from plm_highway.rollout.policies import single_threaded_inference
 
+    tracks = {track: resolve_track(track) for track in dict.fromkeys(cell.track for cell in job.cells)}
     run_cells_list = []
     for cell in job.cells:
         condition = job.grid.conditions[cell.condition]
-        run_cells_list.append(RunCell(f"{cell.policy} {cell.latency} seed {cell.seed}", cell.policy, cell.track,
+        run_cells_list.append(RunCell(f"{cell.policy} {cell.latency} seed {cell.seed}", cell.policy, tracks[cell.track],
                                       cell.latency, cell.seed, camera=dict(condition.get("camera", {})) or None,
                                       env_config=dict(condition.get("env_config", {})) or None,
                                       max_steps=job.grid.max_steps))
@@ -89,7 +91,7 @@ def run_sweep(grid: SweepGrid, out, workers: int | None = None, backend: str = "
         raise BadInput(f"--batch-size {batch_size}: must lie in [1, 4096]")
     out = Path(out)
     if checkpoints is not None:
-        from plm_highway.evaluation.policies import checkpoint_pair
+        from plm_highway.rollout.policies import checkpoint_pair
 
         checkpoint_pair(checkpoints)  # fails now, naming what is missing, rather than in a worker
     runner = make_backend(backend, workers, address)
