@@ -25,14 +25,41 @@ class Difference:
     name: str
 
 
-def render_text(text: str, renderers: Mapping[str, Callable[[Path], str]], root: Path, source: str = "") -> str:
-    """``text`` with every block's body rendered anew; an unknown block name is refused, naming it."""
+class MissingResult(BadInput):
+    """A block's committed result file is not in the repository (yet): the block is left as it is, and said so."""
+
+    def __init__(self, relative: Path):
+        super().__init__(f"{relative}: not committed; its blocks stay as they are until it is")
+        self.relative = relative
+
+
+@dataclass(frozen=True)
+class Rendered:
+    """What :func:`render_all` found: blocks that differ (and were rewritten unless checking), blocks left alone."""
+
+    stale: list[Difference]
+    missing: list[tuple[Difference, Path]]
+
+
+def render_text(text: str, renderers: Mapping[str, Callable[[Path], str]], root: Path, source: str = "",
+                missing: list[tuple[str, Path]] | None = None) -> str:
+    """``text`` with every block's body rendered anew; an unknown block name is refused, naming it.
+
+    A block whose result file is not committed (:class:`MissingResult`) keeps its body; it is appended to
+    ``missing`` as (name, file) when a list is given, and refused otherwise.
+    """
 
     def replace(match: re.Match) -> str:
         name = match.group("name")
         if name not in renderers:
             raise BadInput(f"{source}: block 'render: {name}' has no renderer (known: {sorted(renderers)})")
-        body = renderers[name](root).rstrip("\n") + "\n"
+        try:
+            body = renderers[name](root).rstrip("\n") + "\n"
+        except MissingResult as exc:
+            if missing is None:
+                raise
+            missing.append((name, exc.relative))
+            return match.group(0)
         return match.group(1) + body + match.group(4)
 
     return BLOCK.sub(replace, text)
@@ -45,12 +72,15 @@ def markdown_files(root: Path) -> list[Path]:
     return files
 
 
-def render_all(root: Path, renderers: Mapping[str, Callable[[Path], str]], check: bool = False) -> list[Difference]:
-    """Render every block of the project's Markdown files; with ``check`` write nothing and return what differs."""
-    differences = []
+def render_all(root: Path, renderers: Mapping[str, Callable[[Path], str]], check: bool = False) -> Rendered:
+    """Render every block of the project's Markdown files; with ``check`` write nothing, only say what differs."""
+    differences: list[Difference] = []
+    missing: list[tuple[Difference, Path]] = []
     for path in markdown_files(root):
         text = path.read_text(encoding="utf-8")
-        rendered = render_text(text, renderers, root, str(path.relative_to(root)))
+        absent: list[tuple[str, Path]] = []
+        rendered = render_text(text, renderers, root, str(path.relative_to(root)), absent)
+        missing += [(Difference(path, name), relative) for name, relative in absent]
         if rendered == text:
             continue
         old = {m.group("name"): m.group("body") for m in BLOCK.finditer(text)}
@@ -60,4 +90,4 @@ def render_all(root: Path, renderers: Mapping[str, Callable[[Path], str]], check
             tmp = path.with_name(f".{path.name}.render-tmp")
             tmp.write_text(rendered, encoding="utf-8")
             tmp.replace(path)
-    return differences
+    return Rendered(differences, missing)
