@@ -1,6 +1,6 @@
 """How many cases the reliability batteries hold, counted from the test files themselves.
 
-README's "Reliability" section quotes these counts; ``test_the_readme_quotes_the_battery_sizes``
+docs/reliability.md quotes these counts; ``test_the_readme_quotes_the_battery_sizes``
 (tests/test_bad_inputs.py) fails when the two disagree. Run ``python tests/battery_counts.py`` to
 print them.
 """
@@ -36,8 +36,8 @@ def battery_counts() -> dict[str, int]:
     return counts
 
 
-def readme_counts(readme: Path = REPO_ROOT / "README.md") -> dict[str, int]:
-    """The counts README's reliability section quotes (its "Battery sizes" line)."""
+def readme_counts(readme: Path = REPO_ROOT / "docs" / "reliability.md") -> dict[str, int]:
+    """The counts docs/reliability.md quotes (its "Battery sizes" line)."""
     line = README_LINE.search(readme.read_text(encoding="utf-8"))
     if line is None:
         return {}

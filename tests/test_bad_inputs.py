@@ -691,4 +691,4 @@ def test_the_readme_quotes_the_battery_sizes():
 
     counted = battery_counts()
     assert all(counted.values()), counted  # the counting itself works
-    assert readme_counts() == counted, "README's 'Battery sizes' line disagrees with the test files: update it"
+    assert readme_counts() == counted, "docs/reliability.md's 'Battery sizes' line disagrees with the test files: update it"

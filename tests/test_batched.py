@@ -1,4 +1,4 @@
-"""Batched closed loop (issue 13.1): N runs stepped together give the one-env runs, step by step."""
+"""Batched closed loop: N runs stepped together give the one-env runs, step by step."""
 
 from __future__ import annotations
 

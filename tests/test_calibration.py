@@ -1,4 +1,4 @@
-"""``plm-highway calibrate``: the BM's MAE vs latency beside the paper's, and the two rules of issue 9."""
+"""``plm-highway calibrate``: the BM's MAE vs latency beside the paper's, and the two calibration rules."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from plm_highway.evaluation.calibration import (
 
 
 def test_paper_units_convert_at_the_protocols_steering_ratio():
-    # 450 deg of hand wheel at 12:1 is 37.5 deg at the front wheels: 0.1714 of it is 0.1122 rad (issue 9: "about 0.11").
+    # 450 deg of hand wheel at 12:1 is 37.5 deg at the front wheels: 0.1714 of it is 0.1122 rad (the paper: "about 0.11").
     assert paper_unit_to_front_wheel_rad(1.0) == pytest.approx(math.radians(37.5))
     assert paper_unit_to_front_wheel_rad(0.1714) == pytest.approx(0.1122, abs=1e-4)
     # The paper's BM rows (Tables A1, 3, A3, A5), transcribed: 0.171355, 0.1915, 0.334727, 0.226148.

@@ -84,6 +84,10 @@ def test_other_device_names_are_refused(name):
     ["train", "bm", "--data", "{tmp}/data", "--out", "{tmp}/bm"],
     ["train", "tapm", "--data", "{tmp}/data", "--out", "{tmp}/tapm", "--bm", "{tmp}/bm"],
     ["bench", "models", "--json", "{tmp}/bench.json"],
+    ["evaluate", "--max-steps", "5", "--out", "{tmp}/evaluation"],
+    ["reproduce", "--max-steps", "5", "--out", "{tmp}/report"],
+    ["sweep", "--max-steps", "5", "--out", "{tmp}/sweep"],
+    ["population", "--pairs", "1", "--work", "{tmp}/work", "--out", "{tmp}/population"],
 ])
 def test_commands_refuse_cuda_without_cuda_with_exit_2_and_write_nothing(no_cuda, tmp_path, capsys, argv):
     argv = [word.format(tmp=tmp_path) for word in argv] + ["--device", "cuda"]
@@ -93,7 +97,8 @@ def test_commands_refuse_cuda_without_cuda_with_exit_2_and_write_nothing(no_cuda
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("argv", [["train", "bm", "--data", "d", "--out", "o"], ["bench", "models"]])
+@pytest.mark.parametrize("argv", [["train", "bm", "--data", "d", "--out", "o"], ["bench", "models"], ["evaluate"],
+                                  ["reproduce"], ["sweep"], ["population"]])
 def test_device_option_takes_only_auto_cpu_or_cuda(capsys, argv):
     assert cli.main([*argv, "--device", "tpu"]) == cli.EXIT_BAD_INPUT
     assert "invalid choice: 'tpu'" in capsys.readouterr().err
@@ -268,3 +273,52 @@ def test_training_refuses_cuda_without_cuda_before_writing(data_dir, tmp_path, n
     with pytest.raises(BadInput, match="CUDA is not available"):
         train_base_model(data_dir, tmp_path / "bm", config=TrainConfig(epochs=1, show_progress=False), device="cuda")
     assert not (tmp_path / "bm").exists()
+
+
+# --- the closed loop on a device ---------------------------------------------------------------------------
+
+
+class RecordingBackend:
+    """Runs each chunk here, keeping what a worker would have been sent."""
+
+    workers = 2
+
+    def __init__(self):
+        self.sent = []
+
+    def map_unordered(self, function, items):
+        for index, item in enumerate(items):
+            self.sent.append(item)
+            yield index, function(item)
+
+
+def test_run_cells_sends_the_device_to_every_worker():
+    from plm_highway.road.track import resolve_track
+    from plm_highway.rollout.cells import run_cells
+    from plm_highway.rollout.closed_loop import RunCell
+
+    track = resolve_track("test")
+    cells = [RunCell(f"expert {seed}", "expert", track, "const:0.1", seed, max_steps=3) for seed in range(3)]
+    backend = RecordingBackend()
+    logs = run_cells(cells, backend=backend, batch_size=2, device="cpu")
+    assert [len(log.columns["steering"]) for log in logs] == [3, 3, 3]
+    assert backend.sent and {chunk.device for chunk in backend.sent} == {"cpu"}
+
+
+def test_run_cells_refuses_cuda_without_cuda_before_driving(no_cuda):
+    from plm_highway.rollout.cells import run_cells
+
+    with pytest.raises(BadInput, match="CUDA is not available"):
+        run_cells([], device="cuda")
+
+
+@needs_cuda
+def test_evaluate_on_cuda_drives_like_the_cpu():
+    from plm_highway.evaluation.evaluate import evaluate
+
+    on_cpu, _ = evaluate(max_steps=40, seeds=2, device="cpu")
+    on_cuda, _ = evaluate(max_steps=40, seeds=2, device="cuda")
+    for cpu_seed, cuda_seed in zip(on_cpu["per_seed"], on_cuda["per_seed"]):
+        for role, run in cpu_seed["runs"].items():
+            # float32 sums in another order: the same car within millimetres over 2 s
+            assert cuda_seed["runs"][role]["lateral_offset_rms_m"] == pytest.approx(run["lateral_offset_rms_m"], abs=5e-3)

@@ -1,4 +1,4 @@
-"""The README's and Lesson 5's numbers on the model-based side are the committed result files' numbers."""
+"""The docs' and Lesson 5's numbers on the model-based side are the committed result files' numbers."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ def _flat(text: str) -> str:
 
 @pytest.fixture(scope="module")
 def readme() -> str:
-    return (ROOT / "README.md").read_text(encoding="utf-8")
+    return (ROOT / "docs" / "ekf.md").read_text(encoding="utf-8")
 
 
 @pytest.fixture(scope="module")

@@ -42,7 +42,7 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 TMP_INFIX = ".plm-highway-tmp-"
 pytestmark = pytest.mark.slow
 
-# Fields that legitimately differ between two runs of one command (documented in README "Reliability").
+# Fields that legitimately differ between two runs of one command (documented in docs/reliability.md).
 VOLATILE = {"elapsed_s"}
 
 KILL_SEED = 8  # the random kill points are drawn from this seed

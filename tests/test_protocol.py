@@ -114,7 +114,7 @@ def test_noise_floor_compares_consecutive_seeds():
 def test_units_front_wheel_and_paper():
     assert protocol.to_front_wheel_rad(0.5, "mae") == pytest.approx(0.1)
     assert protocol.to_front_wheel_rad(0.5, "mse") == pytest.approx(0.5 * 0.2 ** 2)
-    # issue 9: the paper's 0.1714 is "about 0.11 rad at the front wheels"
+    # the paper's 0.1714 is "about 0.11 rad at the front wheels"
     front_wheel_rad = 0.1714 * math.radians(450) / protocol.PAPER_STEERING_RATIO
     assert front_wheel_rad == pytest.approx(0.11, abs=0.005)
     assert protocol.to_paper_units(front_wheel_rad / 0.2, "mae") == pytest.approx(0.1714)
@@ -246,7 +246,7 @@ def test_paper_conditions_preset():
                                         "frames:9-21:60@30", "frames:9-21:60@60")
     assert default_settings(ideal) == ("const:0.15", "const:0.2", "const:0.25", "const:0.3", "steps:0.0-0.35:1.0")
     assert protocol.setting_label("frames:9-21:60@30").startswith("time-varying, 9-21 frames at 30 Hz (0.30-0.70 s")
-    # The original pipeline (issue 9): its camera, 1-2 frames of processing, a first-order actuator, its checkpoints.
+    # The original pipeline: its camera, 1-2 frames of processing, a first-order actuator, its checkpoints.
     assert paper.camera == PAPER_CAMERA and ideal.camera == {}
     assert 1 <= paper.processing_delay_steps <= 2 and ideal.processing_delay_steps == 0
     assert paper.steering_time_constant_s > 0 and ideal.steering_time_constant_s == 0
@@ -296,7 +296,7 @@ def test_reports_of_the_two_conditions_live_apart():
 
 
 def test_the_legacy_fifo_runs_the_bm_baseline_of_a_varying_profile_at_its_middle():
-    # The original's time-variant run cut the BM's buffer to its constant configured delta (issue 9).
+    # The original's time-variant run cut the BM's buffer to its constant configured delta.
     assert legacy_baseline_spec("steps:0.0-0.35:1.0") == "const:0.175"
     assert legacy_baseline_spec("frames:9-21:60@60") == "const:0.25"  # 15 frames: the paper's 0.25 s
     assert legacy_baseline_spec("frames:9-21:60@30") == "const:0.5"

@@ -1,4 +1,4 @@
-"""plm-highway sweep (issue 13.2, 13.3): grids, resumable runs, one table, the same results on every backend."""
+"""plm-highway sweep: grids, resumable runs, one table, the same results on every backend."""
 
 from __future__ import annotations
 

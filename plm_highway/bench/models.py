@@ -563,7 +563,7 @@ def format_runs(results: list[dict]) -> list[str]:
     lines = []
     for index, result in enumerate(results, start=1):
         conditions = result["conditions"]
-        lines.append(f"run {index}: $ {result.get('command', 'plm-highway bench models')}")
+        lines.append(f"measurement {index}: $ {result.get('command', 'plm-highway bench models')}")
         lines.append(f"  {conditions['device']}, {conditions['threads']} torch thread(s), {conditions['weights']} "
                      f"weights, load average {conditions['load_average_1min']:.1f} on {conditions['cpus']} CPUs, "
                      f"{conditions['repeats']} repeats of {conditions['frames']} frames per side")

@@ -76,4 +76,4 @@ def run(args) -> int:
 
 
 COMMANDS = [Command("calibrate", "the BM's steering MAE vs latency under the paper's conditions beside the paper's "
-                               "(issue 9's calibration figure and rules)", configure, run)]
+                               "(the calibration figure and rules)", configure, run)]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from plm_highway.cli._common import Command, add_overwrite, add_seed, bounded_int
+from plm_highway.cli._common import Command, add_device, add_overwrite, add_seed, bounded_int, device_of
 
 MAX_STEPS = 10_000_000
 
@@ -44,6 +44,7 @@ def configure(parser) -> None:
     parser.add_argument("--out", metavar="DIR", help="write result.json and per-step CSV logs (one per run, and "
                                                      "steps.csv with the runs side by side) into this directory")
     add_overwrite(parser)
+    add_device(parser)
 
 
 def run(args) -> int:
@@ -56,7 +57,8 @@ def run(args) -> int:
             check_target(path, kind, overwrite=args.overwrite)
     with single_threaded_inference():
         result, logs = evaluate(args.track, args.latency, args.policy, args.seed, args.max_steps, args.checkpoints,
-                                args.seeds, args.conditions, args.injection, args.latency_source)
+                                args.seeds, args.conditions, args.injection, device_of(args),
+                                latency_source=args.latency_source)
     sys.stdout.write(json_text(result, EVALUATION_JSON))
     if args.json or args.out:
         publish_results(result, logs, args.json, args.out, overwrite=args.overwrite)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from plm_highway.cli._common import Command, bounded_int
+from plm_highway.cli._common import Command, add_device, bounded_int
 
 DEFAULT_OUT = {"paper": Path("figures/population"), "ideal": Path("figures/population-ideal")}
 DEFAULT_WORK = Path("runs/population")
@@ -51,6 +51,7 @@ def configure(parser) -> None:
                         help="replace an earlier population report at --out (never anything else)")
     parser.add_argument("--restart", action="store_true",
                         help="start the work directory afresh instead of resuming it (its checkpoints are lost)")
+    add_device(parser)
 
 
 def run(args) -> int:
@@ -65,8 +66,12 @@ def run(args) -> int:
                      max_steps=args.max_steps, remedies=tuple(args.remedy))
     out = args.out or DEFAULT_OUT[args.conditions]
     work = args.work or DEFAULT_WORK / args.conditions
+    if args.backend != "ray":  # a Ray worker resolves auto/cuda itself: its machine may have the GPU
+        from plm_highway.models.device import resolve_device
+
+        resolve_device(args.device)
     options = RunOptions(work, out, args.backend, args.workers, args.address, args.batch_size, args.overwrite,
-                         args.restart, not args.no_progress, args.command_line)
+                         args.restart, not args.no_progress, args.command_line, args.device)
     result = run_population(plan, options)
     document = {"plan": plan.as_dict(), **result}
     for line in headline(document):

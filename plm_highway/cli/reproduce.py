@@ -2,7 +2,16 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_overwrite, add_seed, bounded_float, bounded_int, defaults_of
+from plm_highway.cli._common import (
+    Command,
+    add_device,
+    add_overwrite,
+    add_seed,
+    bounded_float,
+    bounded_int,
+    defaults_of,
+    device_of,
+)
 
 
 def configure(parser) -> None:
@@ -51,6 +60,7 @@ def configure(parser) -> None:
                         help="envs stepped together, one forward pass per model and step")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_overwrite(parser)
+    add_device(parser)
 
 
 def run(args) -> int:
@@ -64,7 +74,8 @@ def run(args) -> int:
         injection=args.injection, latency_source=args.latency_source, max_steps=args.max_steps,
         generalise=None if args.generalise is None else tuple(args.generalise), sweep=args.sweep,
         sweep_max=args.sweep_max, sweep_step=args.sweep_step, workers=args.workers, batch_size=args.batch_size,
-        out=args.out, overwrite=args.overwrite, progress=not args.no_progress, command=args.command_line)
+        out=args.out, overwrite=args.overwrite, progress=not args.no_progress, command=args.command_line,
+        device=str(device_of(args)))
     with single_threaded_inference():
         results = reproduce(options)
     out = output_dir(args.out, args.track, results["track"], args.conditions)

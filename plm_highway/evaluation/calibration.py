@@ -1,4 +1,4 @@
-"""The Base Model's degradation under the paper's conditions, beside the paper's (issue 9's calibration rule).
+"""The Base Model's degradation under the paper's conditions, beside the paper's (the calibration rule).
 
 The BM (the conditions' shipped checkpoints) drives the track once per seed without latency (the
 reference) and once per seed and latency with it; each latency's steering MAE is taken against the
@@ -7,7 +7,7 @@ radians. The noise floor is the reference against itself under the next seed. Th
 (Tables 3, A1, A3, A5: MAE against its BM without latency, in units of 450 deg of steering wheel) are
 converted to front-wheel radians through :data:`~plm_highway.evaluation.protocol.PAPER_STEERING_RATIO`.
 
-The two rules (issue 9):
+The two rules:
 
 - **rises clearly**: the BM's mean MAE at 0.15 s is at least :data:`RISE_FACTOR` times the mean noise floor;
 - **like the paper**: at 0.15, 0.20, 0.25 and 0.30 s the mean MAE is within a factor :data:`PAPER_FACTOR`
@@ -22,7 +22,7 @@ the weave's largest swings, the second counts the rest of the track as a fixed e
 Which latency stands for the paper's "0.15 s" depends on the reading (:data:`READINGS`): the paper states
 seconds, but the original code counted its constant latencies in frames (9, 12, 15, 18: the stated seconds at
 60 fps) in a FIFO filled once per iteration of its 30 Hz loop, so the latency it injected may have been twice
-the stated one (the 2x timebase ambiguity of issue 9). ``reading="loop-frames"`` drives that reading: the
+the stated one (the 2x timebase ambiguity of the paper's text). ``reading="loop-frames"`` drives that reading: the
 paper's 0.15 s row is compared with our BM at 9 frames of the 30 Hz loop, 0.30 s.
 """
 

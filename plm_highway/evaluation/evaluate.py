@@ -80,7 +80,7 @@ def compare_runs(logs: dict[str, RunLog], track_spec: TrackSpec, latency_spec: s
 
 
 def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps=None, checkpoints=None,
-             seeds=None, conditions: str = "ideal", injection: str | None = None,
+             seeds=None, conditions: str = "ideal", injection: str | None = None, device="cpu",
              latency_source: str | None = None) -> tuple[dict, dict]:
     """Run the comparison; returns (result dict, {run name: RunLog}).
 
@@ -123,7 +123,7 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
     if seeds is not None or conditions != "ideal" or injection is not None:
         seed_list = [seed] if seeds is None else parse_seeds(seeds, seed)
         result, logs = _evaluate_seeds(track_label, track_spec, latency_spec, policy, seed_list, max_steps,
-                                       checkpoints, chosen)
+                                       checkpoints, chosen, device)
         if seeds is None:  # one run per role: no per-seed summary
             for key in ("seeds", "per_seed", "over_seeds"):
                 result.pop(key, None)
@@ -135,10 +135,10 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
             result["latency_source"] = latency_source
         return result, logs
     base_policy = "expert" if policy == "expert" else "bm"
-    policies = {"reference": make_policy(base_policy, checkpoints),
-                "baseline": make_policy(base_policy, checkpoints)}
+    policies = {"reference": make_policy(base_policy, checkpoints, device=device),
+                "baseline": make_policy(base_policy, checkpoints, device=device)}
     if policy == "plm":
-        policies["mitigated"] = make_policy("plm", checkpoints, latency_source=chosen.latency_source)
+        policies["mitigated"] = make_policy("plm", checkpoints, latency_source=chosen.latency_source, device=device)
     logs = {}
     for name, run_policy in policies.items():
         logs[name] = drive(name, run_policy, track_spec, "const:0" if name == "reference" else profile, seed,
@@ -172,21 +172,22 @@ def _drive_ekf(track_spec: TrackSpec, latency_spec: str, seed: int, max_steps: i
 
 
 def _evaluate_seeds(track_label: str, track_spec: TrackSpec, latency_spec: str, policy: str, seeds: list[int],
-                    max_steps: int | None, checkpoints, chosen: Conditions) -> tuple[dict, dict]:
+                    max_steps: int | None, checkpoints, chosen: Conditions, device="cpu") -> tuple[dict, dict]:
     """The runs of every seed under the conditions ``chosen``."""
     base_policy = "expert" if policy == "expert" else "bm"
     # The model policies loaded once here; the expert is made per run by the runner.
-    policies = {} if base_policy == "expert" else {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset)}
+    policies = {} if base_policy == "expert" else {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset,
+                                                                             device=device)}
     roles = {"reference": base_policy, "baseline": base_policy}
     if policy == "plm":
         policies["plm"] = make_policy("plm", checkpoints, latency_source=chosen.latency_source,
-                                      preset=chosen.checkpoint_preset)
+                                      preset=chosen.checkpoint_preset, device=device)
         roles["mitigated"] = "plm"
     driven = {"reference": "const:0", "baseline": baseline_latency(latency_spec, chosen), "mitigated": latency_spec}
     cells = [Cell(role, who, driven[role], seed, setting=latency_spec) for seed in seeds for role, who in roles.items()]
     # Batched (one forward pass per model and step); batch-invariant models: each run is its one-env run.
     logs = run_cells(runs_under(cells, track_spec, chosen, policies, max_steps), checkpoints,
-                     preset=chosen.checkpoint_preset)
+                     preset=chosen.checkpoint_preset, device=device)
     per_seed_logs = [dict(zip(roles, logs[k:k + len(roles)])) for k in range(0, len(logs), len(roles))]
     first = compare_runs(per_seed_logs[0], track_spec, latency_spec, policy, seeds[0], track_label)
     first["seeds"] = seeds

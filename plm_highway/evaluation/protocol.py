@@ -1,7 +1,7 @@
 """The comparison protocol: settings and their labels, seeds, errors over a common span, confidence
 intervals, the paper's numbers as the only targets, and where PLM-Net is worse.
 
-Rules (issue 9):
+Rules:
 
 - **Common span.** For one setting and seed, the reference, the BM with latency and PLM-Net are
   compared over the steps all three reached (:func:`plm_highway.metrics.steering.common_span`), so a

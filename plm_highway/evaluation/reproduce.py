@@ -103,6 +103,7 @@ class ReproduceOptions:
     overwrite: bool = False
     progress: bool = True
     command: str = ""
+    device: str = "cpu"  # where the models run: cpu, cuda, auto (see plm_highway.models.device)
 
 
 def output_dir(out, track, track_name: str, conditions: str = "ideal") -> Path:
@@ -233,8 +234,8 @@ def reproduce(options: ReproduceOptions) -> dict:
         check_env(main_spec, baseline_latency(spec, compared), compared)
     latencies = sweep_module.sweep_latencies(o.sweep_max, o.sweep_step) if o.sweep else []
     bm_path, tapm_path = checkpoint_pair(o.checkpoints, conditions.checkpoint_preset)
-    policies = make_policies(o.checkpoints, conditions)
-    compared_policies = make_policies(o.checkpoints, compared) if compared else None
+    policies = make_policies(o.checkpoints, conditions, o.device)
+    compared_policies = make_policies(o.checkpoints, compared, o.device) if compared else None
     grid_max_s = round(float(policies["plm"].model_policy.model.delta_ref_s[-1]), 6)  # the TAPM's last latency
     out = output_dir(o.out, o.track, main_spec.name, conditions.name)
     check_target(out, REPRODUCE_REPORT, overwrite=o.overwrite)
@@ -254,7 +255,7 @@ def reproduce(options: ReproduceOptions) -> dict:
                 bar.set_postfix_str(f"{track_spec.name}: {len(cells)} runs "
                                     f"{f'on {workers} workers' if backend else 'batched'}", refresh=True)
                 return run_cells(runs, o.checkpoints, preset=run_conditions.checkpoint_preset,
-                                 batch_size=o.batch_size, backend=backend, on_done=advancing(bar))
+                                 batch_size=o.batch_size, backend=backend, on_done=advancing(bar), device=o.device)
 
             main = measure_track(main_spec, specs, seed_list, conditions, policies, o.max_steps, bar, drive)
             others = {s.name: measure_track(s, specs, seed_list, conditions, policies, o.max_steps, bar, drive)

@@ -32,6 +32,7 @@ class DriveTask:
     seed: int
     files: dict  # {"bm"|"tapm": {file name: bytes}}: the pair's checkpoints
     batch_size: int = 16
+    device: str = "cpu"  # where the policies' forward passes run
     remedy: str = ""  # "": the pair's own PLM-Net and its BM; else only PLM-Net with the remedy's TAPM (and the
     # reference it is judged against)
 
@@ -81,7 +82,7 @@ def drive_pair_seed(task: DriveTask) -> DriveResult:
     checkpoints = materialised_checkpoints(task.pair, task.files)
     with single_threaded_inference():
         logs = run_cells(runs_under(cells, track_spec, conditions, None, plan.max_steps), checkpoints,
-                         preset=conditions.checkpoint_preset, batch_size=task.batch_size)
+                         preset=conditions.checkpoint_preset, batch_size=task.batch_size, device=task.device)
     by_label = {run_label(c.role, c.setting or c.latency): log for c, log in zip(cells, logs)}
     reference = by_label["reference"]
     rows = []

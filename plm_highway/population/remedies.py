@@ -33,6 +33,7 @@ class RemedyTask:
     recipe: Recipe
     seeds: PairSeeds
     files: dict  # the pair's {"bm"|"tapm": {file name: bytes}}
+    device: str = "cpu"  # where the remedy's TAPM trains
 
 
 def train_remedy(task: RemedyTask) -> PairTraining:
@@ -86,7 +87,8 @@ def _onpolicy_tapm(task: RemedyTask, work: Path) -> tuple[dict, dict]:
     config = TrainConfig(epochs=recipe.tapm.epochs, seed=seeds.tapm_seed, max_samples=recipe.tapm.max_samples,
                          balance_max_per_bin=recipe.tapm.balance_max_per_bin, show_progress=False)
     description = train_tapm(work / "data", work / "remedy", work / "bm", config, recipe.delta_grid_s,
-                             f"{recipe.train_command('tapm', seeds.tapm_seed)} (remedy {task.remedy})")
+                             f"{recipe.train_command('tapm', seeds.tapm_seed)} (remedy {task.remedy})",
+                             device=task.device)
     files = {"tapm": {name: (work / "remedy" / name).read_bytes() for name in CHECKPOINT_FILES}}
     training = description["training"]
     summary = {"rows_demonstrations": manifest["remedy"]["rows_demonstrations"],

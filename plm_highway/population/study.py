@@ -53,6 +53,7 @@ class RunOptions:
     restart: bool = False  # start the work directory afresh instead of resuming it
     progress: bool = True
     command: str = ""
+    device: str = "cpu"  # training and driving: cpu, cuda or auto (resolved by each worker)
 
 
 @dataclass
@@ -78,10 +79,10 @@ def run_population(plan: PopulationPlan, options: RunOptions) -> dict:
     state = read_state(work, plan)
     backend = make_backend(options.backend, options.workers, options.address)
     try:
-        _train_missing(work, state, backend, options.progress)
+        _train_missing(work, state, backend, options.progress, options.device)
         _drive_missing(work, state, backend, options)
         for remedy in plan.remedies:
-            _train_remedy_missing(work, state, remedy, backend, options.progress)
+            _train_remedy_missing(work, state, remedy, backend, options.progress, options.device)
             _drive_missing(work, state, backend, options, remedy)
     finally:
         backend.close()
@@ -165,9 +166,9 @@ def _progress(total: int, done: int, desc: str, unit: str, enabled: bool):
     return tqdm(total=total, initial=done, desc=desc, unit=unit, file=sys.stderr, disable=not enabled)
 
 
-def _train_missing(work: Path, state: WorkState, backend, progress: bool) -> None:
+def _train_missing(work: Path, state: WorkState, backend, progress: bool, device: str = "cpu") -> None:
     plan = state.plan
-    tasks = [TrainTask(plan.recipe, seeds) for seeds in plan.pairs if seeds.pair not in state.trainings]
+    tasks = [TrainTask(plan.recipe, seeds, device) for seeds in plan.pairs if seeds.pair not in state.trainings]
     bar = _progress(len(plan.pairs), len(plan.pairs) - len(tasks), "population: train", "pair", progress)
     try:
         for _, result in backend.map_unordered(train_pair, tasks):
@@ -198,12 +199,13 @@ def pair_files(work: Path, pair: int, remedy: str = "") -> dict[str, dict[str, b
             for model, model_dir in (("bm", directory / "bm"), ("tapm", tapm_dir))}
 
 
-def _train_remedy_missing(work: Path, state: WorkState, remedy: str, backend, progress: bool) -> None:
+def _train_remedy_missing(work: Path, state: WorkState, remedy: str, backend, progress: bool,
+                          device: str = "cpu") -> None:
     from plm_highway.population.remedies import RemedyTask, train_remedy
 
     plan = state.plan
     trained = [s for s in plan.pairs if state.trainings.get(s.pair, {}).get("ok")]
-    tasks = [RemedyTask(remedy, plan.recipe, seeds, pair_files(work, seeds.pair)) for seeds in trained
+    tasks = [RemedyTask(remedy, plan.recipe, seeds, pair_files(work, seeds.pair), device) for seeds in trained
              if (remedy, seeds.pair) not in state.remedy_trainings]
     bar = _progress(len(trained), len(trained) - len(tasks), f"population: {remedy}", "pair", progress)
     try:
@@ -242,7 +244,8 @@ def _drive_missing(work: Path, state: WorkState, backend, options: RunOptions, r
     for pair, seed in todo:
         if pair not in files:
             files[pair] = pair_files(work, pair, remedy)
-        tasks.append(DriveTask(plan, pair, seed, files[pair], batch_size=options.batch_size, remedy=remedy))
+        tasks.append(DriveTask(plan, pair, seed, files[pair], batch_size=options.batch_size, device=options.device,
+                               remedy=remedy))
     try:
         for _, result in backend.map_unordered(drive_pair_seed, tasks):
             _write_runs(work, result)

@@ -24,6 +24,7 @@ CHECKPOINT_FILES = ("model.pt", "model.json")
 class TrainTask:
     recipe: Recipe
     seeds: PairSeeds
+    device: str = "cpu"  # where the models train (resolved in the worker: ``auto`` is its GPU where it has one)
 
 
 @dataclass
@@ -43,7 +44,7 @@ def train_pair(task: TrainTask) -> PairTraining:
     started = time.perf_counter()
     try:
         with tempfile.TemporaryDirectory(prefix="plm-highway-pair-") as work:
-            files, summary = _make_pair(task.recipe, task.seeds, Path(work))
+            files, summary = _make_pair(task.recipe, task.seeds, Path(work), task.device)
     except KeyboardInterrupt:
         raise
     except Exception as exc:  # reported per pair: one failed training must not stop the others
@@ -54,7 +55,7 @@ def train_pair(task: TrainTask) -> PairTraining:
     return PairTraining(task.seeds.pair, True, files, summary)
 
 
-def _make_pair(recipe: Recipe, seeds: PairSeeds, work: Path) -> tuple[dict, dict]:
+def _make_pair(recipe: Recipe, seeds: PairSeeds, work: Path, device: str = "cpu") -> tuple[dict, dict]:
     import torch
 
     from plm_highway.data.collect import CollectConfig, collect
@@ -75,9 +76,11 @@ def _make_pair(recipe: Recipe, seeds: PairSeeds, work: Path) -> tuple[dict, dict
                                    balance_max_per_bin=step.balance_max_per_bin, show_progress=False)
         command = recipe.train_command(model, seed)
         if model == "bm":
-            descriptions[model] = train_base_model(data_dir, bm_dir, recipe.preset, train_config, command)
+            descriptions[model] = train_base_model(data_dir, bm_dir, recipe.preset, train_config, command,
+                                                   device=device)
         else:
-            descriptions[model] = train_tapm(data_dir, tapm_dir, bm_dir, train_config, recipe.delta_grid_s, command)
+            descriptions[model] = train_tapm(data_dir, tapm_dir, bm_dir, train_config, recipe.delta_grid_s, command,
+                                             device=device)
     files = {model: {name: (directory / name).read_bytes() for name in CHECKPOINT_FILES}
              for model, directory in (("bm", bm_dir), ("tapm", tapm_dir))}
     summary = {"data_samples": int(len(steps["t_s"])), "threads": recipe.threads,

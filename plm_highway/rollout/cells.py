@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from tqdm import tqdm
 
 from plm_highway.latency import LatencyProfile, parse_profile
+from plm_highway.models.device import resolve_device
 from plm_highway.road.spec import TrackSpec
 from plm_highway.rollout.backends import LocalPool
 from plm_highway.rollout.batched import drive_batched
@@ -143,14 +144,15 @@ def advancing(progress: tqdm | None) -> Callable[[int, RunLog], None] | None:
 
 def run_cells(cells: Sequence[RunCell], checkpoints=None, *, preset: str = SHIPPED_PRESET, serial: bool = False,
               batch_size: int = DEFAULT_BATCH_SIZE, threads: int = 1, backend=None, batch_invariant: bool = False,
-              on_done: Callable[[int, RunLog], None] | None = None) -> list[RunLog]:
+              on_done: Callable[[int, RunLog], None] | None = None, device="cpu") -> list[RunLog]:
     """Drive every cell; the logs in the order of ``cells`` (see the module docstring for the three ways).
 
     Named model policies load the checkpoint pair once per process (``checkpoints`` and ``preset`` as for
     :func:`~plm_highway.rollout.policies.make_policy`); the expert and the EKF are made per run.
     ``on_done(index, log)`` is called as each run ends (progress, or saving results as they come).
     ``batch_invariant`` (batched in this process): run a caller's model policy objects with batch-invariant
-    kernels too (the named ones always are).
+    kernels too (the named ones always are). ``device``: where the named model policies run (``cpu``, ``cuda``,
+    ``auto`` or a torch.device; each step's batch of frames goes there for one forward pass).
     """
     if not 1 <= batch_size <= MAX_BATCH_SIZE:
         raise ValueError(f"batch_size {batch_size}: must lie in [1, {MAX_BATCH_SIZE}]")
@@ -166,9 +168,11 @@ def run_cells(cells: Sequence[RunCell], checkpoints=None, *, preset: str = SHIPP
         if cell.max_steps is not None and cell.max_steps < 1:
             raise ValueError(f"cell {i} ({cell.name!r}): max_steps {cell.max_steps} must be at least 1")
     checkpoints = None if checkpoints is None else str(checkpoints)
+    device = str(resolve_device(device))  # refused (cuda without CUDA) before any run; a string travels to workers
     if backend is not None:
-        return _run_on(backend, cells, checkpoints, preset, batch_size, on_done)
-    models = _load_models(cells, functools.partial(make_policy, checkpoint_dir=checkpoints, preset=preset))
+        return _run_on(backend, cells, checkpoints, preset, batch_size, on_done, device)
+    models = _load_models(cells, functools.partial(make_policy, checkpoint_dir=checkpoints, preset=preset,
+                                                   device=device))
     if serial:
         logs = []
         for index, cell in enumerate(cells):
@@ -231,6 +235,7 @@ class _Chunk:
     checkpoints: str | None
     preset: str  # the shipped checkpoint pair (when checkpoints is None)
     batch_size: int
+    device: str = "cpu"  # where the worker's model policies run
 
 
 def chunk_count(n_runs: int, workers: int, batch_size: int) -> int:
@@ -242,7 +247,7 @@ def chunk_count(n_runs: int, workers: int, batch_size: int) -> int:
 
 
 def _run_on(backend, cells: Sequence[RunCell], checkpoints: str | None, preset: str, batch_size: int,
-            on_done) -> list[RunLog]:
+            on_done, device: str = "cpu") -> list[RunLog]:
     """The cells in chunks over ``backend``'s workers, each chunk batched there; logs in order."""
     for i, cell in enumerate(cells):
         if not isinstance(cell.policy, str):
@@ -251,7 +256,7 @@ def _run_on(backend, cells: Sequence[RunCell], checkpoints: str | None, preset: 
     if not cells:
         return []
     n_chunks = chunk_count(len(cells), getattr(backend, "workers", 1), batch_size)
-    chunks = [_Chunk(tuple(cells[k::n_chunks]), checkpoints, preset, batch_size) for k in range(n_chunks)]
+    chunks = [_Chunk(tuple(cells[k::n_chunks]), checkpoints, preset, batch_size, device) for k in range(n_chunks)]
     logs: list[RunLog | None] = [None] * len(cells)
     for k, chunk_logs in backend.map_unordered(_drive_chunk, chunks):
         for j, log in enumerate(chunk_logs):
@@ -265,16 +270,17 @@ def _run_on(backend, cells: Sequence[RunCell], checkpoints: str | None, preset: 
 def _drive_chunk(chunk: _Chunk) -> list[RunLog]:
     """A worker: the chunk's runs batched, with the model policies this process loaded once."""
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    models = _load_models(chunk.cells, lambda name: worker_policy(name, chunk.checkpoints, chunk.preset))
+    models = _load_models(chunk.cells,
+                          lambda name: worker_policy(name, chunk.checkpoints, chunk.preset, chunk.device))
     with single_threaded_inference():
         return drive_batched(chunk.cells, [_policy_for(cell, models) for cell in chunk.cells], chunk.batch_size)
 
 
 @functools.lru_cache(maxsize=8)
-def worker_policy(name: str, checkpoints: str | None, preset: str) -> VisionPolicy:
+def worker_policy(name: str, checkpoints: str | None, preset: str, device: str = "cpu") -> VisionPolicy:
     """The named model policy, loaded once per process (pool workers keep it across chunks; call it with
     positional arguments, as the workers do, to find what they loaded)."""
-    return make_policy(name, checkpoints, preset=preset)
+    return make_policy(name, checkpoints, preset=preset, device=device)
 
 
 __all__ = ["DEFAULT_BATCH_SIZE", "ROLES", "Cell", "RunCell", "advancing", "check_env", "chunk_count",

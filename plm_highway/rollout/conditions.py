@@ -78,7 +78,7 @@ class Conditions:
 # next iteration of its 30 Hz ROS loop, and the message synchroniser can hold it one more (notes: 30 Hz loop,
 # synchroniser); the upper end of "one to two frames" is taken.
 PAPER_PROCESSING_DELAY_STEPS = 2
-# The original car's wheels followed the command through a PID-driven steering (issue 9); modelled as a
+# The original car's wheels followed the command through a PID-driven steering; modelled as a
 # first-order actuator. 0.1 s is an assumption (no measured value in the papers or the notes).
 PAPER_STEERING_TIME_CONSTANT_S = 0.1
 # The paper's car could steer far more than this env's default 0.2 rad: its steering data (Table 1) reach -1.0 in
@@ -259,9 +259,9 @@ PAPER_CONDITION_ITEMS = (
     ("camera", "800x800 px, 80 deg, 1.83 m high, pitch 2.3 deg down; rows 380-520 resized to 160x160",
      "original code (notes: crop rows 380-520, 160x160); pitch: 'small', set so the strip's top row is the horizon"),
     ("processing delay", f"{PAPER_PROCESSING_DELAY_STEPS} loop steps ({PAPER_PROCESSING_DELAY_STEPS / 30:.3f} s) "
-     "between an action and the actuator", "original ROS loop and synchroniser: one to two frames (issue 9)"),
+     "between an action and the actuator", "original ROS loop and synchroniser: one to two frames"),
     ("steering actuator", f"first order, time constant {PAPER_STEERING_TIME_CONSTANT_S:g} s",
-     "original PID-driven steering (issue 9); the time constant is assumed"),
+     "original PID-driven steering; the time constant is assumed"),
     ("steering range", f"+-{PAPER_MAX_STEERING_RAD:g} rad at the front wheels (this env's default: 0.2)",
      "paper Table 1: steering down to -1.0 x 450 deg of steering wheel; the papers' car (OSRF car_demo's Prius, "
      "12.16:1) steers its tyres to 0.6458 rad; 0.4 rad assumed"),

@@ -168,8 +168,9 @@ def biased(policy: Policy, latency_bias_s: float) -> Policy:
     return VisionPolicy(policy.model_policy, latency_bias_s, policy.latency_source)
 
 
-def make_policies(checkpoints, conditions: Conditions) -> dict[str, Policy]:
-    """``{"bm": Base Model, "plm": PLM-Net}`` from one checkpoint pair, PLM-Net told the latency these conditions say."""
-    return {"bm": make_policy("bm", checkpoints, preset=conditions.checkpoint_preset),
+def make_policies(checkpoints, conditions: Conditions, device="cpu") -> dict[str, Policy]:
+    """``{"bm": Base Model, "plm": PLM-Net}`` from one checkpoint pair on ``device``, PLM-Net told the latency
+    these conditions say."""
+    return {"bm": make_policy("bm", checkpoints, preset=conditions.checkpoint_preset, device=device),
             "plm": make_policy("plm", checkpoints, latency_source=conditions.latency_source,
-                               preset=conditions.checkpoint_preset)}
+                               preset=conditions.checkpoint_preset, device=device)}

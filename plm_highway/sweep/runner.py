@@ -59,6 +59,7 @@ class ChunkJob:
     grid: SweepGrid
     checkpoints: str | None
     batch_size: int
+    device: str = "cpu"  # resolved on the worker: ``auto`` is the worker's GPU where it has one
 
 
 def run_chunk(job: ChunkJob) -> list[dict]:
@@ -79,16 +80,23 @@ def run_chunk(job: ChunkJob) -> list[dict]:
                                       env_config=dict(condition.get("env_config", {})) or None,
                                       max_steps=job.grid.max_steps))
     with single_threaded_inference():
-        logs = run_cells(run_cells_list, job.checkpoints, batch_size=job.batch_size)
+        logs = run_cells(run_cells_list, job.checkpoints, batch_size=job.batch_size, device=job.device)
     return [cell_result(log) for log in logs]
 
 
 def run_sweep(grid: SweepGrid, out, workers: int | None = None, backend: str = "local", address: str | None = None,
               batch_size: int = DEFAULT_BATCH_SIZE, checkpoints=None, overwrite: bool = False,
-              progress: bool = True) -> dict:
-    """Run every cell of ``grid`` not yet in ``out``; write the table and figures. Returns a summary dict."""
+              progress: bool = True, device: str = "cpu") -> dict:
+    """Run every cell of ``grid`` not yet in ``out``; write the table and figures. Returns a summary dict.
+
+    ``device`` (``cpu``, ``cuda``, ``auto``): where each worker runs the models; on a Ray cluster it is resolved
+    by the worker, elsewhere here first (``cuda`` without CUDA is refused before any run)."""
     if not 1 <= batch_size <= 4096:
         raise BadInput(f"--batch-size {batch_size}: must lie in [1, 4096]")
+    if backend != "ray":
+        from plm_highway.models.device import resolve_device
+
+        resolve_device(device)
     out = Path(out)
     if checkpoints is not None:
         from plm_highway.rollout.policies import checkpoint_pair
@@ -104,7 +112,7 @@ def run_sweep(grid: SweepGrid, out, workers: int | None = None, backend: str = "
         n_workers = getattr(runner, "workers", 1)
         chunk_size = max(1, min(batch_size, math.ceil(len(todo) / max(1, n_workers))))
         jobs = [ChunkJob(tuple(todo[i:i + chunk_size]), grid, None if checkpoints is None else str(checkpoints),
-                         batch_size) for i in range(0, len(todo), chunk_size)]
+                         batch_size, str(device)) for i in range(0, len(todo), chunk_size)]
         bar = _progress(len(cells), len(results), progress)
         try:
             for index, chunk_results in runner.map_unordered(run_chunk, jobs):
