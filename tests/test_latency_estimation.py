@@ -276,3 +276,22 @@ def test_the_sim2real_report_puts_the_perception_delay_beside_its_own(tmp_path):
     assert re.search(r"The camera's lane signal is 0\.2[2-8]\d s", section), section
     found = json.loads((tmp_path / "diagnosis.json").read_text())["perception_delay"]
     assert found["estimated"] and abs(found["latency_s"] - 0.25) <= 0.05 and "diagnosis_delays_s" in found
+
+
+@pytest.mark.slow
+def test_the_sim2real_tie_in_finds_the_simulated_cameras_delay():
+    """The report's tie-in: a paper-conditions run written as a recording with a lane signal and no capture
+    timestamps; the estimator's delay lies within one frame of the camera's true latency, beside the diagnosis's."""
+    from plm_highway.rollout.conditions import CONDITIONS
+    from plm_highway.sim2real.perception_tie_in import SIMULATED_CONDITIONS, tie_in
+
+    out = tie_in()
+    assert set(out) == {"simulated"}  # no real recording given
+    simulated = out["simulated"]
+    frame_s = 1.0 / CONDITIONS[SIMULATED_CONDITIONS].policy_frequency_hz
+    assert simulated["true_camera_latency_s"] == pytest.approx(0.2, abs=frame_s)
+    found = simulated["perception_delay"]
+    assert found["estimated"], found
+    assert abs(found["latency_s"] - simulated["true_camera_latency_s"]) <= frame_s
+    assert simulated["true_vehicle_delays"]["steering_time_constant_s"] == 0.1
+    assert isinstance(simulated["diagnosis_delays_s"], dict) and simulated["verdict"]
