@@ -266,6 +266,71 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("03", ("check_table_3",), "delegates to the check's own runs", "",
            "def drive_table_3(latency='const:0.2', max_steps=None, checkpoints=None):\n"
            "    return dict(lesson3.kit_table_3_runs(max_steps, checkpoints))", delegation=True, slow=True),
+    # ---------------- Lesson 3: lane keeping at 0.25 s ----------------
+    Mutant("03", ("check_lane_keeping",), "standard deviation instead of RMS (removes the drift it should measure)",
+           '"rms_m": float(np.sqrt(np.mean(offset_m ** 2)))', '"rms_m": float(np.std(offset_m))'),
+    Mutant("03", ("check_lane_keeping",), "mean |offset| instead of RMS",
+           '"rms_m": float(np.sqrt(np.mean(offset_m ** 2)))', '"rms_m": float(np.mean(np.abs(offset_m)))'),
+    Mutant("03", ("check_lane_keeping",), "forgets the square root",
+           '"rms_m": float(np.sqrt(np.mean(offset_m ** 2)))', '"rms_m": float(np.mean(offset_m ** 2))'),
+    Mutant("03", ("check_lane_keeping",), "signed maximum: a drift to the right does not count",
+           '"max_m": float(np.max(np.abs(offset_m)))', '"max_m": float(np.max(offset_m))'),
+    Mutant("03", ("check_lane_keeping",), "delegates the mean square to the kit", "",
+           "def lane_keeping(offset_m):\n"
+           "    from plm_highway.metrics.similarity import mse\n"
+           "    offset_m = np.asarray(offset_m, dtype=float)\n"
+           "    return {'rms_m': float(np.sqrt(mse(offset_m, np.zeros_like(offset_m)))),\n"
+           "            'max_m': float(np.max(np.abs(offset_m)))}", delegation=True),
+    Mutant("03", ("check_trap_table",), "the offset of the reference run for every run",
+           'lane = {run: lane_keeping(log.columns["lateral_offset_m"]) for run, log in logs.items()}',
+           'lane = {run: lane_keeping(logs["reference"].columns["lateral_offset_m"]) for run in logs}', slow=True),
+    Mutant("03", ("check_trap_table",), "MAE of the runs against each other instead of the reference",
+           'steering_errors(reference, logs[run].columns["steering"])["mae"] for run in ("baseline", "mitigated")',
+           'steering_errors(logs["baseline"].columns["steering"], logs[run].columns["steering"])["mae"] '
+           'for run in ("baseline", "mitigated")', slow=True),
+    Mutant("03", ("check_trap_table",), "the offset RMS reduction relative to the reference run",
+           'reduction_pct(lane["baseline"]["rms_m"], lane["mitigated"]["rms_m"])',
+           'reduction_pct(lane["reference"]["rms_m"], lane["mitigated"]["rms_m"])', slow=True),
+    Mutant("03", ("check_trap_table",), "swaps the offset RMS and the largest offset",
+           '"offset_rms_m": {run: values["rms_m"]', '"offset_rms_m": {run: values["max_m"]', slow=True),
+    Mutant("03", ("check_trap_table",), "drives the part's runs at the Table 3 latency",
+           "def drive_table_3(latency: str = \"const:0.2\", max_steps=None, checkpoints=None) -> dict:\n",
+           "def drive_table_3(latency: str = \"const:0.2\", max_steps=None, checkpoints=None) -> dict:\n"
+           "    latency = \"const:0.2\"\n", slow=True),
+    Mutant("03", ("check_trap_table",), "delegates the table to the kit's outcomes", "",
+           "def trap_table(logs):\n"
+           "    from plm_highway.evaluation.comparison import steering_comparison\n"
+           "    kit = steering_comparison(logs)\n"
+           "    lane = {run: lane_keeping(log.columns['lateral_offset_m']) for run, log in logs.items()}\n"
+           "    return {'mae': {r: kit[r]['mae'] for r in ('baseline', 'mitigated')},\n"
+           "            'mae_reduction_pct': kit['mae_reduction_pct'],\n"
+           "            'offset_rms_m': {r: v['rms_m'] for r, v in lane.items()},\n"
+           "            'offset_max_m': {r: v['max_m'] for r, v in lane.items()},\n"
+           "            'offset_rms_reduction_pct': reduction_pct(lane['baseline']['rms_m'], "
+           "lane['mitigated']['rms_m'])}", delegation=True, slow=True),
+    Mutant("03", ("check_weaker_feedback",), "compares the gains, not their shares of the BM's (mixes units)",
+           'return "offset" if offset_share < heading_share else "heading"',
+           'return "offset" if abs(plm["offset_gain_per_m"]) < abs(plm["heading_gain_per_rad"]) else "heading"'),
+    Mutant("03", ("check_weaker_feedback",), "unsigned shares: a gain that steers the wrong way counts as kept",
+           'return "offset" if offset_share < heading_share else "heading"',
+           'return "offset" if abs(offset_share) < abs(heading_share) else "heading"'),
+    Mutant("03", ("check_weaker_feedback",), "the BM's gain over PLM-Net's (names the stronger feedback)",
+           'return "offset" if offset_share < heading_share else "heading"',
+           'return "offset" if 1 / offset_share < 1 / heading_share else "heading"'),
+    Mutant("03", ("check_weaker_feedback",), "the gain lost (BM minus PLM-Net), not the share kept",
+           'return "offset" if offset_share < heading_share else "heading"',
+           'return "offset" if abs(bm["offset_gain_per_m"] - plm["offset_gain_per_m"]) > '
+           'abs(bm["heading_gain_per_rad"] - plm["heading_gain_per_rad"]) else "heading"'),
+    Mutant("03", ("check_weaker_feedback",), "ignores the latency asked about (takes the first PLM-Net entry)",
+           'plm, bm = gains[f"plm@{latency_s:g}"], gains["bm"]',
+           'plm, bm = next(v for k, v in gains.items() if k.startswith("plm@")), gains["bm"]'),
+    Mutant("03", ("check_weaker_feedback",), "always answers offset", "",
+           "def weaker_feedback(gains, latency_s):\n    return 'offset'"),
+    Mutant("03", ("check_why_the_lane_drifts",), "blames fast jitter", 'return "B"', 'return "A"'),
+    Mutant("03", ("check_why_the_lane_drifts",), "blames the latency weave", 'return "B"', 'return "C"'),
+    Mutant("03", ("check_why_the_lane_drifts",), "blames a wrong latency", 'return "B"', 'return "D"'),
+    Mutant("03", ("check_why_the_lane_drifts",), "answers with the text, not the letter", 'return "B"',
+           'return "the TAPM predicts as if the car had corrected"'),
     # ---------------- Lesson 4: the replay ----------------
     Mutant("04", ("check_replay",), "uses lf where lr belongs",
            "beta = np.arctan(cg_to_rear_m / wheelbase_m", "beta = np.arctan(cg_to_front_m / wheelbase_m"),

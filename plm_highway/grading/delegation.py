@@ -53,7 +53,7 @@ REFERENCES: tuple[Reference, ...] = (
     Reference("lesson2.TAPMHeads", "plm_highway.models.tapm:TAPM", "TAPM"),
     Reference("lesson2.interpolate", "plm_highway.models.plm_net:interpolate_actions", "Algorithm 1"),
     Reference("lesson2.interpolate", "plm_highway.models.plm_net:interpolate_batch", "Algorithm 1"),
-    # Lesson 3: steering errors, Frechet distance, resampling, the Table 3 runs
+    # Lesson 3: steering errors, Frechet distance, resampling, the Table 3 runs, lane keeping at 0.25 s
     Reference("lesson3.steering_errors", "plm_highway.metrics.steering:steering_errors", "steering errors"),
     Reference("lesson3.steering_errors", "plm_highway.evaluation.comparison:steering_comparison", "steering errors"),
     Reference("lesson3.steering_errors", "plm_highway.metrics.steering:steering_mae", "MAE"),
@@ -67,6 +67,11 @@ REFERENCES: tuple[Reference, ...] = (
     Reference("lesson3.resample", "plm_highway.metrics.curves:resample_by_arc_length", "arc-length resampling"),
     Reference("lesson3.drive_table_3", "plm_highway.grading.lesson3:kit_table_3_runs", "Table 3 runs"),
     Reference("lesson3.drive_table_3", "plm_highway.evaluation.reproduce:run_track", "Table 3 runs"),
+    Reference("lesson3.lane_keeping", "plm_highway.metrics.similarity:mse", "mean square"),
+    Reference("lesson3.trap_table", "plm_highway.evaluation.comparison:steering_comparison", "steering errors"),
+    Reference("lesson3.trap_table", "plm_highway.evaluation.outcomes:run_outcomes", "run outcomes"),
+    Reference("lesson3.trap_table", "plm_highway.metrics.steering:steering_errors", "steering errors"),
+    Reference("lesson3.trap_table", "plm_highway.metrics.steering:reduction_pct", "error reduction"),
     # Lesson 4: the simulator's replay, mismatch windows, the two hypotheses, the fit
     Reference("lesson4.replay_yaw_rate", "plm_highway.vehicle.kinematic:kinematic_bicycle_rates", "kinematic bicycle"),
     Reference("lesson4.replay_yaw_rate", "plm_highway.sim2real.replay:model_yaw_rate", "yaw-rate replay"),

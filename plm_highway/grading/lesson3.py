@@ -1,7 +1,9 @@
 """Graded checks for Lesson 3, "Measuring mitigation".
 
 Students write the steering errors (MAE, MSE, RMSE) and PLM-Net's reduction, the discrete Frechet
-distance and arc-length resampling, drive the three runs of the paper's Table 3 and measure them.
+distance and arc-length resampling, drive the three runs of the paper's Table 3 and measure them. A last
+part drives the runs again at 0.25 s, where the steering error and the lane keeping disagree: students
+measure the lateral offset, find which feedback PLM-Net weakens and pick the explanation.
 Every check calls the student's code first, so that a stub fails fast with "not implemented yet".
 A ``seed`` (nbgrader's hidden tests) draws further cases, compared with the kit's implementations
 computed before the student's code runs.
@@ -13,9 +15,10 @@ import functools
 
 import numpy as np
 
-from plm_highway.grading.checks import call_student, expect_close, expect_true, graded
+from plm_highway.grading.checks import call_student, expect_close, expect_equal, expect_true, graded
 
 TABLE_3_LATENCY = "const:0.2"
+TRAP_LATENCY = "const:0.25"  # where PLM-Net's steering follows the reference's and its car still drifts
 RUNS = ("reference", "baseline", "mitigated")
 LESSON_SPACING_M = 1.0  # the lesson resamples every 1 m so that a pure-Python Frechet stays quick
 
@@ -178,7 +181,7 @@ def check_resample(resample, seed: int | None = None) -> None:
                      hint="np.interp of each coordinate against the cumulative arc length")
 
 
-@functools.lru_cache(maxsize=4)
+@functools.lru_cache(maxsize=8)
 def kit_table_3_runs(max_steps: int | None, checkpoints: str | None, latency: str = TABLE_3_LATENCY) -> dict:
     """The three runs of Table 3 driven by the kit (what a correct ``drive_table_3`` returns)."""
     from plm_highway.rollout.closed_loop import drive
@@ -256,3 +259,151 @@ def check_trajectory_frechet(discrete_frechet, resample, max_steps=None, checkpo
                      hint="resample the lane centre and the path with the same spacing, lane centre first")
         values[name] = float(received)
     return values
+
+
+# --- The trap at 0.25 s: steering error against lane keeping -------------------------------------------------
+
+
+def _lane(lane_keeping, offset_m, what: str) -> dict:
+    result = call_student(lane_keeping, offset_m, what=what, exercise="lesson3.lane_keeping")
+    expect_true(isinstance(result, dict) and {"rms_m", "max_m"} <= set(result), f"what {what} returned",
+                expected="a dict with keys 'rms_m', 'max_m'", received=repr(result)[:80])
+    return result
+
+
+def _expected_lane(offset_m) -> dict:
+    offset_m = np.asarray(offset_m, dtype=float)
+    return {"rms_m": float(np.sqrt(np.mean(offset_m ** 2))), "max_m": float(np.max(np.abs(offset_m)))}
+
+
+@graded(points=1)
+def check_lane_keeping(lane_keeping, seed: int | None = None) -> None:
+    """RMS and largest magnitude of a lateral-offset series."""
+    cases = [(np.array([0.3, -0.4]), "[0.3, -0.4]"),
+             (np.full(10, 0.5), "a car 0.5 m left of the centre all the time (a drift, not a weave)"),
+             (np.array([0.1, -1.2, 0.4, 0.0]), "[0.1, -1.2, 0.4, 0] (the largest offset is to the right)")]
+    if seed is not None:
+        rng = np.random.default_rng(seed)
+        cases = [(rng.normal(rng.normal(0, 0.5), rng.uniform(0.05, 1.0), int(rng.integers(1, 500))),
+                  "random offsets") for _ in range(6)]
+    hints = {"rms_m": "sqrt(mean(offset ** 2)): a constant offset counts in full, it is not removed like a mean",
+             "max_m": "the largest |offset|: to the right (negative) counts as much as to the left"}
+    for offset_m, what in cases:
+        result = _lane(lane_keeping, offset_m, f"lane_keeping({what})")
+        expected = _expected_lane(offset_m)
+        for key in ("rms_m", "max_m"):
+            expect_close(f"{key} of {what} ({len(offset_m)} steps)", expected[key], result[key], atol=1e-12,
+                         hint=hints[key])
+
+
+@graded(points=2)
+def check_trap_table(drive_table_3, trap_table, max_steps=None, checkpoints=None) -> dict:
+    """The student's runs at 0.25 s are the kit's, and their table (steering MAE and its reduction, offset RMS and
+    largest offset of each run, the offset RMS reduction) equals what the kit's runs give. Returns the runs."""
+    logs = call_student(drive_table_3, TRAP_LATENCY, max_steps=max_steps, checkpoints=checkpoints,
+                        what=f"drive_table_3({TRAP_LATENCY!r}, max_steps={max_steps})",
+                        exercise="lesson3.drive_table_3")
+    expect_true(isinstance(logs, dict) and set(logs) == set(RUNS), "what drive_table_3 returned",
+                expected="{'reference': RunLog, 'baseline': RunLog, 'mitigated': RunLog}",
+                received=sorted(logs) if isinstance(logs, dict) else type(logs).__name__)
+    kit = kit_table_3_runs(max_steps, None if checkpoints is None else str(checkpoints), TRAP_LATENCY)
+    for name in RUNS:
+        expect_close(f"steering of the {name!r} run at {TRAP_LATENCY}", kit[name].columns["steering"],
+                     logs[name].columns["steering"], atol=1e-6,
+                     hint="pass the latency on to the baseline and the mitigated run")
+    table = call_student(trap_table, kit, what="trap_table(runs at 0.25 s)", exercise="lesson3.trap_table")
+    keys = {"mae", "mae_reduction_pct", "offset_rms_m", "offset_max_m", "offset_rms_reduction_pct"}
+    expect_true(isinstance(table, dict) and keys <= set(table), "what trap_table returned",
+                expected=f"a dict with keys {sorted(keys)}", received=repr(table)[:80])
+    from plm_highway.metrics.steering import common_span
+    from plm_highway.metrics.steering import steering_errors as kit_steering_errors
+
+    reference = kit["reference"].columns["steering"]
+    mae = {run: kit_steering_errors(*common_span(reference, kit[run].columns["steering"]))["mae"]
+           for run in ("baseline", "mitigated")}
+    lane = {run: _expected_lane(kit[run].columns["lateral_offset_m"]) for run in RUNS}
+    for run in ("baseline", "mitigated"):
+        expect_close(f"table['mae'][{run!r}]", mae[run], table["mae"][run], atol=1e-9,
+                     hint="your steering_errors of the reference run and this run")
+    expect_close("table['mae_reduction_pct']", 100 * (1 - mae["mitigated"] / mae["baseline"]),
+                 table["mae_reduction_pct"], atol=1e-9, hint="your reduction_pct of the two MAEs")
+    for run in RUNS:
+        for key, column in (("rms_m", "offset_rms_m"), ("max_m", "offset_max_m")):
+            expect_close(f"table[{column!r}][{run!r}]", lane[run][key], table[column][run], atol=1e-9,
+                         hint="your lane_keeping of the run's 'lateral_offset_m' column, over every step it drove")
+    expect_close("table['offset_rms_reduction_pct']",
+                 100 * (1 - lane["mitigated"]["rms_m"] / lane["baseline"]["rms_m"]),
+                 table["offset_rms_reduction_pct"], atol=1e-9,
+                 hint="your reduction_pct of the baseline's and the mitigated run's offset RMS")
+    return logs
+
+
+# Feedback gains measured by posing the car on the test track's longest straight (ideal conditions, the shipped
+# pair): normalised steering per metre of offset and per radian of heading error.
+SHIPPED_GAINS = {"bm": {"offset_gain_per_m": -0.934, "heading_gain_per_rad": -5.48},
+                 "plm@0.25": {"offset_gain_per_m": 0.0106, "heading_gain_per_rad": -1.67}}
+
+
+def _gains(bm: tuple[float, float], plm: dict[float, tuple[float, float]]) -> dict:
+    gains = {"bm": {"offset_gain_per_m": bm[0], "heading_gain_per_rad": bm[1]}}
+    for latency_s, (offset, heading) in plm.items():
+        gains[f"plm@{latency_s:g}"] = {"offset_gain_per_m": offset, "heading_gain_per_rad": heading}
+    return gains
+
+
+def _share(gains: dict, latency_s: float, key: str) -> float:
+    return gains[f"plm@{latency_s:g}"][key] / gains["bm"][key]
+
+
+@graded(points=2)
+def check_weaker_feedback(weaker_feedback, seed: int | None = None) -> None:
+    """Which feedback PLM-Net told a latency keeps the smaller share of the BM's: the offset or the heading one."""
+    cases = [
+        (SHIPPED_GAINS, 0.25, "offset", "the shipped pair's gains (its offset gain even changed sign)"),
+        (_gains((-0.9, -5.5), {0.25: (-0.8, -2.0)}), 0.25, "heading",
+         "a PLM-Net that keeps 89% of the offset gain and 36% of the heading gain"),
+        (_gains((-0.9, -5.5), {0.25: (0.9, -1.5)}), 0.25, "offset",
+         "a PLM-Net whose offset gain has the opposite sign (it steers away from the centre)"),
+        (_gains((-0.9, -5.5), {0.15: (-0.2, -5.0), 0.3: (-0.85, -1.0)}), 0.3, "heading",
+         "gains at 0.15 s and 0.3 s, asked about 0.3 s"),
+        (_gains((-0.9, -5.5), {0.15: (-0.2, -5.0), 0.3: (-0.85, -1.0)}), 0.15, "offset",
+         "gains at 0.15 s and 0.3 s, asked about 0.15 s"),
+    ]
+    if seed is not None:
+        rng = np.random.default_rng(seed)
+        cases = []
+        for _ in range(8):
+            latencies = [0.1, 0.2, 0.25, 0.3]
+            bm = (-rng.uniform(0.2, 2.0), -rng.uniform(2.0, 10.0))
+            plm = {lat: (bm[0] * rng.uniform(-0.5, 1.2), bm[1] * rng.uniform(-0.5, 1.2)) for lat in latencies}
+            gains, latency_s = _gains(bm, plm), float(rng.choice(latencies))
+            shares = {which: _share(gains, latency_s, f"{which}_gain_per_{unit}")
+                      for which, unit in (("offset", "m"), ("heading", "rad"))}
+            if abs(shares["offset"] - shares["heading"]) < 0.05:
+                continue  # too close to call from printed gains
+            cases.append((gains, latency_s, min(shares, key=shares.get), f"random gains at {latency_s:g} s"))
+    for gains, latency_s, expected, what in cases:
+        received = call_student(weaker_feedback, gains, latency_s, what=f"weaker_feedback({what})",
+                                exercise="lesson3.weaker_feedback")
+        offset = _share(gains, latency_s, "offset_gain_per_m")
+        heading = _share(gains, latency_s, "heading_gain_per_rad")
+        expect_equal(f"weaker_feedback for {what}: PLM-Net keeps {offset:.2f} of the BM's offset gain and "
+                     f"{heading:.2f} of its heading gain", expected, received,
+                     hint="compare PLM-Net's gain over the BM's gain (a signed share), not the gains themselves: "
+                          "they have different units")
+
+
+WHY_THE_LANE_DRIFTS = "B"  # the explanation of the options the lesson lists that the posed gains support
+
+
+@graded(points=1)
+def check_why_the_lane_drifts(why_the_lane_drifts) -> None:
+    """The student picks the explanation the measurements support."""
+    received = call_student(why_the_lane_drifts, what="why_the_lane_drifts()")
+    expect_true(isinstance(received, str) and received.strip().upper() in "ABCD" and len(received.strip()) == 1,
+                "what why_the_lane_drifts returned", expected="one letter, 'A', 'B', 'C' or 'D'",
+                received=repr(received)[:40])
+    expect_equal("the explanation the offset traces and the posed gains support", WHY_THE_LANE_DRIFTS,
+                 received.strip().upper(),
+                 hint="which feedback did your weaker_feedback find PLM-Net weakens, and how does a small steering "
+                      "bias that nothing corrects move the car over many seconds?")
