@@ -43,7 +43,10 @@ from scipy.interpolate import CubicSpline
 from scipy.ndimage import correlate1d
 
 from plm_highway.io import json_safe
-from plm_highway.sim2real.effects import EFFECT_NAMES, EFFECTS, EffectParams, separating_text
+from plm_highway.sim2real.chain import EffectParams
+from plm_highway.sim2real.effects import EFFECT_NAMES, EFFECTS, separating_text
+from plm_highway.sim2real.folds import MIN_BLOCKS, check_block_s, default_block_s
+from plm_highway.sim2real.problem import CandidateFit, FitProblem, make_problem
 from plm_highway.sim2real.recording import Recording
 from plm_highway.sim2real.replay import (
     ANCHOR_S,
@@ -56,17 +59,7 @@ from plm_highway.sim2real.replay import (
     replay_pose,
     yaw_rate_lag_behind_heading,
 )
-from plm_highway.sim2real.selection import (
-    MIN_BLOCKS,
-    CandidateFit,
-    FitProblem,
-    Selection,
-    check_block_s,
-    default_block_s,
-    fit_candidates,
-    make_problem,
-    select,
-)
+from plm_highway.sim2real.selection import Selection, fit_candidates, select
 
 VERDICTS = ("match", "mismatch", "partly explained", "unexplained", "unexcited", "inconclusive")
 

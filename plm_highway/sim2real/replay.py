@@ -39,7 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import savgol_coeffs
 
-from plm_highway.sim2real.effects import EffectParams, _delayed, fir_filter, fir_filter_at, lateral_fir_at, simulate
+from plm_highway.sim2real.chain import EffectParams, _delayed, simulate
+from plm_highway.sim2real.filters import fir_filter, fir_filter_at, lateral_fir_at
 from plm_highway.sim2real.recording import Recording
 from plm_highway.vehicle.kinematic import integrate_pose_euler
 
