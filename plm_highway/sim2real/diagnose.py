@@ -3,6 +3,8 @@ the fitted term explains, and what is left.
 
 The steps, top to bottom (:func:`diagnose`):
 
+0. Check the recording against itself (:mod:`plm_highway.sim2real.consistency`); a recording that
+   contradicts itself is ``inconsistent`` and nothing is fitted.
 1. Check there is enough to judge: the scored samples (moving faster than the recording's speed
    floor, outside gaps and glitches) and the steering's excitation. Too little is an error with
    the numbers; little is a verdict marked low-confidence.
@@ -28,6 +30,9 @@ The steps, top to bottom (:func:`diagnose`):
    unexplained        the simulator departs, and nothing in the library helps
    unexcited          the car barely turns: the recording cannot show steering-path physics
    inconclusive       nothing helps, but too little data (or no measured noise) to call it a match
+   inconsistent       the recording contradicts itself (speed against positions, yaw rate against
+                      heading, steering against the turns, time scale against both): no physics is
+                      fitted; the channel and the likely cause (units, sign, scale) are named
    ================== ===========================================================================
 """
 
@@ -44,6 +49,7 @@ from scipy.ndimage import correlate1d
 
 from plm_highway.io import json_safe
 from plm_highway.sim2real.chain import EffectParams
+from plm_highway.sim2real.consistency import Consistency, check_consistency
 from plm_highway.sim2real.effects import EFFECT_NAMES, EFFECTS, separating_text
 from plm_highway.sim2real.folds import MIN_BLOCKS, check_block_s, default_block_s
 from plm_highway.sim2real.problem import CandidateFit, FitProblem, make_problem
@@ -61,7 +67,7 @@ from plm_highway.sim2real.replay import (
 )
 from plm_highway.sim2real.selection import Selection, fit_candidates, select
 
-VERDICTS = ("match", "mismatch", "partly explained", "unexplained", "unexcited", "inconclusive")
+VERDICTS = ("match", "mismatch", "partly explained", "unexplained", "unexcited", "inconclusive", "inconsistent")
 
 WINDOW_RMS_S = 1.0
 WINDOW_NOISE_FACTOR = 2.0
@@ -103,18 +109,21 @@ SIGNAL_CHANGE = 0.05
 
 @dataclass
 class Diagnosis:
+    """A recording's diagnosis. An ``inconsistent`` recording stops at its consistency checks: it
+    has no signal, selection, replay or fit (those fields stay None)."""
+
     recording: Recording
-    signal: FitSignal
+    signal: FitSignal | None
     noise_sigma: float
-    selection: Selection
+    selection: Selection | None
     block_s: float
     anchor_s: float
-    heldout: np.ndarray
-    before: np.ndarray  # the primary channel as the plain model predicts it
-    after: np.ndarray  # ... as the chosen model predicts it (held-out samples: out of fold)
-    best: np.ndarray  # ... as the best-scoring candidate predicts it (== after on a mismatch)
-    pose_before: PoseReplay
-    pose_after: PoseReplay
+    heldout: np.ndarray | None
+    before: np.ndarray | None  # the primary channel as the plain model predicts it
+    after: np.ndarray | None  # ... as the chosen model predicts it (held-out samples: out of fold)
+    best: np.ndarray | None  # ... as the best-scoring candidate predicts it (== after on a mismatch)
+    pose_before: PoseReplay | None
+    pose_after: PoseReplay | None
     windows: list[list[float]]
     conditions: dict
     fit: dict
@@ -127,6 +136,7 @@ class Diagnosis:
     residual: dict = field(default_factory=dict)
     channels: list[FitSignal] = field(default_factory=list)
     problem: FitProblem | None = None
+    consistency: Consistency | None = None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -668,6 +678,12 @@ def diagnose(recording: Recording, *, block_s: float | None = None, anchor_s: fl
         block_s = default_block_s(recording.duration_s, recording.dt_s)
     else:
         check_block_s(block_s, recording.duration_s)
+    # 0. The recording against itself: units, signs and time scale that contradict are not physics.
+    consistency = check_consistency(recording)
+    if not consistency.consistent:
+        return Diagnosis(recording, None, math.nan, None, block_s, anchor_s, None, None, None, None, None, None, [],
+                         {}, {}, consistency.summary(recording.name), verdict="inconsistent",
+                         consistency=consistency)
     problem = make_problem(recording, signal_name, block_s, split)
     signal = problem.signal
     data = scored_data(recording, signal)
@@ -744,7 +760,7 @@ def diagnose(recording: Recording, *, block_s: float | None = None, anchor_s: fl
                   pose_before, pose_after, windows, conditions, fit, summary="", checks=checks, notes=notes,
                   verdict=verdict, confidence="low" if data["low_confidence_reasons"] else "normal", data=data,
                   residual=left if selection.winner.effects else left_plain, channels=problem.channels,
-                  problem=problem)
+                  problem=problem, consistency=consistency)
     d.summary = summary_text(d)
     caveats = [n for n in notes if "yaw_rate runs" in n]
     if caveats and verdict not in ("unexcited",):
@@ -810,6 +826,14 @@ def _candidate_json(c: CandidateFit) -> dict:
 
 def to_json(d: Diagnosis) -> dict:
     """The diagnosis as the documented JSON (effect names and parameter keys are fixed; no NaN)."""
+    rec = d.recording
+    recording = {"name": rec.name, "duration_s": rec.duration_s, "sample_hz": 1.0 / rec.dt_s,
+                 "vehicle": rec.vehicle.sidecar() | {"source": rec.vehicle.source},
+                 "yaw_inertia_assumed": not rec.vehicle.inertia_known}
+    if d.verdict == "inconsistent":
+        return json_safe({"verdict": d.verdict, "confidence": d.confidence, "effects": [],
+                          "consistency": d.consistency.to_json(), "summary": d.summary, "recording": recording,
+                          "warnings": list(rec.warnings) + list(d.notes), "effect_names": list(EFFECT_NAMES)})
     sel = d.selection
     winner = sel.winner
     named = d.verdict in ("mismatch", "partly explained")
@@ -818,7 +842,6 @@ def to_json(d: Diagnosis) -> dict:
     runner = _candidate_json(sel.runner_up)
     runner["margin"] = sel.margin
     runner["margin_ci95"] = list(sel.margin_ci)
-    rec = d.recording
     return json_safe({
         "verdict": d.verdict,
         "confidence": d.confidence,
@@ -832,10 +855,9 @@ def to_json(d: Diagnosis) -> dict:
         "reason": sel.reason,
         "summary": d.summary,
         "candidates": [_candidate_json(c) for c in sel.ranking],
-        "recording": {"name": rec.name, "duration_s": rec.duration_s, "sample_hz": 1.0 / rec.dt_s,
-                      "vehicle": rec.vehicle.sidecar() | {"source": rec.vehicle.source},
-                      "yaw_inertia_assumed": not rec.vehicle.inertia_known},
+        "recording": recording,
         "checks": d.checks,
+        "consistency": d.consistency.to_json() if d.consistency is not None else None,
         "warnings": list(rec.warnings) + list(d.notes),
         "effect_names": list(EFFECT_NAMES),
     })

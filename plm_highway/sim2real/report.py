@@ -6,6 +6,9 @@
 ``candidates.png``  held-out RMSE of every candidate against the noise level
 ``summary.md``      the plain-language summary and the numbers
 
+A recording that contradicts itself (verdict ``inconsistent``) gets ``consistency.png`` instead of
+the four figures: each pair of channels that should agree, over the whole run.
+
 Every file is written to a temporary name in the same directory and renamed into place.
 """
 
@@ -17,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.io import directory_kind, file_kind, json_text, save_figure_into, write_output, write_outputs
+from plm_highway.sim2real.consistency import channel_rates
 from plm_highway.sim2real.diagnose import Diagnosis, to_json
 
 NAMED = ("mismatch", "partly explained")
@@ -170,6 +174,45 @@ def candidates_figure(d: Diagnosis, plt):
     return fig
 
 
+def consistency_figure(d: Diagnosis, plt):
+    """Each relation the consistency checks measure, over time: what one channel says against another."""
+    rec = d.recording
+    rates = channel_rates(rec)
+    checks = {c.name: c for c in d.consistency.checks}
+    t = rec.t_s
+    v = rec.vehicle
+    steered = rec.speed_mps * np.sin(np.arctan(v.cg_to_rear_m / v.wheelbase_m * np.tan(rec.steer_rad))) \
+        / v.cg_to_rear_m
+    panels = [
+        ("speed_vs_position", "speed [m/s]", [(rec.speed_mps, "speed column"),
+                                             (rates.speed_from_position, "|d(x, y)/dt| from the positions")]),
+        ("yaw_rate_vs_heading", "yaw rate [rad/s]", [(rec.yaw_rate_radps, "yaw_rate column"),
+                                                     (rates.heading_rate, "d(heading)/dt")]),
+        ("heading_vs_course", "turn rate [rad/s]", [(rates.heading_rate, "d(heading)/dt"),
+                                                    (rates.course_rate, "d(course)/dt from the positions")]),
+        ("steer_vs_turning", "turn rate [rad/s]", [(rates.heading_rate, "d(heading)/dt"),
+                                                   (steered, "the simulator's yaw rate from the steering")]),
+    ]
+    if rec.lat_accel_mps2 is not None:
+        panels.append(("lat_accel_vs_turning", "lateral accel [m/s^2]",
+                       [(rec.lat_accel_mps2, "lat_accel column"),
+                        (rates.speed_from_position * rates.heading_rate, "|d(x, y)/dt| x d(heading)/dt")]))
+    fig, axes = plt.subplots(len(panels), 1, figsize=(10, 2.3 * len(panels)), sharex=True)
+    for ax, (name, ylabel, series) in zip(axes, panels):
+        check = checks[name]
+        for (values, label), color in zip(series, ("tab:red", "tab:blue")):
+            if values is not None:
+                ax.plot(t, np.where(rates.valid, values, np.nan), color=color, lw=0.8, label=label)
+        ax.set_ylabel(ylabel)
+        ax.set_title(f"{name.replace('_', ' ')}: {check.status} ({check.text})", fontsize=9)
+        ax.legend(loc="upper right")
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("time as recorded [s]")
+    fig.suptitle(f"{rec.name}: the recording against itself")
+    fig.tight_layout()
+    return fig
+
+
 DIAGNOSIS_JSON = file_kind("sim2real-diagnosis", "a sim2real diagnosis JSON file")
 
 
@@ -193,6 +236,18 @@ def publish_diagnosis(d: Diagnosis, data: dict, json_path=None, report_dir=None,
 
 def _write_report_files(d: Diagnosis, directory: Path) -> list[str]:
     plt = _pyplot()
+    if d.verdict == "inconsistent":
+        fig = consistency_figure(d, plt)
+        try:
+            _save(fig, directory / "consistency.png")
+        finally:
+            plt.close(fig)
+        lines = [f"# sim2real diagnosis: {d.recording.name}", "", d.summary, "", "## Consistency checks", "",
+                 "| check | channels | status | measured |", "|---|---|---|---|"]
+        lines += [f"| {c.name} | {', '.join(c.channels)} | {c.status} | {c.text} |" for c in d.consistency.checks]
+        (directory / "summary.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+        (directory / "diagnosis.json").write_text(json_text(to_json(d), indent=1), encoding="utf-8")
+        return ["consistency.png", "summary.md", "diagnosis.json"]
     written = []
     for name, make in zip(FIGURES, (overlay_figure, residuals_figure, conditions_figure, candidates_figure)):
         fig = make(d, plt)
@@ -222,6 +277,10 @@ def _write_report_files(d: Diagnosis, directory: Path) -> list[str]:
                   f"{100 * d.residual['excess_variance_ratio']:.0f}%); Ljung-Box over {white['lags']} lags: "
                   f"p = {white['p_value']:.3g}.", "", "| correlates with | rho | 99% level |", "|---|---|---|"]
         lines += [f"| {c['with']} | {c['rho']:+.3f} | {c['significance']:.3f} |" for c in d.residual["correlations"]]
+        lines.append("")
+    if d.consistency is not None:
+        lines += ["## The recording against itself", "", "| check | status | measured |", "|---|---|---|"]
+        lines += [f"| {c.name} | {c.status} | {c.text} |" for c in d.consistency.checks]
         lines.append("")
     if d.recording.warnings or d.notes:
         lines += ["## Warnings", ""] + [f"- {w}" for w in list(d.recording.warnings) + d.notes] + [""]
