@@ -4,9 +4,10 @@ The simulator (highway-env's kinematic bicycle) turns the commanded front-wheel 
 rate instantly: ``r = v sin(beta) / lr`` with ``beta = atan(lr / L tan(delta))``. The chain inserts
 the terms a real car adds, in a fixed order,
 
-    command -> calibration (gain, offset) -> transport delay (optionally jittering) -> servo (first-order
-            lag, rate limit) -> vehicle (kinematic | linear tires | saturating tires; road bank)
-            -> sensors (a late gyro: applied per recorded channel, see ``replay``)
+    command -> calibration (gain, offset) -> steering map (speed-dependent ratio, left/right asymmetry,
+            dead band, backlash, end stops) -> transport delay (optionally jittering) -> servo
+            (first-order lag, rate limit) -> vehicle (kinematic | linear tires | saturating tires; road
+            bank) -> sensors (a late or biased gyro: applied per recorded channel, see ``replay``)
 
 with its parameters named in :class:`EffectParams` (``None`` tires: the kinematic bicycle) and, for
 the numba kernels, in :class:`ChainParams` (plain floats under the same names). All parameters at
@@ -45,6 +46,13 @@ class ChainParams(NamedTuple):
     bank_accel_mps2: float = 0.0
     sensor_delay_s: float = 0.0
     jitter_s: float = 0.0
+    speed_gain_slope: float = 0.0
+    speed_ref_mps: float = 0.0
+    asymmetry: float = 0.0
+    dead_band_rad: float = 0.0
+    play_rad: float = 0.0
+    saturation_rad: float = math.inf
+    gyro_bias_radps: float = 0.0
 
 
 # A grid of parameter sets is a structured array with one named field per chain parameter.
@@ -64,6 +72,13 @@ class EffectParams:
     tire slip (the kinematic bicycle). ``friction_coefficient`` inf: linear tires. ``jitter_s`` is
     the standard deviation of a jittering delay: the expected response is the delayed command
     smoothed by a Gaussian of that width, and the error variance grows with it.
+
+    The steering map acts on the calibrated command before the delay: the gain changes by
+    ``speed_gain_slope`` per m/s away from ``speed_ref_mps``, left commands are ``1 + asymmetry``
+    and right ones ``1 - asymmetry`` times as effective, ``dead_band_rad`` either side of the centre
+    does nothing, ``play_rad`` is the total free play (backlash) the command crosses on reversing,
+    and ``saturation_rad`` is where the wheels stop. ``gyro_bias_radps`` is added to the recorded
+    yaw rate (the gyro only).
     """
 
     delay_s: float = 0.0
@@ -77,6 +92,13 @@ class EffectParams:
     bank_accel_mps2: float = 0.0
     sensor_delay_s: float = 0.0
     jitter_s: float = 0.0
+    speed_gain_slope: float = 0.0
+    speed_ref_mps: float = 0.0
+    asymmetry: float = 0.0
+    dead_band_rad: float = 0.0
+    play_rad: float = 0.0
+    saturation_rad: float = math.inf
+    gyro_bias_radps: float = 0.0
 
     @property
     def has_tire_slip(self) -> bool:
@@ -90,7 +112,10 @@ class EffectParams:
             cf_per_kg=0.0 if self.cf_per_kg is None else float(self.cf_per_kg),
             cr_per_kg=0.0 if self.cr_per_kg is None else float(self.cr_per_kg),
             friction_coefficient=float(self.friction_coefficient), bank_accel_mps2=float(self.bank_accel_mps2),
-            sensor_delay_s=float(self.sensor_delay_s), jitter_s=float(self.jitter_s))
+            sensor_delay_s=float(self.sensor_delay_s), jitter_s=float(self.jitter_s),
+            speed_gain_slope=float(self.speed_gain_slope), speed_ref_mps=float(self.speed_ref_mps),
+            asymmetry=float(self.asymmetry), dead_band_rad=float(self.dead_band_rad), play_rad=float(self.play_rad),
+            saturation_rad=float(self.saturation_rad), gyro_bias_radps=float(self.gyro_bias_radps))
 
     @classmethod
     def from_chain(cls, p: ChainParams) -> EffectParams:
@@ -99,7 +124,10 @@ class EffectParams:
                    time_constant_s=float(p.time_constant_s), max_rate_radps=float(p.max_rate_radps),
                    cf_per_kg=float(p.cf_per_kg) if tires else None, cr_per_kg=float(p.cr_per_kg) if tires else None,
                    friction_coefficient=float(p.friction_coefficient), bank_accel_mps2=float(p.bank_accel_mps2),
-                   sensor_delay_s=float(p.sensor_delay_s), jitter_s=float(p.jitter_s))
+                   sensor_delay_s=float(p.sensor_delay_s), jitter_s=float(p.jitter_s),
+                   speed_gain_slope=float(p.speed_gain_slope), speed_ref_mps=float(p.speed_ref_mps),
+                   asymmetry=float(p.asymmetry), dead_band_rad=float(p.dead_band_rad), play_rad=float(p.play_rad),
+                   saturation_rad=float(p.saturation_rad), gyro_bias_radps=float(p.gyro_bias_radps))
 
 
 class Drive(NamedTuple):
@@ -220,6 +248,36 @@ def _servo(u, dt, tau, max_rate, out):
 
 
 @numba.njit(cache=True, nogil=True)
+def _maps_steering(p):
+    """Does ``p`` have a steering map (any term away from neutral)?"""
+    return (p.speed_gain_slope != 0.0 or p.asymmetry != 0.0 or p.dead_band_rad > 0.0 or p.play_rad > 0.0
+            or math.isfinite(p.saturation_rad))
+
+
+@numba.njit(cache=True, nogil=True)
+def steering_map(u, speed, p, out):
+    """The steering map of ``p`` applied to the calibrated command ``u`` (see :class:`EffectParams`):
+    speed-dependent ratio, asymmetry, dead band, backlash (a play operator, starting centred on the
+    first command), then the end stops."""
+    half_play = 0.5 * p.play_rad
+    held = u[0]
+    for k in range(u.shape[0]):
+        x = u[k]
+        if p.speed_gain_slope != 0.0:
+            x *= 1.0 + p.speed_gain_slope * (speed[k] - p.speed_ref_mps)
+        if p.asymmetry != 0.0:
+            x += p.asymmetry * abs(x)
+        if p.dead_band_rad > 0.0:
+            x -= min(max(x, -p.dead_band_rad), p.dead_band_rad)
+        if half_play > 0.0:
+            if k == 0:
+                held = x
+            held = min(max(held, x - half_play), x + half_play)
+            x = held
+        out[k] = min(max(x, -p.saturation_rad), p.saturation_rad)
+
+
+@numba.njit(cache=True, nogil=True)
 def _kinematic(delta, speed, a_m, b_m, r_out, vy_out, slip_out, need):
     """Yaw rate, lateral velocity and (``need`` >= 2) slip of the kinematic bicycle (the simulator).
 
@@ -292,6 +350,10 @@ def simulate_chain(drive, p, car, tire, out, need=2):
     r, vy, slip = out.r, out.vy, out.slip
     n = steer.shape[0]
     calibrated = p.gain * steer + p.offset_rad
+    if _maps_steering(p):
+        mapped = np.empty(n)
+        steering_map(calibrated, speed, p, mapped)
+        calibrated = mapped
     delayed = np.empty(n)
     _jittered(calibrated, p.delay_s / dt, p.jitter_s / dt, delayed)
     delta = np.empty(n)

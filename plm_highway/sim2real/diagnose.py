@@ -30,6 +30,9 @@ The steps, top to bottom (:func:`diagnose`):
    unexplained        the simulator departs, and nothing in the library helps
    unexcited          the car barely turns: the recording cannot show steering-path physics
    inconclusive       nothing helps, but too little data (or no measured noise) to call it a match
+   discovered         the library's best chain leaves structure and residual discovery names a
+                      plausible term outside the library that improves held-out data
+                      (:mod:`plm_highway.sim2real.discovery`)
    inconsistent       the recording contradicts itself (speed against positions, yaw rate against
                       heading, steering against the turns, time scale against both): no physics is
                       fitted; the channel and the likely cause (units, sign, scale) are named
@@ -50,8 +53,10 @@ from scipy.ndimage import correlate1d
 from plm_highway.io import json_safe
 from plm_highway.sim2real.chain import EffectParams
 from plm_highway.sim2real.consistency import Consistency, check_consistency
-from plm_highway.sim2real.effects import EFFECT_NAMES, EFFECTS, separating_text
+from plm_highway.sim2real.discovery import Discovery, discover, removed_words, should_run
+from plm_highway.sim2real.effects import EFFECT_NAMES, SPECS, separating_text
 from plm_highway.sim2real.folds import MIN_BLOCKS, check_block_s, default_block_s
+from plm_highway.sim2real.plausibility import library_doubts
 from plm_highway.sim2real.problem import CandidateFit, FitProblem, make_problem
 from plm_highway.sim2real.recording import Recording
 from plm_highway.sim2real.replay import (
@@ -67,7 +72,9 @@ from plm_highway.sim2real.replay import (
 )
 from plm_highway.sim2real.selection import Selection, fit_candidates, select
 
-VERDICTS = ("match", "mismatch", "partly explained", "unexplained", "unexcited", "inconclusive", "inconsistent")
+VERDICTS = ("match", "mismatch", "partly explained", "unexplained", "unexcited", "inconclusive", "inconsistent",
+            "discovered")
+DISCOVERY_MODES = ("auto", "always", "never")
 
 WINDOW_RMS_S = 1.0
 WINDOW_NOISE_FACTOR = 2.0
@@ -137,6 +144,8 @@ class Diagnosis:
     channels: list[FitSignal] = field(default_factory=list)
     problem: FitProblem | None = None
     consistency: Consistency | None = None
+    library_verdict: str | None = None  # the verdict of the library alone (differs on "discovered")
+    discovery: Discovery | None = None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -422,7 +431,7 @@ def where_text(conditions: dict, windows: list[list[float]], duration_s: float, 
 
 
 def effect_sentence(name: str, params: dict, ci: dict) -> str:
-    return EFFECTS[name].sentence(params, ci)
+    return SPECS[name].sentence(params, ci)
 
 
 def tie_text(winner: tuple[str, ...], runner_up: tuple[str, ...]) -> str:
@@ -562,6 +571,43 @@ def summary_text(d: Diagnosis) -> str:
     return "\n".join(lines)
 
 
+def discovery_text(disc: Discovery, signal: FitSignal) -> str:
+    """Residual discovery in words: what entered (and what it gains held out), what is doubtful, what not."""
+    unit = signal.unit
+    lines = []
+    for f in disc.named:
+        lines.append(f"Discovered outside the library: {f.sentence}. Held out on {f.validation}, it removes "
+                     f"{100 * f.removed_fraction:.0f}% of the {signal.label} error above the noise left by "
+                     f"{disc.base.name if f is disc.found[0] else 'the model before it'}: RMSE "
+                     f"{math.sqrt(f.mse_before):.4f} -> {math.sqrt(f.mse_after):.4f} {unit} (t = {f.t_statistic:.1f}).")
+    for f in disc.doubtful:
+        lines.append(f"Doubtful, not named: {f.sentence} ({'; '.join(f.doubts)}); held out it "
+                     f"{removed_words(f.removed_fraction, would=True)} of the {signal.label} error above the noise.")
+    if not disc.named:
+        tried = sorted(disc.tried, key=lambda t: t.score_ratio)
+        best = (f"; the best, {tried[0].name.replace('_', ' ')}, scores {100 * (tried[0].score_ratio - 1):+.1f}% "
+                f"({tried[0].why})") if tried else ""
+        lines.append(f"Residual discovery: no {'plausible ' if disc.doubtful else ''}term outside the library "
+                     f"improves held-out data clearly ({len(tried)} tried{best}).")
+    if disc.not_tried:
+        lines.append("Not tried: " + "; ".join(f"{k.replace('_', ' ')} ({v})" for k, v in disc.not_tried.items())
+                     + ".")
+    return "\n".join(lines)
+
+
+def discovery_json(disc: Discovery) -> dict:
+    def found(f):
+        return {"name": f.name, "sentence": f.sentence, "params": f.estimates, "ci": f.ci95,
+                "validation": f.validation, "rmse_before": math.sqrt(f.mse_before), "rmse_after": math.sqrt(f.mse_after),
+                "removed_fraction": f.removed_fraction, "t_statistic": f.t_statistic, "plausible": f.plausible,
+                "doubts": f.doubts}
+    return {"base": disc.base.name, "found": [found(f) for f in disc.named],
+            "doubtful": [found(f) for f in disc.doubtful],
+            "tried": [{"name": t.name, "score_ratio": t.score_ratio, "entered": t.entered, "why": t.why}
+                      for t in disc.tried],
+            "not_tried": disc.not_tried, "noise_sigma": disc.noise_sigma}
+
+
 def _correlates(residual: dict) -> str:
     named = [c for c in residual["correlations"] if c["significant"]][:3]
     if not named:
@@ -664,9 +710,13 @@ def _check_enough(data: dict, recording: Recording, problem_blocks: int) -> None
 def diagnose(recording: Recording, *, block_s: float | None = None, anchor_s: float = ANCHOR_S,
              split: str = "blocks", signal_name: str = "auto",
              candidates: list[tuple[str, ...]] | None = None,
-             rng: np.random.Generator | None = None) -> Diagnosis:
+             rng: np.random.Generator | None = None, discovery: str = "auto") -> Diagnosis:
     """Run the whole diagnosis on a recording (see the module docstring). ``rng`` drives the
-    bootstraps (default: a fixed seed, so a diagnosis is reproducible)."""
+    bootstraps (default: a fixed seed, so a diagnosis is reproducible). ``discovery``: ``auto`` runs
+    residual discovery when the library leaves structure (``partly explained``, ``unexplained``),
+    ``always`` after any fit, ``never`` not at all."""
+    if discovery not in DISCOVERY_MODES:
+        raise ValueError(f"unknown discovery mode {discovery!r}; known: {', '.join(DISCOVERY_MODES)}")
     rng = np.random.default_rng(0) if rng is None else rng
     if not recording.is_uniform:
         raise ValueError(f"{recording.name}: not uniformly sampled; read it with read_recording or "
@@ -760,11 +810,21 @@ def diagnose(recording: Recording, *, block_s: float | None = None, anchor_s: fl
                   pose_before, pose_after, windows, conditions, fit, summary="", checks=checks, notes=notes,
                   verdict=verdict, confidence="low" if data["low_confidence_reasons"] else "normal", data=data,
                   residual=left if selection.winner.effects else left_plain, channels=problem.channels,
-                  problem=problem, consistency=consistency)
+                  problem=problem, consistency=consistency, library_verdict=verdict)
     d.summary = summary_text(d)
     caveats = [n for n in notes if "yaw_rate runs" in n]
     if caveats and verdict not in ("unexcited",):
         d.summary += "\nCaveat: " + "; ".join(caveats) + "."
+    doubts = library_doubts(selection.winner, consistency) if verdict in ("mismatch", "partly explained") else []
+    if doubts:
+        d.notes.append("doubtful: " + "; ".join(doubts))
+        d.summary += "\nDoubtful: " + "; ".join(doubts) + "."
+    if (discovery == "always" and verdict not in ("unexcited",)
+            or discovery == "auto" and should_run(verdict, fit["explained_fraction"])):
+        d.discovery = discover(problem, selection, noise, rng, consistency)
+        if d.discovery.named:
+            d.verdict = "discovered"
+        d.summary += "\n" + discovery_text(d.discovery, signal)
     return d
 
 
@@ -836,7 +896,7 @@ def to_json(d: Diagnosis) -> dict:
                           "warnings": list(rec.warnings) + list(d.notes), "effect_names": list(EFFECT_NAMES)})
     sel = d.selection
     winner = sel.winner
-    named = d.verdict in ("mismatch", "partly explained")
+    named = (d.library_verdict or d.verdict) in ("mismatch", "partly explained")
     effects = [{"name": e, "params": winner.estimates[e], "ci": winner.ci95[e]} for e in winner.effects] if named \
         else []
     runner = _candidate_json(sel.runner_up)
@@ -844,8 +904,10 @@ def to_json(d: Diagnosis) -> dict:
     runner["margin_ci95"] = list(sel.margin_ci)
     return json_safe({
         "verdict": d.verdict,
+        "library_verdict": d.library_verdict or d.verdict,
         "confidence": d.confidence,
         "effects": effects,
+        "discovery": discovery_json(d.discovery) if d.discovery is not None else None,
         "runner_up": runner,
         "fit": d.fit,
         "residual": d.residual,

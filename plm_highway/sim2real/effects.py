@@ -35,102 +35,18 @@ point of every candidate's family.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections import ChainMap
 
 import numpy as np
 
-from plm_highway.sim2real.chain import TIRE_MIN_SPEED_MPS, EffectParams
+from plm_highway.sim2real.chain import EffectParams
+from plm_highway.sim2real.effect_spec import Effect, FitContext, Parameter, pm
+from plm_highway.sim2real.terms import TERMS
 from plm_highway.vehicle.single_track import understeer_gradient
 from plm_highway.vehicle.tires import GRAVITY_MPS2
 
 # Axle cornering stiffness per unit mass [N/rad/kg]: road cars ~30-80, race cars a few hundred.
 MAX_STIFFNESS_PER_KG = 1000.0
-
-
-@dataclass(frozen=True)
-class FitContext:
-    """What a recording tells the library about ranges: its car and how it was driven."""
-
-    a_m: float
-    b_m: float
-    k2_m2: float
-    dt_s: float
-    mass_kg: float | None = None
-    inertia_known: bool = False
-    u_min_mps: float = TIRE_MIN_SPEED_MPS
-    steer_rate_median_radps: float = 0.05  # of the commanded front-wheel angle, moving samples
-    steer_rate_max_radps: float = 0.5  # its 99.5th percentile
-    max_lat_accel_mps2: float = 4.0  # 99.5th percentile of |lateral acceleration|
-
-
-# ----------------------------------------------------------------------------------------------
-# The registry
-
-
-@dataclass(frozen=True)
-class Parameter:
-    """A fitted coordinate of an effect. ``linear``: enters the signal linearly (or nearly), solved in
-    closed form at every grid point; otherwise tried on the effect's grid, then polished."""
-
-    name: str
-    unit: str
-    bounds: tuple[float, float] | Callable[[FitContext], tuple[float, float]]
-    scale: float  # typical size: finite-difference steps and the optimiser's variable scaling
-    linear: bool = False
-    grid: tuple[float, ...] | Callable[[FitContext], np.ndarray] = ()
-
-    def bounds_for(self, ctx: FitContext) -> tuple[float, float]:
-        return self.bounds(ctx) if callable(self.bounds) else self.bounds
-
-    def grid_for(self, ctx: FitContext) -> np.ndarray:
-        return np.asarray(self.grid(ctx) if callable(self.grid) else self.grid, float)
-
-
-@dataclass(frozen=True)
-class Effect:
-    name: str
-    term: str  # the term added to the simulator's model
-    parameters: tuple[Parameter, ...]  # fitted coordinates
-    public_keys: tuple[str, ...]  # reported names (fixed: other tools read them)
-    fingerprint: str
-    concealed: str  # how make-recording conceals it
-    synth_defaults: dict[str, float]  # make-recording's parameters (public names, first = NAME=VALUE)
-    synth_bounds: dict[str, tuple[float, float]]
-    conceal: dict[str, str]  # make-recording parameter -> field of synth.ConcealedEffects it sets
-    set_params: Callable[[dict, FitContext], dict]  # fitted coordinates -> EffectParams fields
-    read_params: Callable[[EffectParams, FitContext], dict]  # EffectParams -> fitted coordinates
-    report: Callable[[EffectParams, FitContext], dict]  # EffectParams -> public names
-    sentence: Callable[[dict, dict], str]  # (public estimates, their 95% intervals) -> words
-    group: str | None = None  # at most one effect of a group in a candidate
-    needs_group: str | None = None  # the group must be present; if not, this effect is added
-    needs_channel: str | None = None  # a recorded channel without which the effect is not tried
-    varies_noise: bool = False  # shapes the error variance (scored by likelihood)
-    refines: str | None = None  # an effect this one contains as a special case (its simpler version)
-    separated_from: dict[str, str] = field(default_factory=dict)  # other effect -> the drive that tells them apart
-    joint_grid: Callable[[FitContext], np.ndarray] | None = None  # (G, p) grid when parameters are coupled
-
-    @property
-    def dof(self) -> int:
-        return len(self.parameters)
-
-    @property
-    def primary_synth_key(self) -> str:
-        return next(iter(self.synth_defaults))
-
-    def grid(self, ctx: FitContext) -> np.ndarray:
-        """Grid points of the nonlinear coordinates, shape (G, number of nonlinear parameters)."""
-        if self.joint_grid is not None:
-            return self.joint_grid(ctx)
-        axes = [p.grid_for(ctx) for p in self.parameters if not p.linear]
-        if not axes:
-            return np.zeros((1, 0))
-        mesh = np.meshgrid(*axes, indexing="ij")
-        return np.column_stack([m.ravel() for m in mesh])
-
-
-def _pm(ci: list[float]) -> float:
-    return 0.5 * (ci[1] - ci[0])
 
 
 def front_stiffness_from(understeer: float, cr: float, a: float, b: float) -> float:
@@ -175,12 +91,12 @@ def _tire_report(p: EffectParams, ctx: FitContext) -> dict:
 
 def _tire_sentence(params: dict, ci: dict) -> str:
     k = params["understeer_gradient_rad_per_mps2"]
-    text = (f"the tires slip: understeer gradient {k:.5f} +- {_pm(ci['understeer_gradient_rad_per_mps2']):.5f} "
+    text = (f"the tires slip: understeer gradient {k:.5f} +- {pm(ci['understeer_gradient_rad_per_mps2']):.5f} "
             f"rad/(m/s^2) ({math.degrees(k) * GRAVITY_MPS2:.2f} deg/g)")
     if "cornering_stiffness_front" in params:
         text += (f", cornering stiffness front {params['cornering_stiffness_front']:,.0f} "
-                 f"+- {_pm(ci['cornering_stiffness_front']):,.0f} N/rad, rear "
-                 f"{params['cornering_stiffness_rear']:,.0f} +- {_pm(ci['cornering_stiffness_rear']):,.0f} N/rad")
+                 f"+- {pm(ci['cornering_stiffness_front']):,.0f} N/rad, rear "
+                 f"{params['cornering_stiffness_rear']:,.0f} +- {pm(ci['cornering_stiffness_rear']):,.0f} N/rad")
     return text
 
 
@@ -227,7 +143,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         set_params=lambda v, ctx: {"delay_s": v["delay_s"]},
         read_params=lambda p, ctx: {"delay_s": p.delay_s},
         report=lambda p, ctx: {"delay_s": p.delay_s},
-        sentence=lambda p, ci: f"the car steers late by {p['delay_s']:.3f} s +- {_pm(ci['delay_s']):.3f} s "
+        sentence=lambda p, ci: f"the car steers late by {p['delay_s']:.3f} s +- {pm(ci['delay_s']):.3f} s "
                                "(transport delay)",
         group="delay",
         separated_from={
@@ -251,7 +167,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         read_params=lambda p, ctx: {"time_constant_s": p.time_constant_s},
         report=lambda p, ctx: {"time_constant_s": p.time_constant_s},
         sentence=lambda p, ci: (f"the steering follows the command like a first-order actuator with time constant "
-                                f"{p['time_constant_s']:.3f} s +- {_pm(ci['time_constant_s']):.3f} s"),
+                                f"{p['time_constant_s']:.3f} s +- {pm(ci['time_constant_s']):.3f} s"),
         separated_from={
             "tire_slip": "steady turns at very different speeds separate them: only tire slip changes the steady "
                          "yaw rate with speed",
@@ -286,7 +202,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         set_params=lambda v, ctx: {"gain": v["gain"]},
         read_params=lambda p, ctx: {"gain": p.gain},
         report=lambda p, ctx: {"gain": p.gain},
-        sentence=lambda p, ci: (f"the wheels turn {p['gain']:.3f} +- {_pm(ci['gain']):.3f} times the commanded "
+        sentence=lambda p, ci: (f"the wheels turn {p['gain']:.3f} +- {pm(ci['gain']):.3f} times the commanded "
                                 "angle (steering gain)"),
         separated_from={"steering_offset": "driving straight separates them: only an offset turns the car with the "
                                            "wheel centred"},
@@ -302,7 +218,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         set_params=lambda v, ctx: {"offset_rad": v["offset_rad"]},
         read_params=lambda p, ctx: {"offset_rad": p.offset_rad},
         report=lambda p, ctx: {"offset_rad": p.offset_rad},
-        sentence=lambda p, ci: (f"the steering is offset by {p['offset_rad']:+.4f} +- {_pm(ci['offset_rad']):.4f} "
+        sentence=lambda p, ci: (f"the steering is offset by {p['offset_rad']:+.4f} +- {pm(ci['offset_rad']):.4f} "
                                 f"rad ({math.degrees(p['offset_rad']):+.2f} deg): commanded straight, the car pulls "
                                 f"{'left' if p['offset_rad'] > 0 else 'right'}"),
         separated_from={"road_bank": "a recorded position separates them: on a bank the car crabs sideways (course "
@@ -347,7 +263,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         read_params=lambda p, ctx: _tire_read(p, ctx) | {"friction_coefficient": p.friction_coefficient},
         report=lambda p, ctx: {"friction_coefficient": p.friction_coefficient} | _tire_report(p, ctx),
         sentence=lambda p, ci: (f"the tires saturate: friction coefficient {p['friction_coefficient']:.3f} +- "
-                                f"{_pm(ci['friction_coefficient']):.3f} (peak lateral acceleration "
+                                f"{pm(ci['friction_coefficient']):.3f} (peak lateral acceleration "
                                 f"{p['friction_coefficient'] * GRAVITY_MPS2:.1f} m/s^2); "
                                 + _tire_sentence(p, ci).replace("the tires slip: ", "linear part: ")),
         group="tires", refines="tire_slip",
@@ -366,7 +282,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         set_params=lambda v, ctx: {"sensor_delay_s": v["sensor_delay_s"]},
         read_params=lambda p, ctx: {"sensor_delay_s": p.sensor_delay_s},
         report=lambda p, ctx: {"delay_s": p.sensor_delay_s},
-        sentence=lambda p, ci: (f"the recorded yaw rate is {p['delay_s']:.3f} s +- {_pm(ci['delay_s']):.3f} s late "
+        sentence=lambda p, ci: (f"the recorded yaw rate is {p['delay_s']:.3f} s +- {pm(ci['delay_s']):.3f} s late "
                                 "while heading and position are not (a late or filtered gyro channel)"),
         needs_channel="yaw_rate",
     ),
@@ -384,7 +300,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         set_params=lambda v, ctx: {"bank_accel_mps2": GRAVITY_MPS2 * math.sin(v["bank_rad"])},
         read_params=lambda p, ctx: {"bank_rad": math.asin(max(-1.0, min(1.0, p.bank_accel_mps2 / GRAVITY_MPS2)))},
         report=lambda p, ctx: {"bank_rad": math.asin(max(-1.0, min(1.0, p.bank_accel_mps2 / GRAVITY_MPS2)))},
-        sentence=lambda p, ci: (f"the road is banked by {p['bank_rad']:+.4f} +- {_pm(ci['bank_rad']):.4f} rad "
+        sentence=lambda p, ci: (f"the road is banked by {p['bank_rad']:+.4f} +- {pm(ci['bank_rad']):.4f} rad "
                                 f"({math.degrees(p['bank_rad']):+.2f} deg; it falls to the "
                                 f"{'left' if p['bank_rad'] > 0 else 'right'}): the car crabs downhill"),
         needs_group="tires",
@@ -403,8 +319,8 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         set_params=lambda v, ctx: {"delay_s": v["delay_s"], "jitter_s": v["jitter_s"]},
         read_params=lambda p, ctx: {"delay_s": p.delay_s, "jitter_s": p.jitter_s},
         report=lambda p, ctx: {"delay_s": p.delay_s, "jitter_s": p.jitter_s},
-        sentence=lambda p, ci: (f"the car steers late by {p['delay_s']:.3f} s +- {_pm(ci['delay_s']):.3f} s, and the "
-                                f"delay jitters by {p['jitter_s']:.3f} s +- {_pm(ci['jitter_s']):.3f} s (std): the "
+        sentence=lambda p, ci: (f"the car steers late by {p['delay_s']:.3f} s +- {pm(ci['delay_s']):.3f} s, and the "
+                                f"delay jitters by {p['jitter_s']:.3f} s +- {pm(ci['jitter_s']):.3f} s (std): the "
                                 "error scatter grows with the steering rate"),
         group="delay", refines="transport_delay",
         varies_noise=True,
@@ -423,14 +339,18 @@ EFFECT_FINGERPRINTS = {name: e.fingerprint for name, e in EFFECTS.items()}
 
 def separating_text(a: str, b: str) -> str:
     """What drive would tell effect ``a`` from ``b`` ('' when the registry does not say)."""
-    return EFFECTS[a].separated_from.get(b) or EFFECTS[b].separated_from.get(a) or ""
+    return SPECS[a].separated_from.get(b) or SPECS[b].separated_from.get(a) or ""
+
+
+# Every entry a candidate may hold: the library's effects and the terms residual discovery tries.
+SPECS = ChainMap(EFFECTS, TERMS)
 
 
 def params_from(effects: tuple[str, ...], values: dict[str, float], ctx: FitContext) -> EffectParams:
     """EffectParams for a candidate from its fitted coordinates (keyed ``effect.parameter``)."""
     kwargs: dict = {}
     for name in effects:
-        e = EFFECTS[name]
+        e = SPECS[name]
         kwargs |= e.set_params({p.name: values[f"{name}.{p.name}"] for p in e.parameters}, ctx)
     return EffectParams(**kwargs)
 
@@ -438,13 +358,13 @@ def params_from(effects: tuple[str, ...], values: dict[str, float], ctx: FitCont
 def coordinates_of(effects: tuple[str, ...], params: EffectParams, ctx: FitContext) -> dict[str, float]:
     out = {}
     for name in effects:
-        for key, value in EFFECTS[name].read_params(params, ctx).items():
+        for key, value in SPECS[name].read_params(params, ctx).items():
             out[f"{name}.{key}"] = float(value)
     return out
 
 
 def effect_report(name: str, params: EffectParams, ctx: FitContext) -> dict[str, float]:
     """An effect's parameters under their fixed public names."""
-    if name not in EFFECTS:
-        raise KeyError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
-    return {k: float(v) for k, v in EFFECTS[name].report(params, ctx).items()}
+    if name not in SPECS:
+        raise KeyError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}, {', '.join(TERMS)}")
+    return {k: float(v) for k, v in SPECS[name].report(params, ctx).items()}

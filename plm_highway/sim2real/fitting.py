@@ -14,7 +14,7 @@ from dataclasses import replace
 import numpy as np
 
 from plm_highway.sim2real.chain import EffectParams
-from plm_highway.sim2real.effects import EFFECTS, coordinates_of, params_from
+from plm_highway.sim2real.effects import SPECS, coordinates_of, params_from
 from plm_highway.sim2real.gridfit import FitCache, fold_starts, grid_blocks, remember_top_rows
 from plm_highway.sim2real.jitter import JITTER_ITERATIONS, JITTER_MAX_S, delay_sensitivity, fit_jitter
 from plm_highway.sim2real.polish import coordinates, polish, public_estimates
@@ -23,7 +23,7 @@ from plm_highway.sim2real.scoring import PENALTY_PER_PARAMETER, _mse, combined_s
 
 
 def _candidate_dof(effects: tuple[str, ...]) -> int:
-    return sum(EFFECTS[e].dof for e in effects)
+    return sum(SPECS[e].dof for e in effects)
 
 
 def _polish_fold(problem: FitProblem, effects: tuple[str, ...], starts: list[EffectParams], fold: int
@@ -47,14 +47,14 @@ def fit_candidate(problem: FitProblem, effects: tuple[str, ...], cache: FitCache
     """
     cache = FitCache() if cache is None else cache
     if not effects:
-        plain = _scored(problem, effects, [EffectParams() for _ in problem.time_folds], [], True)
+        plain = scored(problem, effects, [EffectParams() for _ in problem.time_folds], [], True)
         plain.grid_score = plain.score
         return plain
     coords = coordinates(effects, problem.ctx)
     blocks, grams = grid_blocks(problem, effects, coords, cache)
     remember_top_rows(problem, effects, coords, blocks, grams, cache)
     starts = [fold_starts(problem, effects, coords, blocks, grams, f) for f in range(len(problem.time_folds))]
-    grid_fit = _scored(problem, effects, [s[0] for s in starts], starts, False)
+    grid_fit = scored(problem, effects, [s[0] for s in starts], starts, False)
     grid_fit.grid_score = grid_fit.score
     return grid_fit if not polished else polish_candidate(problem, grid_fit)
 
@@ -64,18 +64,18 @@ def polish_candidate(problem: FitProblem, fit: CandidateFit) -> CandidateFit:
     if fit.polished:
         return fit
     params = [_polish_fold(problem, fit.effects, s, f) for f, s in enumerate(fit.starts)]
-    polished = _scored(problem, fit.effects, params, fit.starts, True)
+    polished = scored(problem, fit.effects, params, fit.starts, True)
     polished.grid_score = fit.grid_score
     return polished
 
 
-def _scored(problem: FitProblem, effects: tuple[str, ...], fold_params: list[EffectParams], starts: list,
+def scored(problem: FitProblem, effects: tuple[str, ...], fold_params: list[EffectParams], starts: list,
             polished: bool) -> CandidateFit:
     """Held-out predictions (and the jitter's variance model) of per-fold parameters, and scores."""
     n_channels = len(problem.channels)
     oof = [np.full(problem.recording.n, np.nan) for _ in range(n_channels)]
     shapes: list[np.ndarray | None] = [None] * n_channels
-    variance = any(EFFECTS[e].varies_noise for e in effects)
+    variance = any(SPECS[e].varies_noise for e in effects)
     train_sse, train_n = 0.0, 0
     for f, params in enumerate(fold_params):
         preds = problem.predictions(params) if effects else problem.plain_predictions

@@ -64,7 +64,9 @@ def _chain_at(points, g):
     """Grid point ``g`` (a record of CHAIN_DTYPE) as :class:`ChainParams`."""
     q = points[g]
     return ChainParams(q.gain, q.offset_rad, q.delay_s, q.time_constant_s, q.max_rate_radps, q.cf_per_kg,
-                       q.cr_per_kg, q.friction_coefficient, q.bank_accel_mps2, q.sensor_delay_s, q.jitter_s)
+                       q.cr_per_kg, q.friction_coefficient, q.bank_accel_mps2, q.sensor_delay_s, q.jitter_s,
+                       q.speed_gain_slope, q.speed_ref_mps, q.asymmetry, q.dead_band_rad, q.play_rad,
+                       q.saturation_rad, q.gyro_bias_radps)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -74,18 +76,25 @@ def _moved(p, d):
                        p.time_constant_s + d.time_constant_s, p.max_rate_radps + d.max_rate_radps,
                        p.cf_per_kg + d.cf_per_kg, p.cr_per_kg + d.cr_per_kg,
                        p.friction_coefficient + d.friction_coefficient, p.bank_accel_mps2 + d.bank_accel_mps2,
-                       p.sensor_delay_s + d.sensor_delay_s, p.jitter_s + d.jitter_s)
+                       p.sensor_delay_s + d.sensor_delay_s, p.jitter_s + d.jitter_s,
+                       p.speed_gain_slope + d.speed_gain_slope, p.speed_ref_mps + d.speed_ref_mps,
+                       p.asymmetry + d.asymmetry, p.dead_band_rad + d.dead_band_rad, p.play_rad + d.play_rad,
+                       p.saturation_rad + d.saturation_rad, p.gyro_bias_radps + d.gyro_bias_radps)
 
 
 @numba.njit(cache=True, nogil=True)
-def _channel(r, dt, sensor_delay_s, taps, lo, out):
-    """A model's yaw rate as a recorded rotation channel sees it: late by the sensor delay, filtered."""
+def _channel(r, dt, sensor_delay_s, bias, taps, lo, out):
+    """A model's yaw rate as a recorded rotation channel sees it: late by the sensor delay, filtered,
+    plus the sensor's bias (the gyro's; zero for the other channels)."""
     if sensor_delay_s > 0.0:
         late = np.empty(r.shape[0])
         _delayed(r, sensor_delay_s / dt, late)
         fir_filter(late, taps, lo, out)
     else:
         fir_filter(r, taps, lo, out)
+    if bias != 0.0:
+        for k in range(out.shape[0]):
+            out[k] += bias
 
 
 @numba.njit(cache=True, nogil=True)
@@ -105,14 +114,14 @@ def _grid_into(drive, car, points, tires, channel, moves, step_sizes, weight, fi
         else:
             tire = TireTable(np.zeros((0, 8)), np.zeros(0), np.zeros(0), np.zeros(0))
         simulate_chain(drive, p, car, tire, out, 0)
-        _channel(out.r, drive.dt_s, p.sensor_delay_s, taps, lo, pred)
+        _channel(out.r, drive.dt_s, p.sensor_delay_s, p.gyro_bias_radps, taps, lo, pred)
         for k in range(n):
             columns[0, k] = y[k] - pred[k]
         for j in range(n_lin):
             q = _moved(p, moves[j])
             simulate_chain(drive, q, car, tire, out, 0)
             other = np.empty(n)
-            _channel(out.r, drive.dt_s, q.sensor_delay_s, taps, lo, other)
+            _channel(out.r, drive.dt_s, q.sensor_delay_s, q.gyro_bias_radps, taps, lo, other)
             for k in range(n):
                 columns[j + 1, k] = (other[k] - pred[k]) / step_sizes[j]
         for f in range(weight.shape[0]):

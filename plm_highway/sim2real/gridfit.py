@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from plm_highway.sim2real.chain import ChainParams, EffectParams, chain_grid
-from plm_highway.sim2real.effects import EFFECTS, FitContext, coordinates_of, params_from
+from plm_highway.sim2real.effects import SPECS, FitContext, coordinates_of, params_from
 from plm_highway.sim2real.grid import profile_linear
-from plm_highway.sim2real.polish import LINEAR_COORDINATES, Coordinate, neutral_value
+from plm_highway.sim2real.polish import LINEAR_COORDINATES, Coordinate, coordinates, neutral_value
 from plm_highway.sim2real.problem import FitProblem
 
 MAX_GRID_POINTS = 1200
@@ -31,7 +31,7 @@ class FitCache:
 
 
 def _effect_grid(effect: str, ctx: FitContext) -> np.ndarray:
-    return EFFECTS[effect].grid(ctx)
+    return SPECS[effect].grid(ctx)
 
 
 def _candidate_grid(effects: tuple[str, ...], ctx: FitContext, cache: FitCache) -> list[np.ndarray]:
@@ -163,3 +163,37 @@ def remember_top_rows(problem: FitProblem, effects: tuple[str, ...], coords: lis
                     break
             cache.top_rows[e] = np.array(chosen)
         column += width
+
+
+def extended_starts(problem: FitProblem, effects: tuple[str, ...], fold_params: list[EffectParams], term: str
+                    ) -> list[list[EffectParams]]:
+    """Per fold, the best grid point of ``effects + (term,)`` with the fitted candidate ``effects`` held
+    at its fold's nonlinear values: the term's grid only, every linear coordinate (the candidate's and
+    the term's) solved in closed form. Residual discovery's grid stage."""
+    ctx = problem.ctx
+    extended = effects + (term,)
+    coords = coordinates(extended, ctx)
+    linear = _linear_of(coords)
+    directions = [LINEAR_COORDINATES[c.name].direction for c in linear]
+    lo, hi = _linear_bounds(linear)
+    term_nonlinear = [c for c in coords if c.effect == term and not c.linear]
+    term_grid = _effect_grid(term, ctx)
+    starts = []
+    for fold, base in enumerate(fold_params):
+        held = coordinates_of(effects, base, ctx)
+        chains = []
+        for row in term_grid:
+            values = dict(held) | {c.key: neutral_value(c) for c in linear}
+            values |= {c.key: float(v) for c, v in zip(term_nonlinear, row)}
+            values |= {c.key: 0.0 for c in coords if c.effect == term and c.variance}
+            chains.append(params_from(extended, values, ctx).chain())
+        points = chain_grid(chains)
+        gram = problem.grid_gram(points, directions)
+        sse, solved = profile_linear(gram[:, fold], lo, hi, _linear_values(points, linear))
+        best = int(np.argmin(sse))
+        point = points[best].copy()
+        for j, c in enumerate(linear):
+            point[LINEAR_COORDINATES[c.name].field] = solved[best, j]
+        params = EffectParams.from_chain(ChainParams(*point.item()))
+        starts.append([params_from(extended, coordinates_of(extended, params, ctx), ctx)])
+    return starts

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from plm_highway.sim2real.chain import EffectParams
-from plm_highway.sim2real.effects import EFFECTS, FitContext, effect_report, params_from
+from plm_highway.sim2real.effects import SPECS, FitContext, effect_report, params_from
 from plm_highway.sim2real.grid import LinearDirection
 from plm_highway.sim2real.problem import FitProblem
 from plm_highway.vehicle.tires import GRAVITY_MPS2
@@ -44,6 +44,10 @@ LINEAR_COORDINATES = {
     "offset_rad": LinearCoordinate("offset_rad", 1e-4, (-0.2, 0.2)),
     "bank_rad": LinearCoordinate("bank_accel_mps2", 1e-3,
                                  (GRAVITY_MPS2 * math.sin(-0.3), GRAVITY_MPS2 * math.sin(0.3))),
+    # Residual discovery's linear terms (terms.TERMS).
+    "asymmetry": LinearCoordinate("asymmetry", 1e-3, (-0.6, 0.6)),
+    "speed_gain_slope": LinearCoordinate("speed_gain_slope", 1e-4, (-0.1, 0.1)),
+    "gyro_bias_radps": LinearCoordinate("gyro_bias_radps", 1e-4, (-0.5, 0.5)),
 }
 VARIANCE_PARAMETERS = {"jitter_s"}
 
@@ -63,7 +67,7 @@ class Coordinate:
 def coordinates(effects: tuple[str, ...], ctx: FitContext) -> list[Coordinate]:
     out = []
     for e in effects:
-        for p in EFFECTS[e].parameters:
+        for p in SPECS[e].parameters:
             lo, hi = p.bounds_for(ctx)
             out.append(Coordinate(f"{e}.{p.name}", e, p.name, p.scale, lo, hi, p.linear,
                                   p.name in VARIANCE_PARAMETERS))

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from plm_highway.sim2real.chain import CarParams, Drive, EffectParams
-from plm_highway.sim2real.effects import FitContext
+from plm_highway.sim2real.effect_spec import STEER_QUANTILES, FitContext
 from plm_highway.sim2real.folds import default_block_s, make_folds
 from plm_highway.sim2real.grid import GridChannel, LinearDirection, grid_statistics
 from plm_highway.sim2real.recording import Recording
@@ -31,12 +31,15 @@ def fit_context(recording: Recording) -> FitContext:
         lat = np.abs(recording.speed_mps * recording.yaw_rate_radps)[usable]
     else:
         lat = np.abs(recording.speed_mps * np.gradient(recording.heading_rad, recording.dt_s))[usable]
+    steer = np.abs(recording.steer_rad[usable])
     return FitContext(
         a_m=v.cg_to_front_m, b_m=v.cg_to_rear_m, k2_m2=v.yaw_inertia_per_kg_m2, dt_s=recording.dt_s,
         mass_kg=v.mass_kg, inertia_known=v.inertia_known, u_min_mps=recording.tire_min_speed_mps,
         steer_rate_median_radps=float(np.median(rate)) if rate.size else 0.05,
         steer_rate_max_radps=float(np.percentile(rate, 99.5)) if rate.size else 0.5,
         max_lat_accel_mps2=float(np.percentile(lat, 99.5)) if lat.size else 4.0,
+        steer_quantiles_rad=tuple(float(q) for q in np.quantile(steer, STEER_QUANTILES)) if steer.size else (),
+        speed_median_mps=float(np.median(recording.speed_mps[usable])) if usable.any() else 0.0,
     )
 
 
@@ -92,9 +95,10 @@ class FitProblem:
         """Grid statistics on the primary channel (see ``grid.grid_statistics``)."""
         weight = np.ascontiguousarray(np.array([train for train, _ in self.folds], dtype=float))
         c = self.signal
-        if not c.late:  # a sensor delay acts on the gyro only
+        if not c.late:  # a sensor delay and a sensor bias act on the gyro only
             points = points.copy()
             points["sensor_delay_s"] = 0.0
+            points["gyro_bias_radps"] = 0.0
         ctx = self.ctx
         return grid_statistics(Drive(self.steer, self.speed, self.dt), CarParams(ctx.a_m, ctx.b_m, ctx.k2_m2,
                                                                                  ctx.u_min_mps),

@@ -11,7 +11,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from plm_highway.sim2real.effects import EFFECTS, coordinates_of, params_from
+from plm_highway.sim2real.effects import SPECS, coordinates_of, params_from
 from plm_highway.sim2real.jitter import jitter_interval
 from plm_highway.sim2real.polish import Polished, coordinates, polish, public_estimates
 from plm_highway.sim2real.problem import CandidateFit, FitProblem
@@ -65,7 +65,7 @@ def refit(problem: FitProblem, fit: CandidateFit, rng: np.random.Generator | Non
     fit.params = params_from(fit.effects, best.values, problem.ctx)
     fit.estimates, fit.ci95 = _uncertainty(problem, fit.effects, best)
     for e in fit.effects:
-        if EFFECTS[e].varies_noise:
+        if SPECS[e].varies_noise:
             jitter, interval = jitter_interval(problem, fit.params, masks[0], rng)
             fit.params = replace(fit.params, jitter_s=jitter)
             fit.estimates[e]["jitter_s"] = jitter
