@@ -585,8 +585,7 @@ def discovery_text(disc: Discovery, signal: FitSignal) -> str:
                      f"{removed_words(f.removed_fraction, would=True)} of the {signal.label} error above the noise.")
     if not disc.named:
         tried = sorted(disc.tried, key=lambda t: t.score_ratio)
-        best = (f"; the best, {tried[0].name.replace('_', ' ')}, scores {100 * (tried[0].score_ratio - 1):+.1f}% "
-                f"({tried[0].why})") if tried else ""
+        best = f"; the best, {tried[0].name.replace('_', ' ')}: {tried[0].why}" if tried else ""
         lines.append(f"Residual discovery: no {'plausible ' if disc.doubtful else ''}term outside the library "
                      f"improves held-out data clearly ({len(tried)} tried{best}).")
     if disc.not_tried:

@@ -133,7 +133,7 @@ def _available_terms(problem: FitProblem, current: CandidateFit, not_tried: dict
         if name in current.effects:
             continue
         if term.needs_channel and term.needs_channel not in names:
-            not_tried[name] = f"no {term.needs_channel} column"
+            not_tried[name] = f"no {term.needs_channel} channel in the fit"
             continue
         out.append(name)
     return out
@@ -169,7 +169,8 @@ def _function_options(problem: FitProblem, current: CandidateFit, selection: Sel
     options = []
     track = delay_track.compare(problem, current)
     if track is None:
-        not_tried["delay_track"] = "no yaw_rate column (the track is judged on the gyro's interleaved samples)"
+        not_tried["delay_track"] = ("no yaw_rate channel in the fit (the track is judged on the gyro's "
+                                    "interleaved samples)")
     else:
         interleaved, before, after, fitted = track
         options.append(_Option("delay_track", interleaved, before, after,
@@ -210,8 +211,8 @@ def discover(problem: FitProblem, selection: Selection, noise_sigma: float, rng:
                 share = removed_fraction(option.before.heldout_mse, option.after.heldout_mse, noise_sigma)
                 effect = (f"removes only {100 * share:.0f}% of" if share >= 0
                           else f"adds {100 * -share:.0f}% to")
-                why, better = (f"t = {t_stat:.1f}, but it {effect} the primary channel's error left above "
-                               "the noise"), False
+                why, better = (f"held-out score {100 * (option.ratio - 1):+.1f}% (t = {t_stat:.1f}), but it "
+                               f"{effect} the primary channel's error left above the noise"), False
             else:
                 why = f"held-out score {100 * (option.ratio - 1):+.1f}% (t = {t_stat:.1f})"
             judged.append((option, better, t_stat, why))
