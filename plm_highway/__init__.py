@@ -3,8 +3,9 @@
 Importing the package registers ``plm_highway/LaneKeeping-v0`` with gymnasium.
 """
 
+from plm_highway._version import __version__
 from plm_highway.envs import register_envs
 
-__version__ = "0.1.0"
+__all__ = ["__version__"]
 
 register_envs()

@@ -75,7 +75,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "for _ in range(int(round(duration_s * 20))):", "for _ in range(10_000):", slow=True),
     Mutant("01", ("check_zigzag",), "delegates to the kit's closed loop", "",
            "def drive_with_latency(latency_s, seed=0, duration_s=25.0):\n"
-           "    from plm_highway.evaluation.closed_loop import drive\n"
+           "    from plm_highway.rollout.closed_loop import drive\n"
            "    from plm_highway.expert import ExpertPolicy\n"
            "    log = drive('x', ExpertPolicy(), 'test', f'const:{latency_s}', seed, max_steps=round(duration_s * 20))\n"
            "    return log.columns['lateral_offset_m']", delegation=True, slow=True),

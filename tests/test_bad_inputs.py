@@ -1,4 +1,4 @@
-"""The bad-input battery (issue 8 item 3, issue 17): every input surface, through the real command line.
+"""The bad-input battery: every input surface, through the real command line.
 
 One line per case: an id, the command line (run in a fresh temporary directory, relative paths),
 the files the case puts there first, and the words the error must contain (the file, field, row
@@ -239,6 +239,11 @@ TAPM = "train tapm --data ds --bm ck/bm --out out --epochs 1 --quiet"
 DIAG = "sim2real diagnose rec/r.csv --quiet --json out.json"
 MAKE_REC = "sim2real make-recording --duration-s 20 --out out.csv"
 NESTED = "[" * 100_000 + "]" * 100_000
+SWEEP = "sweep --out sw --workers 0 --no-progress --max-steps 1 --policy expert"
+# 400 bytes of YAML whose aliases stand for 9**9 (387 million) strings once expanded.
+ALIAS_BOMB = "\n".join(["a: &a [x, x, x, x, x, x, x, x, x]"]
+                       + [f"{n}: &{n} [*{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}]"
+                          for p, n in zip("abcdefgh", "bcdefghi")] + ["latencies: *i", ""])
 
 
 def trace_rows(text: str) -> dict:
@@ -454,6 +459,7 @@ CASES = [
     c("train-threads-zero", f"{TRAIN} --threads 0", "--threads", {"ds": DS}),
     c("train-threads-huge", f"{TRAIN} --threads 1000", "--threads", {"ds": DS}),
     c("train-preset-choice", f"{TRAIN} --preset huge", "huge", {"ds": DS}),
+    c("train-device-choice", f"{TRAIN} --device tpu", "tpu", {"ds": DS}),
     c("train-out-foreign", TRAIN, ["out", "notes.txt"], {"ds": DS, "out/notes.txt": "mine"}),
     c("train-out-is-data", "train bm --data ds --out ds --epochs 1 --quiet", "ds", {"ds": DS}),
     c("tapm-grid-empty", [*TAPM.split(), "--delta-grid", ""], "--delta-grid", {"ds": DS, "ck": CK}),
@@ -504,6 +510,8 @@ CASES = [
     c("bench-models-frames", "bench models --frames 0", "--frames"),
     c("bench-models-threads", "bench models --threads 0", "--threads"),
     c("bench-models-preset", "bench models --preset huge", "huge"),
+    c("bench-models-device", "bench models --device tpu", "tpu"),
+    c("bench-models-weights", "bench models --weights trained", "trained"),
     c("bench-metrics-points", "bench metrics --points 0", "--points"),
     c("bench-metrics-repeat", "bench metrics --repeat 0", "--repeat"),
     c("bench-estimation-delay", "bench estimation --delay 0", "--delay"),
@@ -516,6 +524,97 @@ CASES = [
     c("lessons-timing-missing", "bench lessons --solutions nosuch", "nosuch"),
     c("unknown-command", "frobnicate", "frobnicate"),
     c("unknown-option", "collect --out out --frobnicate", "--frobnicate"),
+    # -- bounded work: every structured input read in linear time within explicit limits -------------
+    c("track-escaped-quotes-unterminated", f"{EVAL} --track t.json", ["t.json", "not valid JSON"],
+      {"t.json": '{"name": "' + '\\"' * 40_000}, timeout_s=10),
+    c("track-escaped-quotes-name", f"{EVAL} --track t.json", ["t.json", "'name'"],
+      {"t.json": '{"name": "' + '\\"' * 40_000 + '", "segments": [{"type": "straight", "length_m": 50}]}'},
+      timeout_s=10),
+    c("track-5000-digit-integer", f"{EVAL} --track t.json", ["t.json", "'lanes'", "5,000 digits", "at most 20"],
+      {"t.json": '{"name": "t", "lanes": ' + "1" * 5000 + ', "segments": []}'}, timeout_s=10),
+    c("track-long-integer-in-segment", f"{EVAL} --track t.json", ["t.json", "segments[0].length_m", "digits"],
+      {"t.json": '{"name": "t", "segments": [{"type": "straight", "length_m": ' + "9" * 300 + '}]}'}),
+    c("track-duplicate-key", f"{EVAL} --track t.json", ["t.json", "'name'", "more than once"],
+      {"t.json": '{"name": "t", "name": "u", "segments": [{"type": "straight", "length_m": 50}]}'}),
+    c("track-duplicate-key-in-segment", f"{EVAL} --track t.json", ["t.json", "segments[0]", "'length_m'"],
+      {"t.json": '{"name": "t", "segments": [{"type": "straight", "length_m": 50, "length_m": 5000}]}'}),
+    c("track-too-many-values", f"{EVAL} --track t.json", ["t.json", "20,000 values", "node limit"],
+      {"t.json": track_with(closed=[0] * 30_000)}, timeout_s=10),
+    c("track-nested-200k", f"{EVAL} --track t.json", ["t.json", "nested 200000 deep", "at most 16"],
+      {"t.json": "[" * 200_000 + "]" * 200_000}, timeout_s=10),
+    c("grid-json-nested-200k", f"{SWEEP} --grid g.json", ["g.json", "nested 200000 deep"],
+      {"g.json": "[" * 200_000 + "]" * 200_000}, timeout_s=10),
+    c("grid-yaml-alias-bomb", f"{SWEEP} --grid g.yaml", ["g.yaml", "aliases are counted after expansion"],
+      {"g.yaml": ALIAS_BOMB}, timeout_s=10),
+    c("grid-yaml-nested-deep", f"{SWEEP} --grid g.yaml", ["g.yaml", "nested more than 16 deep"],
+      {"g.yaml": "latencies: " + "[" * 20_000 + "]" * 20_000}, timeout_s=10),
+    c("grid-yaml-5000-digit-seeds", f"{SWEEP} --grid g.yaml", ["g.yaml", "'seeds'", "5,000 digits"],
+      {"g.yaml": "seeds: " + "7" * 5000 + "\n"}, timeout_s=10),
+    c("grid-yaml-duplicate-key", f"{SWEEP} --grid g.yaml", ["g.yaml", "'seeds'", "more than once"],
+      {"g.yaml": "seeds: 1\nseeds: 2\n"}),
+    c("grid-json-duplicate-key", f"{SWEEP} --grid g.json", ["g.json", "'seeds'", "more than once"],
+      {"g.json": '{"seeds": 1, "policies": ["expert"], "seeds": 2}'}),
+    c("grid-yaml-python-object", f"{SWEEP} --grid g.yaml", ["g.yaml", "not valid YAML"],
+      {"g.yaml": f"latencies: !!python/object/apply:os.system ['touch {MARKER}']\n"}),
+    c("grid-too-large", f"{SWEEP} --grid g.yaml", ["g.yaml", "1,048,576"], {"g.yaml": Make(sparse_file(2 << 20))}),
+    c("grid-non-ascii-latency", f"{SWEEP} --grid g.yaml", ["const:\u0660.\u0661"],
+      {"g.yaml": "latencies: ['const:\u0660.\u0661']\n"}),
+    c("grid-non-ascii-seeds", f"{SWEEP} --grid g.yaml", ["seeds", "non-ASCII digit"], {"g.yaml": "seeds: '\u0663'\n"}),
+    c("ckpt-json-nested-200k", EVAL_PLM, ["model.json", "nested 200000 deep"],
+      {"ck": Copy("ck", write_bytes("bm/model.json", b"[" * 200_000 + b"]" * 200_000))}, timeout_s=20),
+    c("ckpt-json-duplicate-key", EVAL_PLM, ["model.json", "'kind'", "more than once"],
+      {"ck": Copy("ck", lambda r: (r / "bm" / "model.json").write_text(
+          (r / "bm" / "model.json").read_text().replace('"kind":', '"kind": "tapm", "kind":', 1)))}),
+    c("ckpt-tapm-grid-edited", EVAL_PLM, ["tapm/model.json", "changed after it was saved"],
+      {"ck": Copy("ck", edit_json("tapm/model.json", lambda d: d["architecture"].update(
+          delta_grid_s=[0.1, 0.2, 0.25, 0.3, 0.4])))}),
+    c("ckpt-tapm-recorded-grid-edited", EVAL_PLM, ["tapm/model.json", "changed after it was saved"],
+      {"ck": Copy("ck", edit_json("tapm/model.json", lambda d: d.update(delta_grid_s=[0.1, 0.2, 0.25, 0.3, 0.4])))}),
+    c("ckpt-bm-preset-edited", EVAL_PLM, ["bm/model.json", "changed after it was saved"],
+      {"ck": Copy("ck", edit_json("bm/model.json", lambda d: d.update(preset="paper")))}),
+    c("ckpt-bm-lead-added", EVAL_PLM, ["bm/model.json", "changed after it was saved"],
+      {"ck": Copy("ck", edit_json("bm/model.json", lambda d: d.update(label_lead_s=0.25)))}),
+    c("ckpt-seal-removed", EVAL_PLM, ["model.json", "description_sha256"],
+      {"ck": Copy("ck", edit_json("tapm/model.json", lambda d: d.pop("description_sha256") and None))}),
+    c("ckpt-train-tapm-bm-edited", "train tapm --data ds --bm ck/bm --out out --epochs 1 --quiet",
+      ["bm/model.json", "changed after it was saved"],
+      {"ds": DS, "ck": Copy("ck", edit_json("bm/model.json", lambda d: d.update(preset="paper")))}),
+    c("ds-manifest-nested-200k", TRAIN, ["manifest.json", "nested 200000 deep"],
+      {"ds": Copy("ds", write_bytes("manifest.json", b"[" * 200_000 + b"]" * 200_000))}, timeout_s=20),
+    c("ds-manifest-duplicate-key", TRAIN, ["manifest.json", "'format'", "more than once"],
+      {"ds": Copy("ds", lambda r: (r / "manifest.json").write_text(
+          (r / "manifest.json").read_text().replace('"format":', '"format": "x", "format":', 1)))}),
+    c("trace-million-columns", f"{EVAL} --latency trace:trace.csv", ["trace.csv", "row 2", "64 columns"],
+      trace_rows("t,latency_s\n" + "0" + "," * 1_000_000 + "\n"), timeout_s=10),
+    c("sidecar-nested-200k", DIAG, ["r.json", "nested"],
+      {"rec": Copy("rec", write_bytes("r.json", b"[" * 200_000 + b"]" * 200_000))}, owner="sim2real",
+      why="the sidecar reader (sim2real/recording.py) still calls json.loads; it should read through "
+          "plm_highway.io.load_json", timeout_s=20),
+    # -- numbers with digits other than 0-9, nonsense option values -----------------------------------
+    c("non-ascii-max-steps", "evaluate --policy expert --max-steps \u0663", ["--max-steps", "non-ASCII digit"]),
+    c("non-ascii-seed", "evaluate --policy expert --max-steps 1 --seed \u0663", ["--seed", "non-ASCII digit"]),
+    c("non-ascii-fullwidth-episodes", "collect --episodes \uff13 --out out", ["--episodes", "non-ASCII digit"]),
+    c("non-ascii-epochs", f"{TRAIN} --epochs \u0967", ["--epochs", "non-ASCII digit"], {"ds": DS}),
+    c("non-ascii-latency", f"{EVAL} --latency const:\u0660.\u0661", "const:\u0660.\u0661"),
+    c("non-ascii-seeds-list", "evaluate --policy expert --max-steps 1 --seeds 0,\u0663", ["--seeds", "non-ASCII"]),
+    c("non-ascii-delta-grid", f"{TAPM} --delta-grid 0.1,\u0660.\u0662", ["--delta-grid", "non-ASCII"],
+      {"ds": DS, "ck": CK}),
+    c("non-ascii-block-s", f"{DIAG} --block-s \u0665", ["--block-s", "non-ASCII"], {"rec": REC}),
+    c("non-ascii-sweep-seeds", f"{SWEEP} --seeds \u0663", ["seeds", "non-ASCII"]),
+    c("diag-block-nanoseconds", f"{DIAG} --block-s 1e-9", "--block-s", {"rec": REC}),
+    c("diag-block-tenth-second", f"{DIAG} --block-s 0.1", "--block-s", {"rec": REC}),
+    # -- errors that name the culprit; outputs that name a directory -----------------------------------
+    c("settings-trace-path-with-comma", "reproduce --settings trace:my,trace.csv --max-steps 1 --out rep --no-progress",
+      "my,trace.csv"),
+    c("eval-json-trailing-slash", f"{EVAL[:-len('out.json')]}res/", ["res/", "directory"]),
+    c("estimate-json-trailing-slash", "estimate table3 --seeds 1 --json t/", ["t/", "directory"]),
+    c("lessons-grade-notebook-nested-200k", f"lessons grade subs --csv s.csv --solutions {REPO_ROOT / 'solutions'}",
+      ["subs/ann/01_latency_zigzag.ipynb", "nested 200000 deep"],
+      {"subs/ann/01_latency_zigzag.ipynb": "[" * 200_000 + "]" * 200_000}, timeout_s=120),
+    c("train-tapm-over-its-own-bm", "train tapm --data ds --bm ck/bm --out ck/bm --epochs 1 --quiet --overwrite",
+      ["ck/bm", "input of this run"], {"ds": DS, "ck": CK}),
+    c("generalise-two-tracks-one-name", "reproduce --generalise a/t.json b/t.json --max-steps 1 --out rep --no-progress",
+      ["a/t.json", "b/t.json", "both named"], {"a/t.json": TRACK, "b/t.json": TRACK}),
 ]
 
 
@@ -584,3 +683,12 @@ def test_battery_is_large_and_distinct():
     assert len(ids) == len(set(ids))
     assert len({case.argv + tuple(sorted(map(str, case.files))) for case in CASES}) >= 80
     assert len(CASES) >= 80
+
+
+@pytest.mark.timeout(900)
+def test_the_readme_quotes_the_battery_sizes():
+    from battery_counts import battery_counts, readme_counts
+
+    counted = battery_counts()
+    assert all(counted.values()), counted  # the counting itself works
+    assert readme_counts() == counted, "docs/reliability.md's 'Battery sizes' line disagrees with the test files: update it"

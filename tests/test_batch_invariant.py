@@ -1,4 +1,4 @@
-"""Batch-invariant kernels (issue 13.1): a sample's steering does not depend on the rest of its batch.
+"""Batch-invariant kernels: a sample's steering does not depend on the rest of its batch.
 
 What makes this hold is MKL's and oneDNN's kernel choice, which no documentation promises, so it is
 checked here for both presets (every layer shape the models have) and both model policies, at many

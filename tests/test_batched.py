@@ -1,4 +1,4 @@
-"""Batched closed loop (issue 13.1): N runs stepped together give the one-env runs, step by step."""
+"""Batched closed loop: N runs stepped together give the one-env runs, step by step."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from plm_highway.evaluation.batched import RunCell, run_cells
-from plm_highway.evaluation.closed_loop import LOG_COLUMNS, drive
-from plm_highway.evaluation.policies import make_policy
+from plm_highway.rollout.cells import RunCell, run_cells
+from plm_highway.rollout.closed_loop import LOG_COLUMNS, drive
+from plm_highway.rollout.policies import make_policy
 
 # Different seeds, latency profiles (a random one among them), tracks and lengths, so the batch shrinks.
 MODEL_CELLS = [

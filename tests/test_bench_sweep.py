@@ -1,4 +1,4 @@
-"""plm-highway bench sweep (issue 13): every side drives the same runs; the report prints them side by side."""
+"""plm-highway bench sweep: every side drives the same runs; the report prints them side by side."""
 
 from __future__ import annotations
 

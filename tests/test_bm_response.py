@@ -29,7 +29,7 @@ def test_the_law_column_is_the_demonstrators_law_from_the_true_pose():
 
 
 def test_the_paper_bm_follows_its_driver_near_the_centre_and_saturates_beyond_the_demonstrations():
-    """The finding the README reports: within 2 m the shipped paper BM steers like the human-like driver's law
+    """The finding docs/calibration.md reports: within 2 m the shipped paper BM steers like the human-like driver's law
     (2 rad/s, damping 0.9); at 4.5 m and at 0.2 rad of heading error it steers well under half to two thirds of it."""
     result = bm_response("test", "paper", offsets_m=(-4.5, -1.0, 1.0, 2.0, 4.5), headings_rad=(-0.2, 0.2))
     assert result["law"]["natural_frequency_radps"] == 2.0 and result["max_steering_rad"] == 0.4

@@ -1,4 +1,4 @@
-"""``plm-highway calibrate``: the BM's MAE vs latency beside the paper's, and the two rules of issue 9."""
+"""``plm-highway calibrate``: the BM's MAE vs latency beside the paper's, and the two calibration rules."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import pytest
 from plm_highway import cli
 from plm_highway.errors import BadInput
 from plm_highway.evaluation.calibration import (
+    CalibrationOptions,
     bm_calibration,
     injected_latency_s,
     judge,
@@ -21,7 +22,7 @@ from plm_highway.evaluation.calibration import (
 
 
 def test_paper_units_convert_at_the_protocols_steering_ratio():
-    # 450 deg of hand wheel at 12:1 is 37.5 deg at the front wheels: 0.1714 of it is 0.1122 rad (issue 9: "about 0.11").
+    # 450 deg of hand wheel at 12:1 is 37.5 deg at the front wheels: 0.1714 of it is 0.1122 rad (the paper: "about 0.11").
     assert paper_unit_to_front_wheel_rad(1.0) == pytest.approx(math.radians(37.5))
     assert paper_unit_to_front_wheel_rad(0.1714) == pytest.approx(0.1122, abs=1e-4)
     # The paper's BM rows (Tables A1, 3, A3, A5), transcribed: 0.171355, 0.1915, 0.334727, 0.226148.
@@ -76,22 +77,22 @@ def test_the_paper_rule_is_judged_again_on_the_penalised_mae_when_rows_carry_it(
 
 
 def test_a_bm_that_left_the_road_is_penalised_for_every_step_it_missed(monkeypatch):
-    from plm_highway.evaluation import cell_runner
-    from plm_highway.evaluation.closed_loop import RunLog
+    from plm_highway.evaluation import calibration
+    from plm_highway.rollout.closed_loop import RunLog
 
     def log(steering: list[float], left_road: bool) -> RunLog:
         n = len(steering)
         return RunLog("run", {"t_s": np.arange(n) / 30, "steering": np.asarray(steering),
                               "lateral_offset_m": np.zeros(n)}, left_road, n / 100)
 
-    def fake_drive_cells(cells, *args, **kwargs):
+    def fake_run_cells(cells, *args, **kwargs):
         # 100 reference steps at 0; every delayed run steers 0.1 (normalised) and the 0.25 s one leaves after 40.
-        return [log([0.0] * 100, False) if cell.role == "reference"
-                else log([0.1] * (40 if cell.latency == "const:0.25" else 100), cell.latency == "const:0.25")
+        return [log([0.0] * 100, False) if cell.name == "reference"
+                else log([0.1] * (40 if str(cell.latency) == "const:0.25" else 100), str(cell.latency) == "const:0.25")
                 for cell in cells]
 
-    monkeypatch.setattr(cell_runner, "drive_cells", fake_drive_cells)
-    result = bm_calibration("test", seeds="0,1", conditions="paper", progress=False, workers=1)
+    monkeypatch.setattr(calibration, "run_cells", fake_run_cells)
+    result = bm_calibration(CalibrationOptions(track="test", seeds="0,1", conditions="paper", progress=False, workers=1))
     on_road, off_road = result["per_latency"]["0.20"], result["per_latency"]["0.25"]
     # 0.1 normalised on the paper conditions' 0.4 rad car is 0.04 rad, over whatever span both runs reached.
     assert on_road["mae_rad"]["mean"] == pytest.approx(0.04)
@@ -107,7 +108,7 @@ def test_a_bm_that_left_the_road_is_penalised_for_every_step_it_missed(monkeypat
 
 
 def test_a_short_calibration_run_measures_every_latency_and_the_floor():
-    result = bm_calibration("test", seeds="0,1", conditions="ideal", max_steps=25, progress=False)
+    result = bm_calibration(CalibrationOptions(track="test", seeds="0,1", conditions="ideal", max_steps=25, progress=False))
     assert set(result["per_latency"]) == {"0.15", "0.20", "0.25", "0.30"}
     for row in result["per_latency"].values():
         assert len(row["mae_rad_per_seed"]) == 2 and all(v >= 0 for v in row["mae_rad_per_seed"])
@@ -118,7 +119,7 @@ def test_a_short_calibration_run_measures_every_latency_and_the_floor():
 
 def test_one_seed_is_refused_it_has_no_noise_floor():
     with pytest.raises(BadInput, match="noise floor"):
-        bm_calibration("test", seeds=[3], conditions="ideal", max_steps=5, progress=False)
+        bm_calibration(CalibrationOptions(track="test", seeds=[3], conditions="ideal", max_steps=5, progress=False))
 
 
 def test_command_writes_the_figure_and_its_numbers(tmp_path, capsys):
@@ -138,15 +139,15 @@ def test_command_writes_the_figure_and_its_numbers(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_a_calibration_on_worker_processes_gives_the_same_numbers():
-    in_process = bm_calibration("test", seeds="0,1", conditions="paper", max_steps=15, progress=False)
-    pooled = bm_calibration("test", seeds="0,1", conditions="paper", max_steps=15, progress=False, workers=2)
+    in_process = bm_calibration(CalibrationOptions(track="test", seeds="0,1", conditions="paper", max_steps=15, progress=False))
+    pooled = bm_calibration(CalibrationOptions(track="test", seeds="0,1", conditions="paper", max_steps=15, progress=False, workers=2))
     assert pooled["per_latency"] == in_process["per_latency"]
     assert pooled["noise_floor"] == in_process["noise_floor"]
     assert in_process["max_steering_rad"] == 0.4  # the paper conditions' range converts to radians
 
 
 def test_the_assumed_pipeline_can_be_replaced_and_is_recorded():
-    from plm_highway.evaluation.run import CONDITIONS, with_pipeline
+    from plm_highway.rollout.conditions import CONDITIONS, with_pipeline
 
     paper = CONDITIONS["paper"]
     assert with_pipeline(paper) == paper  # None keeps the conditions' values
@@ -169,7 +170,7 @@ def test_a_calibration_with_another_pipeline_records_it_and_drives_differently(t
     changed = json.loads(out.with_suffix(".json").read_text())
     assert (changed["processing_delay_steps"], changed["steering_time_constant_s"]) == (0, 0.0)
     assert changed["pipeline_as_conditions"] is False
-    shipped = bm_calibration("test", seeds="0,1", conditions="paper", max_steps=40, progress=False)
+    shipped = bm_calibration(CalibrationOptions(track="test", seeds="0,1", conditions="paper", max_steps=40, progress=False))
     assert (shipped["processing_delay_steps"], shipped["steering_time_constant_s"]) == (2, 0.1)
     assert shipped["pipeline_as_conditions"] is True
     # Without the processing delay and the actuator lag the delayed BM's steering differs from the shipped pipeline's.
@@ -186,7 +187,7 @@ def test_a_pipeline_out_of_range_is_refused_on_the_command_line(tmp_path, capsys
 def test_a_friction_limit_is_added_to_the_kinematic_car_only_and_checked():
     from dataclasses import replace
 
-    from plm_highway.evaluation.run import CONDITIONS, with_friction_limit
+    from plm_highway.rollout.conditions import CONDITIONS, with_friction_limit
 
     paper = CONDITIONS["paper"]
     assert with_friction_limit(paper) is paper  # None: the conditions' car
@@ -211,7 +212,7 @@ def test_a_calibration_with_a_friction_limit_records_it_and_drives_differently(t
     assert "car: tires saturating at 0.3 g" in capsys.readouterr().out
     limited = json.loads(out.with_suffix(".json").read_text())
     assert limited["friction_coefficient"] == 0.3
-    shipped = bm_calibration("test", seeds="0,1", conditions="paper", max_steps=40, progress=False)
+    shipped = bm_calibration(CalibrationOptions(track="test", seeds="0,1", conditions="paper", max_steps=40, progress=False))
     assert shipped["friction_coefficient"] is None
     assert limited["per_latency"]["0.25"]["mae_rad_per_seed"] != shipped["per_latency"]["0.25"]["mae_rad_per_seed"]
     assert cli.main(["calibrate", "--friction-coefficient", "0", "--out", str(tmp_path / "bad.png")]) == 2
@@ -229,7 +230,7 @@ def test_the_loop_frames_reading_injects_the_originals_frame_counts_at_its_30_hz
 
 
 def test_under_the_loop_frames_reading_the_papers_0_15_s_row_is_our_bm_at_0_30_s(tmp_path, capsys):
-    stated = bm_calibration("test", seeds="0,1", conditions="ideal", max_steps=40, progress=False)
+    stated = bm_calibration(CalibrationOptions(track="test", seeds="0,1", conditions="ideal", max_steps=40, progress=False))
     out = tmp_path / "cal.png"
     assert cli.main(["calibrate", "--conditions", "ideal", "--seeds", "2", "--max-steps", "40", "--no-progress",
                      "--reading", "loop-frames", "--out", str(out)]) == 0

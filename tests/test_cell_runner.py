@@ -1,4 +1,4 @@
-"""The reproduction's cells batched and on a process pool (issue 13.1-2): the serial runs, bit for bit."""
+"""One run_cells, three ways (serial, batched, on a process pool): the reproduction's cells, bit for bit."""
 
 from __future__ import annotations
 
@@ -9,11 +9,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from plm_highway.evaluation.cell_runner import chunk_count, drive_cells
-from plm_highway.evaluation.closed_loop import LOG_COLUMNS
 from plm_highway.evaluation.reproduce import plan_cells
-from plm_highway.evaluation.run import CONDITIONS, Cell, make_policies, run_cells
 from plm_highway.road.track import load_track
+from plm_highway.rollout.backends import LocalPool
+from plm_highway.rollout.cells import Cell, chunk_count, run_cells, runs_under
+from plm_highway.rollout.closed_loop import LOG_COLUMNS
+from plm_highway.rollout.conditions import CONDITIONS
+from plm_highway.rollout.policies import make_policies
 
 
 @pytest.fixture(scope="module", params=["ideal", "paper"])
@@ -26,7 +28,8 @@ def serial(request):
     cells = [*plan_cells(settings, [0, 3], track_spec.name, conditions),
              Cell("sweep", "plm", "const:0.2", 3, latency_bias_s=0.05)]
     policies = make_policies(None, conditions)
-    return cells, track_spec, conditions, policies, run_cells(cells, track_spec, conditions, policies, max_steps=18)
+    runs = runs_under(cells, track_spec, conditions, policies, max_steps=18)
+    return cells, track_spec, conditions, policies, run_cells(runs, serial=True)
 
 
 def assert_same_logs(logs, references):
@@ -43,23 +46,34 @@ def assert_same_logs(logs, references):
 @pytest.mark.parametrize("batch_size,threads", [(32, 1), (4, 2)])
 def test_batched_in_this_process_equals_the_serial_runs(serial, batch_size, threads):
     cells, track_spec, conditions, policies, references = serial
-    logs = drive_cells(cells, track_spec, conditions, policies, max_steps=18, batch_size=batch_size, threads=threads)
+    runs = runs_under(cells, track_spec, conditions, policies, max_steps=18)
+    logs = run_cells(runs, preset=conditions.checkpoint_preset, batch_size=batch_size, threads=threads)
     assert_same_logs(logs, references)
 
 
 @pytest.mark.slow
 def test_a_process_pool_equals_the_serial_runs(serial):
     cells, track_spec, conditions, _, references = serial
-    logs = drive_cells(cells, track_spec, conditions, None, None, max_steps=18, workers=2, batch_size=3)
+    runs = runs_under(cells, track_spec, conditions, None, max_steps=18)  # by name: each worker loads them
+    with LocalPool(2) as pool:
+        logs = run_cells(runs, preset=conditions.checkpoint_preset, batch_size=3, backend=pool)
     assert_same_logs(logs, references)
 
 
-def test_a_cell_whose_policy_is_neither_a_model_nor_a_name_is_refused():
+def test_runs_that_cannot_be_driven_as_asked_are_refused_before_any_starts():
     cells = plan_cells(["const:0.2"], [0], "test")
-    with pytest.raises(ValueError, match="neither a model policy"):
-        drive_cells(cells, load_track("test"), CONDITIONS["ideal"], {"bm": object(), "plm": object()}, max_steps=2)
-    with pytest.raises(ValueError, match="workers -1"):
-        drive_cells(cells, load_track("test"), CONDITIONS["ideal"], None, max_steps=2, workers=-1)
+    track_spec, conditions = load_track("test"), CONDITIONS["ideal"]
+    with pytest.raises(ValueError, match="one policy object in two cells"):  # stepped together, they would share it
+        run_cells(runs_under(cells, track_spec, conditions, {"bm": object(), "plm": object()}, max_steps=2))
+    with pytest.raises(ValueError, match="by name"):  # a worker cannot use this process's objects
+        run_cells(runs_under(cells, track_spec, conditions, make_policies(None, conditions), max_steps=2),
+                  backend=LocalPool(1))
+    with pytest.raises(ValueError, match="neither given as an object nor one of"):
+        runs_under([Cell("reference", "pid", "const:0", 0)], track_spec, conditions)
+    with pytest.raises(ValueError, match="serial runs take no threads"):
+        run_cells(runs_under(cells, track_spec, conditions, max_steps=2), serial=True, threads=2)
+    with pytest.raises(ValueError, match="on a backend take no threads"):
+        run_cells(runs_under(cells, track_spec, conditions, max_steps=2), threads=2, backend=LocalPool(1))
 
 
 @given(n_runs=st.integers(1, 500), workers=st.integers(1, 8), batch_size=st.integers(1, 64))
@@ -81,8 +95,8 @@ def test_a_latency_bias_is_what_plm_net_is_told(serial):
     [unbiased] = [log for cell, log in zip(cells, references) if cell.key == ("mitigated", "const:0.2", 3)]
     biased_log = references[-1]
     assert not np.array_equal(biased_log.columns["steering"], unbiased.columns["steering"])
-    [again] = run_cells([Cell("sweep", "plm", "const:0.2", 3, latency_bias_s=0.05)], track_spec, conditions, policies,
-                        max_steps=18)
+    [again] = run_cells(runs_under([Cell("sweep", "plm", "const:0.2", 3, latency_bias_s=0.05)], track_spec, conditions,
+                                   policies, max_steps=18), serial=True)
     np.testing.assert_array_equal(again.columns["steering"], biased_log.columns["steering"])
 
 
@@ -91,12 +105,13 @@ def test_the_latency_sweep_driven_one_at_a_time_equals_it_driven_batched():
 
     conditions, track_spec = CONDITIONS["ideal"], load_track("test")
     policies = make_policies(None, conditions)
-    [reference] = run_cells([Cell("reference", "bm", "const:0", 0)], track_spec, conditions, policies, max_steps=20)
+    [reference] = run_cells(runs_under([Cell("reference", "bm", "const:0", 0)], track_spec, conditions, policies,
+                                       max_steps=20), serial=True)
 
     def batched(runs):
         cells = [Cell("sweep", "bm" if key == "bm" else "plm", f"const:{latency_s:g}", 0, latency_bias_s=bias_s)
                  for key, latency_s, bias_s in runs]
-        return drive_cells(cells, track_spec, conditions, policies, max_steps=20)
+        return run_cells(runs_under(cells, track_spec, conditions, policies, max_steps=20))
 
     arguments = (track_spec, policies["bm"], policies["plm"], reference, 0, 20, [0.0, 0.2])
     one_at_a_time, together = sweep.latency_sweep(*arguments), sweep.latency_sweep(*arguments, drive_runs=batched)

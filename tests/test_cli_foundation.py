@@ -14,7 +14,7 @@ import pytest
 
 from plm_highway.cli import ADAPTERS, build_parser
 from plm_highway.data.dataset import read_dataset
-from plm_highway.evaluation.closed_loop import LOG_COLUMNS
+from plm_highway.rollout.closed_loop import LOG_COLUMNS
 
 SUMMARY_KEYS = {"left_road", "completed_fraction", "lateral_offset_rms_m", "lateral_offset_max_m", "steps"}
 

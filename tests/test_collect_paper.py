@@ -12,9 +12,9 @@ from plm_highway.camera.pinhole import PAPER_CAMERA
 from plm_highway.data.collect import DEMONSTRATOR_STREAM, collect
 from plm_highway.data.dataset import read_dataset
 from plm_highway.envs import ENV_ID
-from plm_highway.evaluation.run import CONDITIONS
 from plm_highway.expert import HumanDemonstrator, expert_steering
 from plm_highway.expert.controller import ExpertParams
+from plm_highway.rollout.conditions import CONDITIONS
 
 
 @pytest.fixture(scope="module")

@@ -151,7 +151,7 @@ def test_read_validates_columns(tmp_path):
 def test_rewriting_replaces_the_dataset_only_with_overwrite(tmp_path):
     out = tmp_path / "ds"
     write_dataset(out, make_frames(), make_steps(), {"version": 1})
-    (out / "stale.txt").write_text("left over from the first write")
+    (out / "notes.txt").write_text("the user's, not plm-highway's")
     with pytest.raises(ValueError, match="--overwrite"):
         write_dataset(out, make_frames(6), make_steps(6, episodes=2), {"version": 2})
     assert read_dataset(out).manifest["version"] == 1
@@ -159,8 +159,10 @@ def test_rewriting_replaces_the_dataset_only_with_overwrite(tmp_path):
     data = read_dataset(out)
     assert len(data) == 6 and data.manifest["version"] == 2
     assert data.manifest["counts"] == {"samples": 6, "episodes": 2}
+    # Only what plm-highway wrote is replaced: the user's file in the directory stays as it was.
     assert listing(tmp_path) == ["ds", "ds/.plm-highway-output.json", "ds/frames.npy", "ds/manifest.json",
-                                 "ds/steps.npz"]
+                                 "ds/notes.txt", "ds/steps.npz"]
+    assert (out / "notes.txt").read_text() == "the user's, not plm-highway's"
 
 
 def test_failed_rewrite_keeps_the_old_dataset(tmp_path):

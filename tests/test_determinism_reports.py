@@ -1,4 +1,4 @@
-"""Same seed, two processes: byte-identical evaluate JSON and logs, reproduce and sim2real reports (issue 8 item 5).
+"""Same seed, two processes: byte-identical evaluate JSON and logs, reproduce and sim2real reports.
 
 Datasets and checkpoints are covered by tests/test_model_determinism.py. Each command here runs
 twice, in separate processes started from sibling directories with the same relative paths (so the

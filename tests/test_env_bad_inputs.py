@@ -1,4 +1,4 @@
-"""Bad inputs to the env and its tracks (issue 17 items 3, 5, 6, 7): each is refused before any work
+"""Bad inputs to the env, its tracks and the bounded loader: each is refused before any work
 with a BadInput that names the field or file, the value and the accepted range."""
 
 from __future__ import annotations
@@ -11,6 +11,8 @@ import sys
 import gymnasium
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 import plm_highway  # noqa: F401  (registers the env)
 from plm_highway.envs import ENV_ID
@@ -73,7 +75,7 @@ def test_bad_track_specs_are_refused(raw, fragments):
 
 
 def test_300k_segments_are_refused_without_building_them():
-    # Issue 17 item 5: 300k one-centimetre segments ran for minutes; the count is checked first.
+    # 300k one-centimetre segments once ran for minutes; the count is checked first.
     refused(["300,000 segments"], parse_track, spec(*[straight(0.01)] * 300_000))
 
 
@@ -86,7 +88,7 @@ def test_a_long_arc_that_does_not_come_back_is_accepted():
 
 
 @pytest.mark.parametrize(("content", "fragments"), [
-    (bytes(range(256)) * 4, ["not a UTF-8 text file", "byte 0x80 at offset 128"]),
+    (bytes(range(256)) * 4, ["not UTF-8 text", "byte 0x80 at offset 128"]),
     (b"\xef\xbb\xbf" + json.dumps(STRAIGHT).encode(), ["byte-order mark", "without BOM"]),
     (b"[" * 100_000 + b"]" * 100_000, ["nested 100000 deep", "at most 16"]),
     (json.dumps(spec(straight(1e300))).encode(), ["segment 0", "length_m", "(0, 10000]"]),
@@ -209,3 +211,137 @@ def test_integer_and_float64_actions_of_the_right_shape_are_accepted():
     for action in (np.array([0]), np.array([0.05]), [0.05], (-2.0,)):
         _, _, terminated, _, info = env.step(action)
         assert not terminated and np.isfinite(info["lateral_offset_m"])
+
+
+# -- misuse that highway-env would otherwise answer with OverflowError/TypeError/AttributeError, or ignore --
+
+HUGE = 10**400  # an integer no float holds
+
+
+@pytest.mark.parametrize(("config", "fragments"), [
+    ({"observation": {"type": "Kinematics"}}, ["'observation'", "Kinematics", "does not use it"]),
+    ({"action": {"type": "DiscreteMetaAction"}}, ["'action'", "DiscreteMetaAction"]),
+    ({"manual_control": True}, ["'manual_control'", "True"]),
+    ({"render_agent": "x"}, ["'render_agent'"]),
+    ({"real_time_rendering": 1e308}, ["'real_time_rendering'"]),
+    ({"centering_position": [1e308, 0.5]}, ["'centering_position'"]),
+    ({"other_vehicles_type": "os.system"}, ["'other_vehicles_type'"]),
+    ({"offscreen_rendering": "yes"}, ["'offscreen_rendering'", "true or false"]),
+    ({"speed_mps": HUGE}, ["speed", "(0, 70]"]),
+    ({"speed_mps": [[0, 10], [HUGE, 12]]}, ["speed_mps", "[1]"]),
+    ({"duration_s": HUGE}, ["'duration_s'", "characters)"]),
+    ({"max_steering_rad": HUGE}, ["'max_steering_rad'", "(0, 1]"]),
+    ({"start_offset_m": HUGE}, ["'start_offset_m'"]),
+    ({"start_lane": HUGE}, ["'start_lane'", "characters)"]),
+    ({"track": 5}, ["config['track']", "a path to a track JSON file"]),
+    ({"track": ["test"]}, ["config['track']"]),
+])
+def test_env_misuse_is_refused_naming_the_setting(config, fragments):
+    def make_and_reset():
+        env = gymnasium.make(ENV_ID, config={"track": STRAIGHT, **config})
+        env.reset(seed=0)
+
+    refused(fragments, make_and_reset)
+
+
+@pytest.mark.parametrize(("call", "fragments"), [
+    (lambda: gymnasium.make(ENV_ID, config=[1]), ["config", "dict", "list"]),
+    (lambda: make().reset(seed=0, options=[1]), ["reset options", "dict", "list"]),
+    (lambda: make().reset(seed=0, options={"config": 5}), ["options['config']", "int"]),
+    (lambda: make().reset(seed=0, options={"start_offset_m": HUGE}), ["reset options", "'start_offset_m'"]),
+    (lambda: LatencyWrapper(make(), HUGE), ["latency", "too large"]),
+])
+def test_misused_calls_are_refused_naming_the_argument(call, fragments):
+    refused(fragments, call)
+
+
+def test_the_default_fixed_settings_are_still_accepted():
+    env = make(observation={"type": "DashCamera"}, manual_control=False, offscreen_rendering=True)
+    frame, _ = env.reset(seed=0)
+    assert frame.shape == (66, 200)
+
+
+# -- the bounded loader: linear time, explicit limits, each refusal naming file, field and limit ---------
+
+
+@pytest.mark.timeout(10)
+def test_a_megabyte_of_escaped_quotes_is_read_in_linear_time(tmp_path):
+    from plm_highway.io.bounded import json_depth
+
+    text = '{"name": "' + '\\"' * 500_000 + '", "x": [[1]]}'
+    assert json_depth(text)[0] == 3  # the object, the list, the list in it
+    unterminated = '["' + '\\"' * 500_000
+    assert json_depth(unterminated)[0] == 1
+    path = tmp_path / "t.json"
+    path.write_text(unterminated)
+    refused([str(path), "not valid JSON"], load_track, path)
+
+
+def _reference_depth(value) -> int:
+    if isinstance(value, dict):
+        return 1 + max((_reference_depth(v) for v in value.values()), default=0)
+    if isinstance(value, list):
+        return 1 + max((_reference_depth(v) for v in value), default=0)
+    return 0
+
+
+JSON_VALUES = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text(alphabet='ab"\\[]{}\n', max_size=6),
+    lambda children: st.lists(children, max_size=3) | st.dictionaries(st.text('ab"\\[{', max_size=3), children,
+                                                                      max_size=3),
+    max_leaves=12)
+
+
+@given(JSON_VALUES)
+def test_the_linear_depth_scan_agrees_with_the_documents_structure(value):
+    from plm_highway.io.bounded import json_depth, parse_json
+
+    text = json.dumps(value)
+    assert json_depth(text)[0] == _reference_depth(value)
+    assert parse_json(text, "doc") == value
+
+
+@given(st.lists(st.sampled_from(["a", "b", "c"]), min_size=2, max_size=5))
+def test_a_key_given_twice_is_always_named(keys):
+    from plm_highway.io.bounded import parse_json
+
+    text = "{" + ", ".join(f'"{key}": {i}' for i, key in enumerate(keys)) + "}"
+    if len(set(keys)) == len(keys):
+        assert parse_json(text, "doc") == {key: i for i, key in enumerate(keys)}
+        return
+    first_repeat = next(key for i, key in enumerate(keys) if key in keys[:i])
+    refused(["doc", f"key {first_repeat!r}", "more than once"], parse_json, text, "doc")
+
+
+@pytest.mark.timeout(10)
+@pytest.mark.parametrize(("text", "fragments"), [
+    ("a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+        f"{n}: &{n} [*{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}]\n" for p, n in zip("abcdefgh", "bcdefghi")),
+     ["grid.yaml", "after expansion", "node limit"]),
+    ("a: &a '" + "x" * 100_000 + "'\nb: [" + ", ".join(["*a"] * 60) + "]\n", ["grid.yaml", "expansion limit"]),
+    ("a: &a [*a]\n", ["grid.yaml"]),
+    ("a: " + "[" * 5000 + "]" * 5000 + "\n", ["grid.yaml", "nested more than 16 deep"]),
+    ("a:\n  b: " + "9" * 5000 + "\n", ["grid.yaml", "'a.b'", "5,000 digits"]),
+    ("a: 1\nb: 2\na: 3\n", ["grid.yaml", "'a'", "more than once"]),
+    ("a: !!python/name:os.system\n", ["grid.yaml", "not valid YAML"]),
+])
+def test_bad_yaml_is_refused_in_bounded_time(text, fragments):
+    from plm_highway.io.bounded import JsonLimits, parse_yaml
+
+    refused(fragments, parse_yaml, text, "grid.yaml",
+            JsonLimits(max_depth=16, max_nodes=200_000, max_int_digits=20, max_expanded_chars=4 << 20))
+
+
+def test_yaml_aliases_within_the_limits_are_read():
+    from plm_highway.io.bounded import parse_yaml
+
+    assert parse_yaml("a: &a [1, 2]\nb: *a\n", "g") == {"a": [1, 2], "b": [1, 2]}
+
+
+@given(labels=st.lists(st.text("aA_-/. t", min_size=1, max_size=6), min_size=1, max_size=6, unique=True))
+def test_file_names_stay_distinct_whatever_the_labels(labels):
+    from plm_highway.io import unique_file_names
+
+    names = unique_file_names(labels, suffix=".png")
+    assert len({name.lower() for name in names}) == len(names)
+    assert all(set(name) <= set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789.+-") for name in names)

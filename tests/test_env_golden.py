@@ -1,7 +1,7 @@
 """Golden run: the env computes what it computed before it was optimised.
 
-``tests/data/env_golden.json`` was recorded from the env *before* the speed work of issue 15
-(commit f974516 code) by ``PYTHONPATH=. python tests/test_env_golden.py --record``. It holds, for a
+``tests/data/env_golden.json`` was recorded from the env *before* it was optimised
+(commit f974516) by ``PYTHONPATH=. python tests/test_env_golden.py --record``. It holds, for a
 few fixed seeded runs (expert policy plus a sine perturbation that also drives the action past its
 clip, with and without a ``const:0.2`` latency, and a closed track at a 10 Hz policy rate):
 

@@ -12,21 +12,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import plm_highway  # noqa: F401  (registers the env)
-from plm_highway.errors import OutputRefused
-from plm_highway.estimation.compare import (
-    CompareConfig,
-    CompareResult,
-    RunRow,
-    compare,
-    markdown,
-    planned_runs,
-    start_pose,
-    verdict,
-)
+from plm_highway.errors import BadInput
 from plm_highway.estimation.policy import EkfLaneKeepingPolicy, EkfPolicyConfig, ekf_policy
-from plm_highway.evaluation.policies import POLICY_NAMES, make_policy
-from plm_highway.expert import ExpertPolicy
+from plm_highway.evaluation.plm_vs_ekf import CompareConfig, CompareResult, RunRow, planned_runs, verdict, who_wins
 from plm_highway.latency import LatencyWrapper
+from plm_highway.rollout.policies import POLICY_NAMES, make_policy
 
 
 def test_make_policy_knows_the_ekf():
@@ -79,80 +69,109 @@ def test_evaluate_cli_accepts_policy_ekf(tmp_path):
     assert json.loads(out.read_text())["policy"] == "ekf"
 
 
-@given(st.integers(0, 2**32 - 1))
-def test_start_pose_is_a_pure_function_of_the_seed_within_bounds(seed):
-    config = CompareConfig(start_offset_max_m=0.4, start_heading_max_rad=0.03)
-    pose = start_pose(seed, config)
-    assert pose == start_pose(seed, config)
-    assert abs(pose["start_offset_m"]) <= 0.4 and abs(pose["start_heading_error_rad"]) <= 0.03
-
-
-def test_planned_runs_references_first_then_every_policy_per_setting_then_biases():
+def test_planned_runs_reference_first_then_no_latency_then_every_policy_per_setting_then_biases():
     config = CompareConfig(settings=("const:0.1", "const:0.3"), biases_s=(-0.05, 0.1))
     runs = planned_runs(config)
-    assert runs[:2] == [("bm", "const:0", 0.0), ("ekf", "const:0", 0.0)]
-    assert len(runs) == 2 + 2 * 3 + 2 * 2
-    assert ("plm", "const:0.25", -0.05) in runs and ("ekf", "const:0.25", 0.1) in runs
+    assert runs[:3] == [("bm", "const:0", 0.0), ("plm", "const:0", 0.0), ("ekf", "const:0", 0.0)]
+    assert runs[3:7] == [("bm", "const:0.1", 0.0), ("plm", "const:0.1", 0.0), ("ekf_nc", "const:0.1", 0.0),
+                         ("ekf", "const:0.1", 0.0)]
+    assert len(runs) == 3 + 2 * 4 + 2 * 2
+    assert runs[-4:] == [("plm", "const:0.25", -0.05), ("ekf", "const:0.25", -0.05), ("plm", "const:0.25", 0.1),
+                         ("ekf", "const:0.25", 0.1)]
 
 
 @pytest.mark.parametrize("kwargs, match", [
     ({"settings": ()}, "at least one"), ({"settings": ("const:abc",)}, "abc"), ({"biases_s": (math.nan,)}, "biases"),
-    ({"start_offset_max_m": 2.0}, "start_offset"), ({"max_steps": 1}, "max_steps"),
+    ({"biases_s": (0.0,)}, "nonzero"), ({"settings": ("const:0", "const:0.2")}, "reference"),
+    ({"conditions": "sunny"}, "sunny"), ({"max_steps": 1}, "max-steps"),
 ])
 def test_bad_comparison_conditions_are_refused(kwargs, match):
-    with pytest.raises(ValueError, match=match):
+    with pytest.raises(BadInput, match=match):
         CompareConfig(**kwargs)
 
 
-def test_paired_difference_and_verdict():
-    config = CompareConfig(settings=("const:0.2",), biases_s=())
-    result = CompareResult(config, (0, 1, 2))
-    ekf = [0.30, 0.32, 0.34]
-    plm = [0.10, 0.13, 0.12]
-    for seed in range(3):
-        result.rows.append(RunRow("ekf", "const:0.2", 0.0, seed, {"steering_mae_vs_bm_ref": ekf[seed]}))
-        result.rows.append(RunRow("plm", "const:0.2", 0.0, seed, {"steering_mae_vs_bm_ref": plm[seed]}))
-    diff = result.paired_difference("const:0.2", "steering_mae_vs_bm_ref")
+def _result_with(values: dict[str, list[float]], metric="offset_rms_m", latency="const:0.2") -> CompareResult:
+    result = CompareResult(CompareConfig(settings=(latency,)), (0, 1, 2))
+    for policy, per_seed in values.items():
+        for seed, value in enumerate(per_seed):
+            result.rows.append(RunRow(policy, latency, 0.0, seed, {metric: value}))
+    return result
+
+
+def test_paired_difference_is_per_seed_with_a_student_t_interval():
+    ekf, plm = [0.30, 0.32, 0.34], [0.10, 0.13, 0.12]
+    result = _result_with({"ekf": ekf, "plm": plm})
+    diff = result.paired_difference("const:0.2", "offset_rms_m", "ekf", "plm")
     differences = np.array(ekf) - np.array(plm)
-    half = 4.302652729911275 * differences.std(ddof=1) / math.sqrt(3)  # t(0.975, 2)
+    half = 4.302652729911275 * differences.std(ddof=1) / math.sqrt(3)  # t(0.975, 2), worked by hand
     assert diff["mean"] == pytest.approx(differences.mean())
     assert diff["low"] == pytest.approx(differences.mean() - half)
-    assert verdict(diff) == "EKF worse"
-    assert verdict({"mean": -1.0, "low": -2.0, "high": -0.5}) == "PLM-Net worse"
-    assert verdict({"mean": 0.1, "low": -0.2, "high": 0.4}) == "no clear difference"
+    assert verdict(diff, "ekf", "plm") == "PLM-Net better"
+    assert verdict({"mean": -1.0, "low": -2.0, "high": -0.5}, "ekf", "plm") == "EKF lane keeper, delay compensated better"
+    assert verdict({"mean": 0.1, "low": -0.2, "high": 0.4}, "ekf", "plm") == "no clear difference"
+    # a seed the second policy lacks is left out of the pairs
+    result.rows = [r for r in result.rows if not (r.policy == "plm" and r.seed == 2)]
+    assert result.paired_difference("const:0.2", "offset_rms_m", "ekf", "plm")["n"] == 2
 
 
-def _small_policies(name, latency_bias_s, seed):
-    # The learned policies' places taken by the expert (no checkpoints, fast); the EKF is the real one.
-    return ekf_policy(latency_bias_s=latency_bias_s, seed=seed) if name == "ekf" else ExpertPolicy()
+@given(st.lists(st.tuples(st.floats(0, 2), st.floats(0, 2)), min_size=3, max_size=3))
+def test_paired_difference_turns_over_when_the_pair_does(pairs):
+    result = _result_with({"ekf": [a for a, _ in pairs], "plm": [b for _, b in pairs]})
+    forward = result.paired_difference("const:0.2", "offset_rms_m", "ekf", "plm")
+    backward = result.paired_difference("const:0.2", "offset_rms_m", "plm", "ekf")
+    assert forward["mean"] == pytest.approx(-backward["mean"], abs=1e-12)
+    assert forward["low"] == pytest.approx(-backward["high"], abs=1e-9)
+    assert forward["low"] <= forward["mean"] <= forward["high"]
 
 
-def test_compare_measures_every_policy_under_the_same_conditions_and_publishes(tmp_path):
-    from plm_highway.estimation.compare_report import publish_comparison
+def test_who_wins_reads_the_paired_interval():
+    entry = {"paired": {"ekf-plm": {"offset_rms_m": {"mean": -0.1, "low": -0.2, "high": -0.01, "n": 5}}}}
+    assert who_wins(entry, "offset_rms_m") == "EKF"
+    entry["paired"]["ekf-plm"]["offset_rms_m"].update(low=0.01, high=0.2)
+    assert who_wins(entry, "offset_rms_m") == "PLM-Net"
+    entry["paired"]["ekf-plm"]["offset_rms_m"].update(low=-0.01, high=0.2)
+    assert who_wins(entry, "offset_rms_m") == "neither"
 
-    config = CompareConfig(settings=("const:0.2",), biases_s=(0.1,), max_steps=20)
-    result = compare(2, config, progress=False, policy_factory=_small_policies)
-    assert len(result.rows) == 2 * len(planned_runs(config))
-    reference = [r for r in result.rows if (r.policy, r.latency) == ("bm", "const:0")]
-    assert all(r.metrics["steering_mae_vs_bm_ref"] == 0.0 for r in reference)
-    # The seeds start from different poses, so their runs differ.
-    offsets = {r.seed: r.metrics["lateral_offset_max_m"] for r in reference}
-    assert offsets[0] != offsets[1]
-    assert all(r.metrics["ms_per_step"] > 0 for r in result.rows)
-    data = result.to_dict()
-    (entry, biased) = data["summary"]
-    assert entry["policies"]["ekf"]["lateral_offset_rms_m"]["n"] == 2
-    assert set(biased["policies"]) == {"plm", "ekf"}
-    text = markdown(data)
-    assert "### const:0.2" in text and "told +0.10 s off" in text and "## Where each is worse" in text
+
+@pytest.mark.slow
+def test_compare_command_drives_five_policies_under_both_conditions_and_publishes(tmp_path):
+    from plm_highway import cli
 
     out, json_path = tmp_path / "report", tmp_path / "c.json"
-    publish_comparison(result, json_path, out)
-    assert json.loads((out / "compare.json").read_text())["seeds"] == [0, 1]
+    assert cli.main(["estimate", "compare", "--conditions", "ideal,paper", "--seeds", "2", "--settings", "const:0.2",
+                     "--biases=0.1", "--max-steps", "12", "--json", str(json_path), "--out", str(out)]) == 0
+    data = json.loads(json_path.read_text())
+    assert [r["config"]["conditions"] for r in data["reports"]] == ["ideal", "paper"]
+    for report in data["reports"]:
+        assert report["steps_scored"] == 12 and report["seeds"] == [0, 1]
+        runs = report["runs"]
+        assert len(runs) == 2 * (3 + 4 + 2)
+        reference = [r for r in runs if (r["policy"], r["latency"]) == ("bm", "const:0")]
+        assert all(r["outcomes"]["steering_mae_paper"] == 0.0 and r["outcomes"]["frechet_m"] == 0.0
+                   for r in reference)
+        assert all(r["outcomes"]["steps_driven"] == 12 for r in runs)
+        (no_latency, at_02, biased) = report["settings"]
+        assert set(no_latency["policies"]) == {"bm", "plm", "ekf"}
+        assert set(at_02["policies"]) == {"bm", "plm", "ekf_nc", "ekf"}
+        assert set(at_02["paired"]) == {"ekf-plm", "ekf-ekf_nc", "plm-bm"}
+        assert at_02["policies"]["ekf"]["offset_rms_m"]["n"] == 2
+        assert biased["bias_s"] == 0.1 and set(biased["policies"]) == {"plm", "ekf"}
+        assert report["command"].startswith(f"plm-highway estimate compare --conditions {report['config']['conditions']}")
+    # the seeds start from different poses (seed 0 centred)
+    ideal = data["reports"][0]["runs"]
+    offsets = {r["seed"]: r["outcomes"]["offset_max_m"] for r in ideal if r["policy"] == "bm" and r["latency"] == "const:0"}
+    assert offsets[0] != offsets[1]
+    assert data["reports"][1]["conditions"]["policy_frequency_hz"] == 30
+    text = (out / "compare.md").read_text()
+    assert "## Who wins where" in text and "## Conditions `paper`" in text and "told +0.10 s off" in text
     assert (out / "compare.png").stat().st_size > 10_000
-    assert (out / "runs.csv").read_text().count("\n") == len(result.rows) + 1
-    with pytest.raises(OutputRefused, match="overwrite"):
-        publish_comparison(result, json_path, None)
+    assert (out / "runs.csv").read_text().count("\n") == 2 * 2 * (3 + 4 + 2) + 1
+    assert json.loads((out / "compare.json").read_text()) == data
+    # refusals: an output it did not write, and bad options, cost no driving
+    assert cli.main(["estimate", "compare", "--seeds", "1", "--json", str(json_path)]) == 2
+    assert cli.main(["estimate", "compare", "--conditions", "sunny", "--seeds", "1"]) == 2
+    assert cli.main(["estimate", "compare", "--settings", "const:0", "--seeds", "1"]) == 2
+    assert cli.main(["estimate", "compare", "--biases", "x", "--seeds", "1"]) == 2
 
 
 @pytest.mark.slow

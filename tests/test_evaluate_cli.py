@@ -13,8 +13,8 @@ from tiny_models import tiny_checkpoints
 
 from plm_highway import cli
 from plm_highway.evaluation import evaluate as evaluate_cli
-from plm_highway.evaluation.closed_loop import LOG_COLUMNS, RunLog
 from plm_highway.evaluation.trajectory import METRICS, PARTS, RESAMPLE_SPACING_M
+from plm_highway.rollout.closed_loop import LOG_COLUMNS, RunLog
 
 RUN_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_m", "lateral_offset_m", "segment")
 
@@ -163,10 +163,10 @@ def test_any_track_file_works_and_a_closed_track_is_driven_for_one_lap(tmp_path)
 
 @pytest.mark.slow
 def test_paper_conditions_drive_the_runs_as_reproduce_does(tmp_path, capsys):
-    from plm_highway.evaluation.cell_runner import drive_cells
-    from plm_highway.evaluation.policies import single_threaded_inference
-    from plm_highway.evaluation.run import CONDITIONS, Cell, make_policies
     from plm_highway.road.track import load_track
+    from plm_highway.rollout.cells import Cell, run_cells, runs_under
+    from plm_highway.rollout.conditions import CONDITIONS
+    from plm_highway.rollout.policies import make_policies, single_threaded_inference
 
     out = tmp_path / "paper"
     assert cli.main(["evaluate", "--conditions", "paper", "--latency", "const:0.15", "--seed", "2", "--max-steps", "20",
@@ -179,7 +179,8 @@ def test_paper_conditions_drive_the_runs_as_reproduce_does(tmp_path, capsys):
     conditions = CONDITIONS["paper"]
     cells = [Cell("baseline", "bm", "const:0.15", 2), Cell("mitigated", "plm", "const:0.15", 2)]
     with single_threaded_inference():
-        logs = drive_cells(cells, load_track("test"), conditions, make_policies(None, conditions), None, 20)
+        logs = run_cells(runs_under(cells, load_track("test"), conditions, make_policies(None, conditions), 20),
+                         preset=conditions.checkpoint_preset)
     with single_threaded_inference():
         _, evaluated = evaluate_cli.evaluate("test", "const:0.15", "plm", 2, 20, conditions="paper")
     for log, name in zip(logs, ("baseline", "mitigated")):
@@ -188,6 +189,19 @@ def test_paper_conditions_drive_the_runs_as_reproduce_does(tmp_path, capsys):
         np.testing.assert_allclose(written, log.columns["steering"], rtol=1e-5)  # the CSV's 6 significant digits
 
 
-def test_the_ekf_is_refused_under_paper_conditions(capsys):
-    assert cli.main(["evaluate", "--conditions", "paper", "--policy", "ekf", "--max-steps", "5"]) == 2
-    assert "--conditions paper" in capsys.readouterr().err
+def test_the_ekf_drives_under_paper_conditions_with_their_plant(tmp_path):
+    from plm_highway.estimation.lateral_control import LoopTiming
+    from plm_highway.rollout.conditions import CONDITIONS
+    from plm_highway.rollout.policies import ekf_plant, make_policy
+
+    plant = ekf_plant(CONDITIONS["paper"])
+    assert plant["timing"] == LoopTiming(1 / 30, 0.1, 2) and plant["max_steering_rad"] == 0.4
+    assert plant["camera"].height_px == 160 and plant["camera"].crop_rows_px == 140
+    policy = make_policy("ekf", conditions=CONDITIONS["paper"], compensate_delay=False)
+    assert policy.controller.timing == plant["timing"] and not policy.estimator.compensate_delay
+    out = tmp_path / "e.json"
+    assert cli.main(["evaluate", "--conditions", "paper", "--policy", "ekf", "--latency", "const:0.2",
+                     "--max-steps", "12", "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["conditions"] == "paper" and set(result["runs"]) == {"reference", "baseline", "mitigated"}
+    assert all(run["steps"] == 12 for run in result["runs"].values())

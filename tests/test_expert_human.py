@@ -13,9 +13,9 @@ from hypothesis import strategies as st
 
 import plm_highway  # noqa: F401  (registers the env)
 from plm_highway.envs import ENV_ID
-from plm_highway.evaluation.run import CONDITIONS
 from plm_highway.expert import HUMAN_PARAM_SOURCES, HumanDemonstrator, HumanParams, paper_units
 from plm_highway.expert.human import hand_step
+from plm_highway.rollout.conditions import CONDITIONS
 
 LOOP_HZ = 30
 # The paper's Table 1 (units of 450 deg of steering wheel): std 0.177, quartiles -0.069 and 0.059.

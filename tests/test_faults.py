@@ -1,4 +1,4 @@
-"""The fault battery (issue 8 item 4, issue 17 item 8): SIGKILL, foreign content, two writers at once.
+"""The fault battery: SIGKILL, foreign content, two writers at once, and what --overwrite may touch.
 
 For each writing command (collect, train bm, evaluate --json, evaluate --out, reproduce, sim2real
 diagnose --report):
@@ -14,6 +14,12 @@ diagnose --report):
 
 The commands are deterministic under their seed, so the new output of an ``--overwrite`` run is
 byte-identical to the first one except for the fields listed in ``VOLATILE`` (wall times).
+
+Then, in-process and only in ``tmp_path``: ``--overwrite`` keeps every file the earlier output's
+manifest does not list (and says so), refuses one where the new output writes, never replaces an
+input of the run, never touches a name that merely looks like a staging directory; a sweep's grid,
+table and figures publish as one set; output names stay unique; training gives the same bytes under
+any CPU affinity.
 """
 
 from __future__ import annotations
@@ -29,12 +35,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 TMP_INFIX = ".plm-highway-tmp-"
 pytestmark = pytest.mark.slow
 
-# Fields that legitimately differ between two runs of one command (documented in README "Reliability").
+# Fields that legitimately differ between two runs of one command (documented in docs/reliability.md).
 VOLATILE = {"elapsed_s"}
 
 KILL_SEED = 8  # the random kill points are drawn from this seed
@@ -249,3 +257,398 @@ def test_two_writers_of_one_target_one_wins_whole(command, inputs, tmp_path):
     assert run(alone, argv).returncode == 0
     assert without_volatile(tree(work / relative)) == without_volatile(tree(alone / relative))
     assert staging_dirs(work / relative) == []
+
+
+# -- --overwrite replaces only what plm-highway wrote (the manifest), in-process and in tmp_path only ------
+
+
+def files_with_meta(root: Path) -> dict[str, tuple]:
+    """Every entry under ``root`` (hidden ones too): bytes (or link target), permission bits and mtime."""
+    state = {}
+    for path in sorted(root.rglob("*")):
+        rel = str(path.relative_to(root))
+        info = path.lstat()
+        if path.is_symlink():
+            state[rel] = ("link", os.readlink(path))
+        elif path.is_dir():
+            state[rel] = ("dir", oct(info.st_mode & 0o7777))
+        else:
+            state[rel] = (path.read_bytes(), oct(info.st_mode & 0o7777), info.st_mtime_ns)
+    return state
+
+
+def kit_output(target: Path, files: dict[str, bytes], *, overwrite: bool = False, **options) -> None:
+    from plm_highway.io import write_output
+    from plm_highway.io.outputs import directory_kind
+
+    with write_output(target, directory_kind("test-output", "a test output"), overwrite=overwrite, **options) as tmp:
+        for relative, data in files.items():
+            (tmp / relative).parent.mkdir(parents=True, exist_ok=True)
+            (tmp / relative).write_bytes(data)
+
+
+def cli(argv: list[str]) -> tuple[int, str]:
+    import contextlib
+    import io
+
+    from plm_highway.cli import main
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = main(argv)
+    return code, err.getvalue()
+
+
+TRACK_JSON = json.dumps({"name": "t", "lanes": 3, "lane_width_m": 4.0,
+                         "segments": [{"type": "straight", "length_m": 200}]})
+
+
+def test_overwrite_keeps_user_files_and_the_runs_own_track(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    argv = ["evaluate", "--policy", "expert", "--max-steps", "3", "--out", "D"]
+    assert cli(argv)[0] == 0
+    (tmp_path / "D" / "NOTES.txt").write_text("my notes")
+    (tmp_path / "D" / "t.json").write_text(TRACK_JSON)
+    os.chmod(tmp_path / "D" / "NOTES.txt", 0o600)
+    (tmp_path / "D" / "mine" / "deep").mkdir(parents=True)
+    (tmp_path / "D" / "mine" / "deep" / "x.bin").write_bytes(os.urandom(64))
+    (tmp_path / "D" / "link").symlink_to("NOTES.txt")
+    before = files_with_meta(tmp_path / "D")
+    code, err = cli(["evaluate", "--policy", "expert", "--max-steps", "3", "--track", "D/t.json", "--out", "D",
+                     "--overwrite"])
+    assert code == 0, err
+    after = files_with_meta(tmp_path / "D")
+    for rel in ("NOTES.txt", "t.json", "mine/deep/x.bin", "link"):
+        assert after[rel] == before[rel], rel
+    assert "warning" in err and "NOTES.txt" in err and "t.json" in err and "mine/deep/x.bin" in err
+    assert json.loads((tmp_path / "D" / "result.json").read_text())["track"] != before  # the new result is there
+
+
+@pytest.mark.parametrize("how", ["changed-kit-file", "new-path-collision", "dir-where-file-goes"])
+def test_a_user_file_where_the_new_output_writes_is_refused_and_nothing_changes(tmp_path, how):
+    from plm_highway.errors import OutputRefused
+
+    target = tmp_path / "out"
+    kit_output(target, {"a.txt": b"kit a", "sub/b.txt": b"kit b"})
+    if how == "changed-kit-file":
+        (target / "a.txt").write_bytes(b"edited by the user")
+        culprit = "a.txt"
+    elif how == "new-path-collision":
+        (target / "c.txt").write_bytes(b"user c")
+        culprit = "c.txt"
+    else:
+        (target / "c.txt").mkdir()
+        (target / "c.txt" / "inner").write_text("user")
+        culprit = "c.txt/inner"
+    before = files_with_meta(tmp_path)
+    with pytest.raises(OutputRefused, match=culprit.replace(".", r"\.")):
+        kit_output(target, {"a.txt": b"new a", "c.txt": b"new c"}, overwrite=True)
+    assert files_with_meta(tmp_path) == before
+
+
+def test_a_kit_file_that_is_an_input_of_the_run_is_never_replaced(tmp_path):
+    from plm_highway.errors import OutputRefused
+    from plm_highway.io import protected_inputs
+
+    target = tmp_path / "out"
+    kit_output(target, {"grid.json": b"{}", "other.txt": b"x"})
+    before = files_with_meta(tmp_path)
+    with protected_inputs([target / "grid.json"]), pytest.raises(OutputRefused, match=r"grid\.json.*input of this run"):
+        kit_output(target, {"grid.json": b"{\"new\": 1}"}, overwrite=True)
+    assert files_with_meta(tmp_path) == before
+    # Not rewritten by the new output: carried instead of removed with the earlier output.
+    with protected_inputs([target / "grid.json"]):
+        kit_output(target, {"other.txt": b"y"}, overwrite=True)
+    assert (target / "grid.json").read_bytes() == b"{}" and (target / "other.txt").read_bytes() == b"y"
+
+
+def test_a_directory_input_protects_what_lies_inside_the_output_not_around_it(tmp_path):
+    from plm_highway.errors import OutputRefused
+    from plm_highway.io import protected_inputs
+
+    target = tmp_path / "out"
+    kit_output(target, {"model.pt": b"bm weights", "model.json": b"{}", "sub/data.bin": b"read"})
+    before = files_with_meta(tmp_path)
+    with protected_inputs([target]), pytest.raises(OutputRefused, match=r"out'?: it is an input of this run"):
+        kit_output(target, {"model.pt": b"tapm weights"}, overwrite=True)  # train tapm --bm C --out C
+    assert files_with_meta(tmp_path) == before
+    with protected_inputs([target / "sub"]), pytest.raises(OutputRefused, match=r"sub/data\.bin.*input of this run"):
+        kit_output(target, {"sub/data.bin": b"replaced"}, overwrite=True)  # --checkpoints R/ck --out R
+    assert files_with_meta(tmp_path) == before
+    with protected_inputs([tmp_path]):  # --checkpoints . --out out: the output lies inside the input
+        kit_output(target, {"model.pt": b"new"}, overwrite=True)
+    assert (target / "model.pt").read_bytes() == b"new" and not (target / "model.json").exists()
+
+
+def test_the_command_line_protects_every_input_it_names(tmp_path, monkeypatch):
+    from plm_highway.cli import build_parser, input_paths
+
+    monkeypatch.chdir(tmp_path)
+    for name in ("t.json", "a,b.csv", "c.csv"):
+        (tmp_path / name).write_text("x")
+    argv = ["evaluate", "--track", "t.json", "--latency", "trace:a,b.csv", "--out", "D", "--json", "c.csv"]
+    args = build_parser(argv).parse_args(argv)
+    assert sorted(input_paths(args)) == ["a,b.csv", "t.json"]
+
+
+def test_outputs_written_before_manifests_keep_everything_not_recognisably_the_kits(tmp_path):
+    from plm_highway.io import MARKER_NAME
+
+    target = tmp_path / "old"
+    target.mkdir()
+    (target / MARKER_NAME).write_text(json.dumps({"tool": "plm-highway", "version": "0.0", "kind": "test-output"}))
+    (target / "a.txt").write_text("written by an old plm-highway")
+    (target / "notes.txt").write_text("the user's")
+    kit_output(target, {"a.txt": b"new"}, overwrite=True)
+    assert (target / "a.txt").read_bytes() == b"new" and (target / "notes.txt").read_text() == "the user's"
+    manifest = json.loads((target / MARKER_NAME).read_text())
+    assert sorted(manifest["files"]) == ["a.txt"]  # the user's file stays theirs
+
+
+def test_a_second_overwrite_still_knows_which_files_are_the_users(tmp_path):
+    target = tmp_path / "out"
+    kit_output(target, {"a.txt": b"1", "old-only.txt": b"1"})
+    (target / "mine.txt").write_text("mine")
+    kit_output(target, {"a.txt": b"2"}, overwrite=True)
+    assert not (target / "old-only.txt").exists()  # the kit's own earlier file goes
+    kit_output(target, {"a.txt": b"3"}, overwrite=True)
+    assert (target / "mine.txt").read_text() == "mine" and (target / "a.txt").read_bytes() == b"3"
+
+
+STAGING_LOOKALIKES = {
+    "no-lock": {},
+    "garbage-lock": {".lock": b"\x00garbage"},
+    "forged-claim": {".lock": json.dumps({"tool": "plm-highway staging directory", "staging": "x", "target": "out",
+                                          "device": 1, "inode": 2}).encode()},
+}
+
+
+@pytest.mark.parametrize("lock", list(STAGING_LOOKALIKES))
+@pytest.mark.parametrize("exists", [True, False], ids=["target-exists", "target-absent"])
+def test_names_that_look_like_staging_are_never_removed_or_renamed_into_place(tmp_path, lock, exists):
+    target = tmp_path / "out"
+    if exists:
+        kit_output(target, {"a.txt": b"1"})
+    lookalike = tmp_path / f".out{TMP_INFIX}999999-abcd"
+    lookalike.mkdir()
+    (lookalike / ".previous").mkdir()
+    (lookalike / ".previous" / "thesis.tex").write_text("my thesis")
+    for name, data in STAGING_LOOKALIKES[lock].items():
+        (lookalike / name).write_bytes(data)
+    (tmp_path / f".out{TMP_INFIX}1-file").write_text("a file with a staging-like name")
+    before = {k: v for k, v in files_with_meta(tmp_path).items() if k.startswith(".")}
+    kit_output(target, {"a.txt": b"2"}, overwrite=exists)
+    assert {k: v for k, v in files_with_meta(tmp_path).items() if k.startswith(".")} == before
+    assert (target / "a.txt").read_bytes() == b"2"
+
+
+def test_a_dead_runs_own_staging_is_still_cleaned(tmp_path):
+    from plm_highway.io.outputs import _stage, remove_stale_staging
+
+    target = tmp_path / "out"
+    staged = _stage(target, OutputKindForTests.DIR, False, None, ())
+    os.close(staged.lock_fd)  # as if the process died: its lock is released
+    assert remove_stale_staging(target) == [staged.staging_dir] and not staged.staging_dir.exists()
+
+
+class OutputKindForTests:
+    from plm_highway.io.outputs import directory_kind, file_kind
+
+    DIR = directory_kind("test-output", "a test output")
+    FILE = file_kind("test-file", "a test JSON file")
+
+
+def test_replacing_keeps_the_permission_bits(tmp_path):
+    from plm_highway.io import write_json
+
+    path = tmp_path / "r.json"
+    write_json(path, {"a": 1}, OutputKindForTests.FILE)
+    os.chmod(path, 0o640)
+    write_json(path, {"a": 2}, OutputKindForTests.FILE, overwrite=True)
+    assert path.stat().st_mode & 0o777 == 0o640 and json.loads(path.read_text())["a"] == 2
+    target = tmp_path / "d"
+    kit_output(target, {"x": b"1"})
+    os.chmod(target, 0o750)
+    kit_output(target, {"x": b"2"}, overwrite=True)
+    assert target.stat().st_mode & 0o777 == 0o750
+
+
+def test_a_target_that_appears_meanwhile_is_refused_without_advising_overwrite(tmp_path):
+    from plm_highway.errors import OutputRefused
+    from plm_highway.io import write_json, write_output
+
+    path = tmp_path / "r.json"
+    with pytest.raises(OutputRefused) as refusal:
+        with write_output(path, OutputKindForTests.FILE, overwrite=True) as tmp:
+            tmp.write_text("{}")
+            write_json(path, {"other": "process"}, OutputKindForTests.FILE)  # another writer wins meanwhile
+    assert "--overwrite" not in str(refusal.value) and "another process" in str(refusal.value)
+    assert json.loads(path.read_text())["other"] == "process"
+
+
+def test_a_failed_or_refused_run_leaves_no_directories_it_made(tmp_path):
+    from plm_highway.io import write_output
+
+    with pytest.raises(KeyboardInterrupt):
+        with write_output(tmp_path / "a" / "b" / "c.json", OutputKindForTests.FILE):
+            raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_json_to_a_name_ending_in_a_slash_writes_no_file_named_like_the_directory(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, err = cli(["evaluate", "--policy", "expert", "--max-steps", "1", "--json", "res/"])
+    assert code == 2 and "res/" in err and "directory" in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+NAMES = st.sampled_from(["a", "b", "c", "d.txt", "e.json", "sub"])
+RELATIVE = st.lists(NAMES, min_size=1, max_size=3).map("/".join)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(kit=st.dictionaries(RELATIVE, st.binary(max_size=8), max_size=5),
+       user=st.dictionaries(RELATIVE, st.binary(max_size=8), max_size=5),
+       new=st.dictionaries(RELATIVE, st.binary(max_size=8), max_size=5))
+def test_overwrite_never_removes_or_changes_a_file_not_in_the_manifest(tmp_path_factory, kit, user, new):
+    """Whatever the earlier output, the user's additions and the new output: either the user's files are all
+    there byte for byte afterwards (and the new output whole), or the overwrite is refused and nothing changed."""
+    from plm_highway.errors import OutputRefused
+
+    root = tmp_path_factory.mktemp("prop")
+    target = root / "out"
+    try:
+        kit_output(target, kit)
+    except (OSError, FileExistsError, NotADirectoryError, IsADirectoryError):
+        return  # paths that cannot coexist (a file and a directory of one name): not an output
+    added = {}
+    for relative, data in user.items():
+        path = target / relative
+        try:
+            if path.exists() or any((target / a).is_file() for a in _ancestors(relative)):
+                continue
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(data)
+            added[relative] = data
+        except OSError:
+            continue
+    before = files_with_meta(root)
+    try:
+        kit_output(target, new, overwrite=True)
+    except OutputRefused:
+        assert files_with_meta(root) == before
+        return
+    except (OSError, FileExistsError, NotADirectoryError, IsADirectoryError):
+        return
+    for relative, data in added.items():
+        assert (target / relative).read_bytes() == data, relative
+    for relative, data in new.items():
+        assert (target / relative).read_bytes() == data, relative
+    for relative in kit:
+        if relative not in new and relative not in added and not any(r.startswith(relative + "/") for r in added):
+            assert not (target / relative).is_file(), f"the earlier output's {relative} was kept"
+
+
+def _ancestors(relative: str) -> list[str]:
+    parts = relative.split("/")
+    return ["/".join(parts[:i]) for i in range(1, len(parts))]
+
+
+# -- a sweep's grid, table and figures publish as one set; output names are unique ----------------------
+
+SWEEP_GRID_SMALL = dict(latencies=("const:0.1",), tracks=("test",), seeds=(0,), policies=("expert",), max_steps=8)
+
+
+def sweep_set(out: Path) -> dict:
+    return {name: tree(out / name) for name in ("grid.json", "results.csv", "figures")}
+
+
+def test_an_interrupted_resume_with_a_changed_grid_leaves_the_previous_set_whole(tmp_path, monkeypatch):
+    from plm_highway.sweep import SweepGrid, run_sweep
+    from plm_highway.sweep import runner as sweep_runner
+
+    out = tmp_path / "sweep"
+    run_sweep(SweepGrid(**SWEEP_GRID_SMALL), out, workers=0, progress=False)
+    previous = sweep_set(out)
+    assert all(previous.values())
+
+    def interrupted(job):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep_runner, "run_chunk", interrupted)
+    changed = SweepGrid(**{**SWEEP_GRID_SMALL, "latencies": ("const:0.1", "const:0.2")})
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(changed, out, workers=0, progress=False)
+    assert sweep_set(out) == previous
+    monkeypatch.undo()
+    summary = run_sweep(changed, out, workers=0, progress=False)
+    assert summary["resumed"] == 2 and json.loads((out / "grid.json").read_text())["latencies"] == ["const:0.1",
+                                                                                                  "const:0.2"]
+    assert len((out / "results.csv").read_text().splitlines()) == 1 + 3
+
+
+def test_a_sweep_resume_keeps_the_users_files_and_its_cells(tmp_path):
+    from plm_highway.sweep import SweepGrid, run_sweep
+
+    out = tmp_path / "sweep"
+    run_sweep(SweepGrid(**SWEEP_GRID_SMALL), out, workers=0, progress=False)
+    (out / "analysis.ipynb").write_text("{}")
+    (out / "figures" / "my_plot.png").write_bytes(b"\x89PNG\r\n\x1a\nmine")
+    cells = tree(out / "cells")
+    run_sweep(SweepGrid(**{**SWEEP_GRID_SMALL, "seeds": (0, 1)}), out, workers=0, progress=False)
+    assert (out / "analysis.ipynb").read_text() == "{}"
+    assert (out / "figures" / "my_plot.png").read_bytes() == b"\x89PNG\r\n\x1a\nmine"
+    assert set(cells) < set(tree(out / "cells")) and all(tree(out / "cells")[k] == v for k, v in cells.items())
+
+
+def test_two_tracks_with_one_file_name_get_two_figures(tmp_path):
+    from plm_highway.sweep import SweepGrid
+    from plm_highway.sweep.table import figure_names
+
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "t.json").write_text(TRACK_JSON)
+    grid = SweepGrid(latencies=("const:0.1",), tracks=(str(tmp_path / "a" / "t.json"), str(tmp_path / "b" / "t.json")),
+                     policies=("expert",), conditions={"x_y": {}, "x-y": {}})
+    names = [name for _, _, name in figure_names(grid)]
+    assert len({name.lower() for name in names}) == 4, names
+
+
+def test_settings_that_round_alike_get_distinct_figure_names():
+    from plm_highway.evaluation.protocol import setting_tag
+
+    tags = [setting_tag(spec) for spec in ("const:0.199", "const:0.201", "const:0.2", "const:0.20")]
+    assert tags[0] != tags[1] != tags[2] and tags[2] == tags[3] == "0.20s"
+
+
+def test_two_figures_of_one_output_with_one_name_are_refused(tmp_path):
+    from plm_highway.io import pyplot, save_figure_into
+
+    fig = pyplot().figure()
+    save_figure_into(fig, tmp_path / "f.png")
+    with pytest.raises(RuntimeError, match="both named 'f.png'"):
+        save_figure_into(fig, tmp_path / "f.png")
+    pyplot().close(fig)
+
+
+# -- one training command, one result: the thread count does not follow the CPU affinity -----------------
+
+
+@pytest.mark.timeout(1200)
+def test_training_writes_the_same_bytes_whatever_the_cpu_affinity(inputs, tmp_path):
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) < 2:
+        pytest.skip("needs a machine with two CPUs to compare one CPU with two")
+    argv = ["train", "bm", "--data", "ds", "--epochs", "1", "--max-samples", "200", "--seed", "3", "--quiet",
+            "--out", "ck"]
+    results = []
+    for allowed in ({cpus[0]}, set(cpus)):
+        work = tmp_path / f"cpus{len(allowed)}"
+        work.mkdir()
+        (work / "ds").symlink_to(inputs / "ds")
+        done = subprocess.run([sys.executable, "-m", "plm_highway", *argv], cwd=work, env=env(), capture_output=True,
+                              text=True, timeout=1100, preexec_fn=lambda allowed=allowed: os.sched_setaffinity(0, allowed))
+        assert done.returncode == 0, done.stderr
+        results.append(tree(work / "ck"))
+    assert results[0] == results[1]
+    assert json.loads(results[0]["model.json"])["training"]["threads"] == 2

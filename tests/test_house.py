@@ -1,4 +1,4 @@
-"""The house rules of issue 16 that a test can hold: library code never imports the command line."""
+"""House rules a test can hold: library code never imports the command line; one definition of each shared concept."""
 
 from __future__ import annotations
 
@@ -48,3 +48,20 @@ def test_no_library_module_defines_command_line_entry_points():
         if {"configure", "run"} <= functions:
             pairs.append(str(path.relative_to(PACKAGE)))
     assert pairs == []
+
+
+def test_one_definition_of_each_shared_concept():
+    """A mean with its confidence interval, seeds as the commands take them, driving a list of runs and resolving a
+    track each have one definition, which every caller uses (no second copy with its own behaviour)."""
+    concepts = {"mean_ci": [], "parse_seeds": [], "run_cells": [], "resolve_track": [], "t quantile": []}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        where = str(path.relative_to(PACKAGE))
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.name in concepts:
+                concepts[node.name].append(where)
+            elif (isinstance(node, ast.Attribute) and node.attr == "ppf" and isinstance(node.value, ast.Attribute)
+                  and node.value.attr == "t"):  # scipy.stats.t.ppf: a Student-t interval computed here
+                concepts["t quantile"].append(where)
+    assert concepts == {"mean_ci": ["metrics/intervals.py"], "parse_seeds": ["rollout/seeds.py"],
+                        "run_cells": ["rollout/cells.py"], "resolve_track": ["road/track.py"],
+                        "t quantile": ["metrics/intervals.py"]}

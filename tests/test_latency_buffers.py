@@ -1,4 +1,4 @@
-"""The wrapper never hands out its own buffers: issue 17, item 1."""
+"""The wrapper never hands out its own buffers."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The two latency injections: exact ages by time, and the original PLM-Net FIFO (issue 9.3)."""
+"""The two latency injections: exact ages by time, and the original PLM-Net FIFO."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Profiles draw lazily in bounded memory, and every spec and trace size has a checked bound (issue 17.5-7, 8.2)."""
+"""Profiles draw lazily in bounded memory, and every spec and trace size has a checked bound."""
 
 from __future__ import annotations
 

@@ -32,7 +32,15 @@ from plm_highway.models.checkpoints import (
     state_fingerprint,
 )
 from plm_highway.models.inference import BaseModelPolicy, NonFiniteSteeringError, PLMNetPolicy
-from plm_highway.models.plm_net import FusedPLMNet, Int8Linear, PLMNet, fold_scalar_branches, interpolate_actions
+from plm_highway.models.plm_net import (
+    SPARSE_CHUNK,
+    FusedPLMNet,
+    Int8Linear,
+    PLMNet,
+    SparseInputLinear,
+    fold_scalar_branches,
+    interpolate_actions,
+)
 from plm_highway.models.shipped import load_shipped_plm_net, shipped_checkpoint_dir
 from plm_highway.models.tapm import TAPM, TAPMConfig
 
@@ -768,6 +776,65 @@ def paper_plm_net():
     return PLMNet(bm, TAPM(TAPMConfig(image_feature_dim=bm.image_feature_dim))).eval()
 
 
+# --- the sparse-input image branch of the one-frame form ----------------------------------------------------
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 3 * SPARSE_CHUNK + 5), st.integers(1, 40), st.floats(0, 1), st.integers(0, 2**16))
+def test_sparse_input_linear_equals_the_dense_product(in_features, out_features, density, seed):
+    generator = torch.Generator().manual_seed(seed)
+    weight = torch.randn(out_features, in_features, generator=generator) / in_features**0.5
+    bias = torch.randn(out_features, generator=generator)
+    x = torch.relu(torch.randn(1, in_features, generator=generator)) * (
+        torch.rand(1, in_features, generator=generator) < density)
+    exact = x.double() @ weight.double().T + bias.double()
+    with torch.inference_mode():
+        sparse = SparseInputLinear.of(weight, bias)(x)
+    assert sparse.shape == (1, out_features) and sparse.dtype == torch.float32
+    # Float rounding of sums of at most in_features terms, each at most |x| |w|.
+    bound = 4 * in_features * torch.finfo(torch.float32).eps * (x.abs().double() @ weight.abs().double().T + bias.abs().double())
+    assert bool(((sparse.double() - exact).abs() <= bound + 1e-7).all())
+
+
+def test_sparse_input_linear_reads_only_the_rows_of_nonzero_inputs():
+    weight, bias = torch.randn(8, 100), torch.randn(8)
+    x = torch.zeros(1, 100)
+    x[0, [3, 40, 41, 99]] = torch.tensor([0.5, 1.0, 2.0, 0.25])
+    poisoned = weight.clone()
+    poisoned[:, (x[0] == 0)] = float("nan")  # a dense product would turn every output NaN (0 * NaN)
+    with torch.inference_mode():
+        output = SparseInputLinear.of(poisoned, bias)(x)
+        torch.testing.assert_close(output, torch.addmm(bias, x, weight.T), rtol=1e-6, atol=1e-6)
+        # No nonzero input at all: the bias, as the dense product gives.
+        assert torch.equal(SparseInputLinear.of(poisoned, bias)(torch.zeros(1, 100)), bias.unsqueeze(0))
+
+
+@pytest.mark.parametrize("latency_s", [0.0, 0.1, 0.15, 0.22, 0.5])
+def test_one_frame_plm_net_runs_the_bms_own_calls(plm_pair, monkeypatch, latency_s):
+    """At batch size 1 on the CPU a_BM is the BM's own, bit for bit (latency 0 returns it), and the image
+    branch is the sparse product (the fused first layer is not read)."""
+    plm_net, fused = plm_pair
+    frames, speed = random_frames(1, seed=21), torch.tensor([16.7])
+    used = []
+    first_layer = fused.first_layer
+
+    class RecordedFirstLayer:
+        def apply(self, *args):
+            used.append("fused first layer")
+            return first_layer.apply(*args)
+
+    monkeypatch.setattr(fused, "first_layer", RecordedFirstLayer())
+    sparse_calls = fused.sparse_image_fc()
+    monkeypatch.setattr(fused, "sparse_image_fc", lambda: used.append("sparse") or sparse_calls)
+    with torch.inference_mode():
+        output = fused(frames, speed, [latency_s])
+        reference = plm_net(frames, speed, torch.tensor([latency_s]))
+        if latency_s == 0:
+            assert torch.equal(output.steering, plm_net.bm(frames, speed))
+    torch.testing.assert_close(output.steering, reference.steering, rtol=0, atol=1e-6)
+    assert used == ([] if latency_s == 0 else ["sparse"])
+
+
 # --- int8 TAPM: the BM exact, the TAPM approximate ------------------------------------------------------
 
 
@@ -1197,7 +1264,7 @@ def test_bench_models_cli_prints_and_writes_the_figures(tmp_path, capsys):
     out = tmp_path / "bench.json"
     threads = str(torch.get_num_threads())  # leave this worker's thread count as it was
     args = ["bench", "models", "--preset", "default", "--frames", "6", "--warmup", "1", "--repeats", "2",
-            "--train-batches", "1", "--threads", threads, "--json", str(out)]
+            "--train-batches", "1", "--threads", threads, "--device", "cpu", "--json", str(out)]
     assert cli.main(args) == 0
     result = json.loads(out.read_text())
     figures = result["presets"]["default"]
@@ -1211,7 +1278,9 @@ def test_bench_models_cli_prints_and_writes_the_figures(tmp_path, capsys):
         assert first_repeat[key] == pytest.approx(first_repeat[f"{side}_ms_median"] / first_repeat["bm_ms_median"])
     assert figures["max_abs_difference_fused_vs_reference"] < 1e-6
     assert 0 < figures["max_abs_difference_int8_vs_reference"] < 1e-2
-    assert set(figures["throughput_samples_per_s"]["plm"]) == {"1", "8", "32"}
+    assert set(figures["throughput_samples_per_s"]["plm"]) == {"1", "32", "256"}
+    assert 0 < figures["image_features_nonzero_fraction"] < 0.5  # the shipped checkpoints on rendered frames
+    assert result["conditions"]["weights"] == "shipped" and result["conditions"]["device"] == "cpu"
     assert all(v > 0 for v in figures["throughput_samples_per_s"]["bm"].values())
     assert figures["training_samples_per_s"]["bm"] > 0 and figures["training_samples_per_s"]["tapm"] > 0
     assert figures["bm_params"] == 851_371 and figures["tapm_frozen_params"] == 851_371
@@ -1248,13 +1317,14 @@ def test_bench_says_whether_the_approximation_stays_within_the_exact_forms_inter
 
 
 def test_bench_confidence_interval_matches_the_t_table():
-    from plm_highway.bench.models import _mean_ci
+    from plm_highway.bench.models import _mean_ci, mean_within_ci
 
     # mean 2, sample sd 1, n 3: half width t(0.975, 2) / sqrt(3) = 4.3027 / 1.7321 (t from tables)
     figure = _mean_ci([1.0, 2.0, 3.0])
     assert figure["mean"] == 2.0
     assert figure["ci95_half_width"] == pytest.approx(4.3027 / 3**0.5, abs=1e-4)
-    assert _mean_ci([0.5])["ci95_half_width"] == 0.0
+    assert _mean_ci([0.5])["ci95_half_width"] is None  # one seed: no interval, not a zero-width one
+    assert not mean_within_ci([0.5], [0.5])  # nothing to lie within
 
 
 @pytest.mark.slow

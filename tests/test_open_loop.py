@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from plm_highway.evaluation import open_loop
-from plm_highway.evaluation.run import CONDITIONS
+from plm_highway.rollout.conditions import CONDITIONS
 
 
 def test_holding_and_predicting_on_a_ramp():
@@ -54,7 +54,7 @@ def test_the_lag_is_the_age_of_the_frame_the_env_serves():
     assert open_loop.lag_steps(0.2, 30) == 6 and open_loop.lag_steps(0.15, 30) == 5
     assert open_loop.lag_steps(0.25, 30) == 8 and open_loop.lag_steps(0.15, 20) == 3
     assert open_loop.constant_latencies(["const:0.15", "steps:0.0-0.35:1.0", "const:0", "const:0.3"], 30) == [0.15, 0.3]
-    from plm_highway.evaluation.closed_loop import make_env
+    from plm_highway.rollout.closed_loop import make_env
 
     env = make_env("test", "const:0.12", None, {"policy_frequency": 20, "simulation_frequency": 20})
     try:
@@ -72,8 +72,8 @@ def test_plm_net_is_told_what_the_conditions_tell_it():
 
 
 def test_measured_on_a_short_reference_run_with_the_shipped_models():
-    from plm_highway.evaluation.run import make_policies
     from plm_highway.road.track import load_track
+    from plm_highway.rollout.policies import make_policies
 
     conditions = CONDITIONS["ideal"]
     policies = make_policies(None, conditions)
@@ -95,7 +95,7 @@ def test_measured_on_a_short_reference_run_with_the_shipped_models():
 def _reproduction(open_loop_reduction, closed_loop_reduction):
     from types import SimpleNamespace
 
-    from plm_highway.evaluation.protocol import Estimate
+    from plm_highway.metrics.intervals import Estimate
 
     def estimate(mean, half_width=5.0):
         return Estimate(mean, mean - half_width, mean + half_width, 5)

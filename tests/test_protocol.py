@@ -13,18 +13,21 @@ from hypothesis import strategies as st
 from plm_highway.camera.pinhole import PAPER_CAMERA
 from plm_highway.errors import BadInput
 from plm_highway.evaluation import protocol
-from plm_highway.evaluation.closed_loop import RunLog
-from plm_highway.evaluation.policies import VisionPolicy
 from plm_highway.evaluation.reproduce import default_settings, plan_cells
-from plm_highway.evaluation.run import (
+from plm_highway.metrics.intervals import mean_ci
+from plm_highway.road.track import load_track, parse_track
+from plm_highway.rollout.closed_loop import RunLog
+from plm_highway.rollout.conditions import (
     CONDITIONS,
     baseline_latency,
+    legacy_baseline_spec,
     scored_steps,
     sight_m,
     start_perturbation,
     with_injection,
 )
-from plm_highway.road.track import load_track, parse_track
+from plm_highway.rollout.policies import VisionPolicy
+from plm_highway.rollout.seeds import parse_seeds
 
 # ---------------------------------------------------------------------------------------------
 # seeds and confidence intervals
@@ -32,25 +35,28 @@ from plm_highway.road.track import load_track, parse_track
 
 
 def test_seeds_as_a_count_or_a_list():
-    assert protocol.parse_seeds("5") == [0, 1, 2, 3, 4]
-    assert protocol.parse_seeds(3) == [0, 1, 2]
-    assert protocol.parse_seeds("0,3,7") == [0, 3, 7]
-    assert protocol.parse_seeds([4, 2]) == [4, 2]
-    for bad in ("0", "-1,2", "a", "1,1", ""):
-        with pytest.raises(BadInput):
-            protocol.parse_seeds(bad)
+    assert parse_seeds("5") == [0, 1, 2, 3, 4]
+    assert parse_seeds(3) == [0, 1, 2]
+    assert parse_seeds("3", first_seed=5) == [5, 6, 7]  # --seeds 3 --seed 5
+    assert parse_seeds("0,3,7") == [0, 3, 7]
+    assert parse_seeds([4, 2], first_seed=5) == [4, 2]  # a list is taken as given
+    for bad in ("0", "-1,2", "a", "1,1", "", "5,", True, [1.5], 1001):
+        with pytest.raises(BadInput, match="--seeds"):
+            parse_seeds(bad)
+    assert len(parse_seeds(1001, limit=10_000)) == 1001
 
 
 def test_confidence_interval_on_known_data():
     # 1..5: mean 3, sd sqrt(2.5), sem sqrt(0.5); t(0.975, 4) = 2.7764451 (tables)
-    estimate = protocol.mean_ci([1, 2, 3, 4, 5])
+    estimate = mean_ci([1, 2, 3, 4, 5])
     assert estimate.mean == 3.0 and estimate.n == 5
     assert estimate.half_width == pytest.approx(2.7764451 * math.sqrt(0.5), rel=1e-6)
     assert (estimate.low, estimate.high) == pytest.approx((3 - 1.9632432, 3 + 1.9632432), rel=1e-6)
-    single = protocol.mean_ci([0.7])
+    single = mean_ci([0.7])  # one value: no spread to estimate, so no interval (never a zero-width one)
     assert single.mean == 0.7 and single.low is None and single.half_width is None
+    assert single.as_dict() == {"mean": 0.7, "low": None, "high": None, "n": 1} and single.values == (0.7,)
     with pytest.raises(ValueError):
-        protocol.mean_ci([1.0, float("nan")])
+        mean_ci([1.0, float("nan")])
 
 
 def test_confidence_interval_covers_the_true_mean_95_percent_of_the_time():
@@ -58,7 +64,7 @@ def test_confidence_interval_covers_the_true_mean_95_percent_of_the_time():
     trials = 4000
     covered = 0
     for _ in range(trials):
-        e = protocol.mean_ci(rng.normal(2.0, 3.0, size=5))
+        e = mean_ci(rng.normal(2.0, 3.0, size=5))
         covered += e.low <= 2.0 <= e.high
     assert 0.935 <= covered / trials <= 0.965
 
@@ -66,7 +72,7 @@ def test_confidence_interval_covers_the_true_mean_95_percent_of_the_time():
 @settings(max_examples=50, deadline=None)
 @given(st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=30))
 def test_interval_contains_the_mean_and_shrinks_with_confidence(values):
-    wide, narrow = protocol.mean_ci(values, 0.99), protocol.mean_ci(values, 0.5)
+    wide, narrow = mean_ci(values, 0.99), mean_ci(values, 0.5)
     assert wide.low <= narrow.low + 1e-9 <= wide.mean + 1e-6 and wide.mean - 1e-6 <= narrow.high <= wide.high + 1e-9
 
 
@@ -108,7 +114,7 @@ def test_noise_floor_compares_consecutive_seeds():
 def test_units_front_wheel_and_paper():
     assert protocol.to_front_wheel_rad(0.5, "mae") == pytest.approx(0.1)
     assert protocol.to_front_wheel_rad(0.5, "mse") == pytest.approx(0.5 * 0.2 ** 2)
-    # issue 9: the paper's 0.1714 is "about 0.11 rad at the front wheels"
+    # the paper's 0.1714 is "about 0.11 rad at the front wheels"
     front_wheel_rad = 0.1714 * math.radians(450) / protocol.PAPER_STEERING_RATIO
     assert front_wheel_rad == pytest.approx(0.11, abs=0.005)
     assert protocol.to_paper_units(front_wheel_rad / 0.2, "mae") == pytest.approx(0.1714)
@@ -209,8 +215,8 @@ def test_closed_tracks_are_scored_for_one_lap_and_short_tracks_refused():
 def test_reference_run_no_longer_swerves_at_the_end():
     """The shipped BM without latency over the last 200 m of the test track, stopped where scoring stops:
     its last second stays within the range of the rest of the run."""
-    from plm_highway.evaluation.closed_loop import drive
-    from plm_highway.evaluation.policies import make_policy, single_threaded_inference
+    from plm_highway.rollout.closed_loop import drive
+    from plm_highway.rollout.policies import make_policy, single_threaded_inference
 
     track = load_track("test")
     start_m = track.length_m - 200.0
@@ -240,7 +246,7 @@ def test_paper_conditions_preset():
                                         "frames:9-21:60@30", "frames:9-21:60@60")
     assert default_settings(ideal) == ("const:0.15", "const:0.2", "const:0.25", "const:0.3", "steps:0.0-0.35:1.0")
     assert protocol.setting_label("frames:9-21:60@30").startswith("time-varying, 9-21 frames at 30 Hz (0.30-0.70 s")
-    # The original pipeline (issue 9): its camera, 1-2 frames of processing, a first-order actuator, its checkpoints.
+    # The original pipeline: its camera, 1-2 frames of processing, a first-order actuator, its checkpoints.
     assert paper.camera == PAPER_CAMERA and ideal.camera == {}
     assert 1 <= paper.processing_delay_steps <= 2 and ideal.processing_delay_steps == 0
     assert paper.steering_time_constant_s > 0 and ideal.steering_time_constant_s == 0
@@ -290,14 +296,14 @@ def test_reports_of_the_two_conditions_live_apart():
 
 
 def test_the_legacy_fifo_runs_the_bm_baseline_of_a_varying_profile_at_its_middle():
-    # The original's time-variant run cut the BM's buffer to its constant configured delta (issue 9).
-    assert protocol.legacy_baseline_spec("steps:0.0-0.35:1.0") == "const:0.175"
-    assert protocol.legacy_baseline_spec("frames:9-21:60@60") == "const:0.25"  # 15 frames: the paper's 0.25 s
-    assert protocol.legacy_baseline_spec("frames:9-21:60@30") == "const:0.5"
-    assert protocol.legacy_baseline_spec("frames:9-20:60@30") == "const:0.466667"  # 14 frames: a whole frame count
-    assert protocol.legacy_baseline_spec("const:0.2") == "const:0.2"
+    # The original's time-variant run cut the BM's buffer to its constant configured delta.
+    assert legacy_baseline_spec("steps:0.0-0.35:1.0") == "const:0.175"
+    assert legacy_baseline_spec("frames:9-21:60@60") == "const:0.25"  # 15 frames: the paper's 0.25 s
+    assert legacy_baseline_spec("frames:9-21:60@30") == "const:0.5"
+    assert legacy_baseline_spec("frames:9-20:60@30") == "const:0.466667"  # 14 frames: a whole frame count
+    assert legacy_baseline_spec("const:0.2") == "const:0.2"
     with pytest.raises(BadInput, match="--injection time"):
-        protocol.legacy_baseline_spec("sine:0.2:0.1:2")
+        legacy_baseline_spec("sine:0.2:0.1:2")
     paper, ideal = CONDITIONS["paper"], CONDITIONS["ideal"]
     assert baseline_latency("steps:0.0-0.35:1.0", paper) == "const:0.175"
     assert baseline_latency("steps:0.0-0.35:1.0", ideal) == "steps:0.0-0.35:1.0"

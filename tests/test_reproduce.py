@@ -10,7 +10,7 @@ from tiny_models import tiny_checkpoints
 
 from plm_highway import cli
 from plm_highway.evaluation import paper_results as paper
-from plm_highway.evaluation import reproduce
+from plm_highway.evaluation import protocol, reproduce
 from plm_highway.metrics.steering import reduction_pct
 
 TABLE_NAMES = ["Table 3", "Table 4", "Table 5", "Table 6", "Table A1", "Table A2", "Table A3", "Table A4",
@@ -58,8 +58,8 @@ def test_trajectory_rows_as_split_by_hand():
 
 
 def test_the_only_targets_are_the_papers_own_mae_reductions():
-    # Issue 9: the Frechet <= 1.5x-reference targets were invented here; nothing but the paper's five stated
-    # reductions (Tables 3 and 5, A1, A3, A5) may be held as a target.
+    # Nothing but the paper's five stated reductions (Tables 3 and 5, A1, A3, A5) may be held as a target
+    # (a bound such as "Frechet <= 1.5x the reference" is not the paper's and is not one).
     assert paper.TARGETS == {"mae_reduction_pct": {"const:0.15": 69.0, "const:0.2": 62.1, "const:0.25": 72.5,
                                                    "const:0.3": 68.6, "steps:0.0-0.35:1.0": 78.7}}
 
@@ -83,10 +83,10 @@ def test_transcription_agrees_with_the_percentages_stated_in_the_text():
 
 
 def test_settings_labels_and_tags():
-    assert reproduce.split_settings(["const:0.2,steps:0.0-0.35:1.0", "const:0.2"]) == ["const:0.2", "steps:0.0-0.35:1.0"]
-    assert reproduce.paper_key("const:0.20") == "const:0.2" and reproduce.paper_key("const:0.1") is None
-    assert reproduce.setting_tag("const:0.2") == "0.20s" and reproduce.setting_tag("steps:0.0-0.35:1.0") == "time_varying"
-    assert reproduce.setting_label("const:0.1") == "0.10 s"
+    assert protocol.split_settings(["const:0.2,steps:0.0-0.35:1.0", "const:0.2"]) == ["const:0.2", "steps:0.0-0.35:1.0"]
+    assert protocol.paper_key("const:0.20") == "const:0.2" and protocol.paper_key("const:0.1") is None
+    assert protocol.setting_tag("const:0.2") == "0.20s" and protocol.setting_tag("steps:0.0-0.35:1.0") == "time_varying"
+    assert protocol.setting_label("const:0.1") == "0.10 s"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -209,10 +209,10 @@ def test_under_the_legacy_fifo_the_bm_baseline_sees_a_constant_latency_and_plm_n
 def test_bad_input_exits_2_before_any_run(tmp_path, capsys, arguments, message, monkeypatch):
     bad_track = tmp_path / "bad.json"
     bad_track.write_text(json.dumps({"name": "bad", "lanes": 9, "segments": [{"type": "straight", "length_m": 50}]}))
-    from plm_highway.evaluation import run
+    from plm_highway.rollout import cells
 
-    monkeypatch.setattr(run, "drive", _no_drive)  # the serial path
-    monkeypatch.setattr(reproduce, "drive_cells", _no_drive)  # every run reproduce drives, the sweep's included
+    monkeypatch.setattr(cells, "drive_cell", _no_drive)  # the serial path
+    monkeypatch.setattr(reproduce, "run_cells", _no_drive)  # every run reproduce drives, the sweep's included
     out = tmp_path / "out"
     arguments = [a.format(tmp=tmp_path, bad_track=bad_track) for a in arguments]
     assert cli.main(["reproduce", "--out", str(out), *arguments]) == 2
@@ -230,7 +230,7 @@ def test_a_failing_run_leaves_previous_outputs_untouched(checkpoints, tmp_path, 
     (out / "report.md").write_text("previous report\n")
     previous_results = json.dumps({"command": "plm-highway reproduce --out out"})
     (out / "results.json").write_text(previous_results)
-    from plm_highway.evaluation import batched
+    from plm_highway.rollout import batched
 
     real_make_env = batched.make_env
     calls = []

@@ -15,8 +15,8 @@ import plm_highway  # noqa: F401  (registers the env)
 from plm_highway.envs import ENV_ID
 from plm_highway.envs.speed import SharpTurnBraking, parse_sharp_turn_braking
 from plm_highway.errors import BadInput
-from plm_highway.evaluation.run import CONDITIONS, scored_steps, top_speed_mps, with_speed_logic
 from plm_highway.road.track import load_track
+from plm_highway.rollout.conditions import CONDITIONS, scored_steps, top_speed_mps, with_speed_logic
 
 LOGIC = SharpTurnBraking()
 STRAIGHT = {"name": "long", "lanes": 3, "lane_width_m": 4.0, "segments": [{"type": "straight", "length_m": 3000}]}

@@ -12,9 +12,9 @@ import torch
 import plm_highway  # noqa: F401  (registers the env)
 from plm_highway.camera.pinhole import PAPER_CAMERA
 from plm_highway.envs import ENV_ID
-from plm_highway.evaluation.policies import checkpoint_pair
 from plm_highway.models.base_model import count_parameters
 from plm_highway.models.shipped import load_shipped_plm_net, shipped_checkpoint_dir, shipped_checkpoint_paths
+from plm_highway.rollout.policies import checkpoint_pair
 
 
 @pytest.fixture(scope="module")

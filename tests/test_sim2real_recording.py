@@ -210,10 +210,10 @@ def test_diagnose_reads_a_sim_log_from_the_cli(tmp_path):
 
 
 def test_an_evaluate_log_of_the_env_matches_the_simulator_model(tmp_path):
-    from plm_highway.evaluation.closed_loop import LOG_COLUMNS, drive
     from plm_highway.evaluation.evaluate import log_rows
     from plm_highway.expert import ExpertPolicy
     from plm_highway.io import write_csv_into
+    from plm_highway.rollout.closed_loop import LOG_COLUMNS, drive
 
     log = drive("reference", ExpertPolicy(), "test", "const:0", seed=0, max_steps=400)  # 20 s at 20 Hz
     path = tmp_path / "out_reference.csv"

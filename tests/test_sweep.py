@@ -1,4 +1,4 @@
-"""plm-highway sweep (issue 13.2, 13.3): grids, resumable runs, one table, the same results on every backend."""
+"""plm-highway sweep: grids, resumable runs, one table, the same results on every backend."""
 
 from __future__ import annotations
 
@@ -13,11 +13,12 @@ from hypothesis import strategies as st
 
 from plm_highway.cli import main
 from plm_highway.errors import BadInput, OutputRefused
-from plm_highway.evaluation.closed_loop import drive
-from plm_highway.evaluation.policies import make_policy
-from plm_highway.sweep import SweepGrid, grid_from_mapping, load_grid, parse_seeds, run_sweep
+from plm_highway.rollout.closed_loop import drive
+from plm_highway.rollout.policies import make_policy
+from plm_highway.rollout.seeds import parse_seeds
+from plm_highway.sweep import SweepGrid, grid_from_mapping, load_grid, run_sweep
 from plm_highway.sweep import runner as sweep_runner
-from plm_highway.sweep.table import TABLE_COLUMNS, mean_ci95
+from plm_highway.sweep.table import TABLE_COLUMNS, mean_and_half_width
 
 EXPERT_GRID = dict(latencies=("const:0.1", "steps:0.0-0.35:1.0"), tracks=("test",), seeds=(0, 5),
                    policies=("expert",), max_steps=15)
@@ -59,15 +60,17 @@ def test_cell_keys_are_unique_and_change_with_what_changes_the_run():
 
 @given(st.integers(1, 50))
 def test_a_seed_count_means_seeds_0_to_n_minus_1(n):
-    assert parse_seeds(n) == tuple(range(n)) == parse_seeds(str(n))
+    assert parse_seeds(n) == list(range(n)) == parse_seeds(str(n))
+    assert grid_from_mapping({"seeds": n}).seeds == tuple(range(n)) == grid_from_mapping({"seeds": str(n)}).seeds
 
 
 def test_seed_lists_and_bad_seeds():
-    assert parse_seeds("0,3,7") == (0, 3, 7)
-    assert parse_seeds([4, 2]) == (4, 2)
-    for bad in ("0", "-1", "x", "1,,2", 10**6):
-        with pytest.raises(BadInput, match="seeds"):
-            parse_seeds(bad)
+    assert grid_from_mapping({"seeds": "0,3,7"}).seeds == (0, 3, 7)
+    assert grid_from_mapping({"seeds": [4, 2]}).seeds == (4, 2)
+    assert grid_from_mapping({"seeds": 10_000, "latencies": ["const:0"], "policies": ["bm"]}).seeds == tuple(range(10_000))
+    for bad in ("0", "-1", "x", "1,,2", 10**6, [1, 1], [2**32]):
+        with pytest.raises(BadInput, match="sweep grid: seeds"):
+            grid_from_mapping({"seeds": bad})
 
 
 @pytest.mark.parametrize("data, message", [
@@ -75,7 +78,7 @@ def test_seed_lists_and_bad_seeds():
     ({"latencies": ["const:abc"]}, "latency 'const:abc'"),
     ({"tracks": ["nowhere"]}, "track 'nowhere'"),
     ({"latencies": []}, "'latencies' is empty"),
-    ({"seeds": [1, 1]}, "'seeds' lists a value twice"),
+    ({"seeds": [1, 1]}, "seeds \\[1, 1\\]: a seed is repeated"),
     ({"max_steps": 0}, "max_steps 0"),
     ({"conditions": {"x": {"wheels": 3}}}, "condition 'x'"),
     ({"latency": ["const:0"]}, "unknown keys \\['latency'\\]"),
@@ -101,11 +104,12 @@ def test_grid_files_yaml_and_json(tmp_path):
         load_grid(tmp_path / "missing.json")
 
 
-def test_mean_ci95_against_hand_computed_t_interval():
-    mean, half = mean_ci95([1.0, 2.0, 3.0])
+def test_the_figures_error_bars_are_hand_computed_t_intervals():
+    mean, half = mean_and_half_width([1.0, 2.0, float("nan"), 3.0])  # a run without a reference has no error
     # t(0.975, 2) = 4.302653; sd = 1; n = 3
     assert mean == 2.0 and half == pytest.approx(4.302653 / np.sqrt(3), rel=1e-6)
-    assert np.isnan(mean_ci95([4.0])[1])
+    assert mean_and_half_width([4.0])[0] == 4.0 and np.isnan(mean_and_half_width([4.0])[1])
+    assert all(np.isnan(mean_and_half_width([float("nan")])))
 
 
 # -- running -------------------------------------------------------------------------------------

@@ -337,7 +337,7 @@ def test_sampled_reference_line_is_continuous(segments, spacing_m):
 def test_segment_lookup_with_its_cache_agrees_with_the_vectorised_lookup(lengths, closed, queries):
     """The scalar look-up remembers the last segment; any order of queries gives the searched answer."""
     from plm_highway.road.geometry import SegmentLookup, segment_index_at
-    from plm_highway.road.track import Segment, TrackSpec
+    from plm_highway.road.spec import Segment, TrackSpec
 
     track = TrackSpec("q", 3, 4.0, tuple(Segment("straight", length) for length in lengths), closed)
     lookup = SegmentLookup(track)

@@ -69,7 +69,6 @@ def replay_actions(track: str = "test") -> np.ndarray:
     """The expert's actions over one episode of our env: the policy every side replays."""
     import gymnasium
 
-    import plm_highway  # noqa: F401  (registers the env)
     from plm_highway.expert import ExpertPolicy
 
     env = gymnasium.make("plm_highway/LaneKeeping-v0", config={"track": track})
@@ -98,7 +97,6 @@ def highway_env_side(env_id: str, config: dict, max_episode_steps: int | None = 
 def ours_side(track: str, latency: str | None):
     import gymnasium
 
-    import plm_highway  # noqa: F401
     from plm_highway.latency import LatencyWrapper
 
     env = gymnasium.make("plm_highway/LaneKeeping-v0", config={"track": track, **RATES_20HZ})
@@ -125,7 +123,6 @@ def warp_limit_sides(track: str, actions: np.ndarray) -> dict[str, Callable[[int
     import cv2
     import gymnasium
 
-    import plm_highway  # noqa: F401
     from plm_highway.camera.pinhole import pose_matrix
 
     env = gymnasium.make("plm_highway/LaneKeeping-v0", config={"track": track, **RATES_20HZ})

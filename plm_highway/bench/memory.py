@@ -128,7 +128,6 @@ def memory_run(steps: int = DEFAULT_STEPS, latency: str = "steps:0.0-0.35:1.0", 
 def _expert_on_wrapped_env(track: str, profile):
     import gymnasium
 
-    import plm_highway  # noqa: F401  (registers the env)
     from plm_highway.expert import ExpertPolicy
     from plm_highway.latency import LatencyWrapper
 

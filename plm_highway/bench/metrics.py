@@ -7,7 +7,7 @@ the same arguments on both sides (``dtw_path`` on the DTW matrix of that pair; t
 ``area_between_two_curves`` uses them). Each side runs up to ``repeat`` times, stopping once a
 function has taken ``BUDGET_S``, and its fastest run counts; ours is warmed up first (numba
 compiles on first use, then loads from its cache). Both results are compared to within
-``MATCH_REL_TOL`` relative. The issue 14 target is a Frechet + DTW speed-up of at least 100x on
+``MATCH_REL_TOL`` relative. The target is a Frechet + DTW speed-up of at least 100x on
 3,000-point curves, the default size.
 """
 
@@ -24,14 +24,14 @@ import numpy as np
 from plm_highway.errors import BadInput
 from plm_highway.metrics import similarity
 
-DEFAULT_POINTS = 3000  # the size issue 14 states its target on (TARGET_POINTS)
+DEFAULT_POINTS = 3000  # the size the target is stated on (TARGET_POINTS)
 DEFAULT_REPEAT = 3
 DEFAULT_SEED = 0
 BUDGET_S = 2.0  # stop repeating a function once its runs have taken this long (the reference takes minutes)
 MATCH_REL_TOL = 1e-9
 CURVE_METRICS = ("frechet_dist", "dtw", "area_between_two_curves", "curve_length_measure", "pcm")
 COMBINED = {"frechet+dtw": ("frechet_dist", "dtw"), "five curve metrics": CURVE_METRICS}
-TARGET_COMBINATION, TARGET_SPEEDUP, TARGET_POINTS = "frechet+dtw", 100.0, 3000  # issue 14
+TARGET_COMBINATION, TARGET_SPEEDUP, TARGET_POINTS = "frechet+dtw", 100.0, 3000
 # Seconds similaritymeasures 1.5.0 took on the loaded 2-core dev machine at 3,000 points, for the ETA.
 _REFERENCE_S_AT_3000 = {"frechet_dist": 16.0, "dtw": 22.0, "area_between_two_curves": 34.0, "pcm": 0.2}
 
@@ -217,8 +217,8 @@ def format_table(table: dict[str, dict]) -> str:
 
 
 def target_line(table: dict[str, dict], n_points: int) -> str:
-    """The issue 14 target and, when measured at its size (3,000 points), whether it is met."""
-    target = f"target (issue 14): {TARGET_COMBINATION} >= {TARGET_SPEEDUP:.0f}x on {TARGET_POINTS:,}-point curves"
+    """The target and, when measured at its size (3,000 points), whether it is met."""
+    target = f"target: {TARGET_COMBINATION} >= {TARGET_SPEEDUP:.0f}x on {TARGET_POINTS:,}-point curves"
     speedup = table[TARGET_COMBINATION]["speedup"]
     if speedup is None:
         return f"{target}: not measured (no reference run)"

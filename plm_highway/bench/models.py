@@ -1,26 +1,42 @@
 """``plm-highway bench models``: PLM-Net's inference cost over the Base Model, batched throughput, training speed.
 
-Per preset (``--preset default|paper|both``), with freshly initialised models (timing does not
-depend on the weights' values), torch on ``--threads`` threads (1 by default: at batch size 1 a
-second thread gains nothing and in the closed loop the simulator needs the other core):
+Per preset (``--preset default|paper|both``), on ``--device`` (``auto``: a CUDA GPU when torch sees one; on
+the CPU torch runs on ``--threads`` threads, 1 by default: at batch size 1 a second thread gains nothing
+and in the closed loop the simulator needs the other core):
+
+Weights and frames (``--weights``): ``shipped`` (default) times each preset's shipped checkpoints on frames
+the simulator renders under that preset's conditions (the expert driving the test track; ``collect``'s
+recording: ``ideal`` for the default preset, ``paper`` for the paper preset), what the closed loop runs;
+``random`` times freshly initialised models on uniformly random frames. It matters since PLM-Net's one-frame
+form reads only the image-branch weight rows of nonzero image features (see
+:class:`~plm_highway.models.plm_net.FusedPLMNet`), and how many are zero depends on the weights and the
+frames (about 90% with the shipped checkpoints on rendered frames, 40-55% with random weights on noise):
+the report gives the fraction of nonzero image features over the timed frames.
 
 1. **Overhead at batch size 1**, what the closed loop runs: the BM policy, the PLM-Net policy in
-   its exact inference form (:class:`FusedPLMNet`, fp32), the same with the TAPM's large layers in
-   int8 (``tapm_int8=True``, an approximation) and the PLM-Net reference (:meth:`PLMNet.forward`,
-   every head) are timed frame by frame in interleaved blocks of :data:`BLOCK_FRAMES` frames
-   (rotating which goes first), so that a slow spell of a shared machine hits all sides alike.
-   The ratio of median times is taken per repeat; the report gives the median over ``--repeats``
-   (3) and each repeat's, for wall time and for the calling thread's CPU time (which other
-   processes disturb less), and a table of both presets' ratios side by side at the end.
-   Both fused forms are compared with the reference on every timed input (max |difference|).
-2. **Batched throughput**: ``steer_batch`` of both policies at batch sizes 1, 8 and 32, samples/s
-   from the median call time, interleaved the same way.
-3. **Training samples/s** of the BM and of the TAPM (on a frozen BM) over a short synthetic run:
-   the training loop itself (batches of 32, augmentation, Adam, deterministic algorithms), epochs
+   its exact inference form (:class:`FusedPLMNet`, fp32), on the CPU the same with the TAPM's large layers
+   in int8 (``tapm_int8=True``, an approximation; PyTorch's quantised kernels are CPU kernels) and the
+   PLM-Net reference (:meth:`PLMNet.forward`, every head) are timed frame by frame, the sides taking
+   turns on every frame (:data:`BLOCK_FRAMES` = 1; the one going first rotates), so that a slow spell of a
+   shared machine hits all sides alike and every call finds the caches as the other sides left them, as a
+   closed loop's env step between two calls leaves them. (Blocks of 50 frames per side let a spell of
+   other jobs, seconds long, fall on one side's blocks: ratios of one run spread from 1.5 to 5.3.) A call takes numpy frames and returns the steering to the host, so on a GPU every
+   timed call includes the copies and waits for the GPU to finish. The ratio of median times is taken per
+   repeat; the report gives the median over ``--repeats`` (3) and each repeat's, for wall time and for the
+   calling thread's CPU time (which other processes disturb less), and a table of both presets' ratios
+   side by side at the end, beside the paper's own figures (:data:`plm_highway.evaluation.paper_results.INFERENCE`:
+   BM 2.352 ms and PLM-Net 5.909 ms on an RTX 2080 Ti, its Section 4.8). Both fused forms are compared
+   with the reference on every timed input (max |difference|). On the CPU a BM whose first layer skips zero
+   features as PLM-Net's image branch does (:func:`sparse_first_layer_bm`) is timed too, and PLM-Net's ratio
+   over it reported: PLM-Net's one-frame form gains from the sparsity of z_o, which a BM could use as well.
+2. **Batched throughput**: ``steer_batch`` of both policies at batch sizes :data:`BATCH_SIZES` (1, 32 and
+   256), samples/s from the median call time, interleaved the same way.
+3. **Training samples/s** of the BM and of the TAPM (on a frozen BM) over a short synthetic run on the
+   device: the training loop itself (batches of 32, augmentation, Adam, deterministic algorithms), epochs
    alternating between the two, the median over ``--repeats``.
 
-``--closed-loop`` also drives each timed preset's shipped checkpoints on the test track, under the
-conditions they are for (default: ``ideal``; paper: ``paper``, as ``reproduce`` drives them;
+``--closed-loop`` also drives each timed preset's shipped checkpoints on the test track (on the CPU), under
+the conditions they are for (default: ``ideal``; paper: ``paper``, as ``reproduce`` drives them;
 ``--closed-loop-steps`` shortens the runs): per seed the reference run (BM, no latency) and, for 5
 seeds of the paper's time-variant profile (``steps:0.0-0.35:1.0``),
 PLM-Net with the reference forward, the exact fused form and the int8 form, reporting each form's
@@ -37,28 +53,29 @@ mean little, the ratios measured side by side in one run are what to compare.
 
 from __future__ import annotations
 
+import math
 import os
 import time
 
 import numpy as np
 from tqdm.auto import tqdm
 
-BLOCK_FRAMES = 50
+from plm_highway.metrics.intervals import mean_ci
+
+THROUGHPUT_BLOCK_SAMPLES = 50
+BLOCK_FRAMES = 1  # frames per side and turn (batch size 1); the throughput's turns take 50 samples
 TARGET_OVERHEAD_RATIO = 1.25
 LATENCY_RANGE_S = (0.0, 0.35)
 SPEED_MPS = 16.7
-BATCH_SIZES = (1, 8, 32)
+BATCH_SIZES = (1, 32, 256)
 PRESETS = ("default", "paper")
+WEIGHTS = ("shipped", "random")
 TRAIN_BATCH_SIZE = 32
 CLOSED_LOOP_LATENCY = "steps:0.0-0.35:1.0"  # the paper's time-variant profile
 CLOSED_LOOP_SEEDS = 5
 MAX_FRAMES = 100_000
 MAX_REPEATS = 100
-
-
-
-
-
+RENDERED_EPISODE_S = 8.0  # collect's default episode; at least 160 frames each (20 Hz)
 
 # The conditions each preset's shipped checkpoints are driven under.
 PRESET_CONDITIONS = {"default": "ideal", "paper": "paper"}
@@ -66,23 +83,33 @@ PRESET_CONDITIONS = {"default": "ideal", "paper": "paper"}
 
 def benchmark_models(presets=PRESETS, n_frames: int = 500, n_warmup: int = 50, repeats: int = 3,
                      train_batches: int = 10, seed: int = 0, closed_loop: bool = False,
-                     closed_loop_steps: int | None = None) -> dict:
+                     closed_loop_steps: int | None = None, device="cpu", weights: str = "shipped") -> dict:
     import torch
 
+    from plm_highway.evaluation.paper_results import INFERENCE
+    from plm_highway.models.device import describe_device, resolve_device
+
+    device = resolve_device(device)
+    if weights not in WEIGHTS:
+        raise ValueError(f"weights: {weights!r} is not one of {list(WEIGHTS)}")
     result = {
         "conditions": {
+            "device": describe_device(device),
             "threads": torch.get_num_threads(),
             "load_average_1min": os.getloadavg()[0],
             "cpus": os.cpu_count(),
             "torch_version": torch.__version__,
+            "weights": weights,
             "frames": n_frames,
             "warmup_frames": n_warmup,
             "repeats": repeats,
             "seed": seed,
         },
         "target_overhead_ratio": TARGET_OVERHEAD_RATIO,
+        "paper": dict(INFERENCE),
         "presets": {
-            preset: benchmark_preset(preset, n_frames, n_warmup, repeats, train_batches, seed) for preset in presets
+            preset: benchmark_preset(preset, n_frames, n_warmup, repeats, train_batches, seed, device, weights)
+            for preset in presets
         },
     }
     if closed_loop:
@@ -91,24 +118,32 @@ def benchmark_models(presets=PRESETS, n_frames: int = 500, n_warmup: int = 50, r
     return result
 
 
-def benchmark_preset(preset: str, n_frames: int, n_warmup: int, repeats: int, train_batches: int, seed: int) -> dict:
+def benchmark_preset(preset: str, n_frames: int, n_warmup: int, repeats: int, train_batches: int, seed: int,
+                     device="cpu", weights: str = "shipped") -> dict:
     import torch
 
     from plm_highway.models.base_model import BaseModel, count_parameters, preset_config
     from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
     from plm_highway.models.plm_net import PLMNet
+    from plm_highway.models.shipped import load_shipped_plm_net
     from plm_highway.models.tapm import TAPM, TAPMConfig
 
     torch.manual_seed(seed)
-    bm = BaseModel(preset_config(preset)).eval()
-    plm_net = PLMNet(bm, TAPM(TAPMConfig(image_feature_dim=bm.image_feature_dim))).eval()
-    policies = {
-        "bm": BaseModelPolicy(bm),
-        "plm": PLMNetPolicy(plm_net),
-        "plm_int8": PLMNetPolicy(plm_net, tapm_int8=True),
-        "plm_reference": PLMNetPolicy(plm_net, fused=False),
-    }
-    frames, latencies_s = _inputs(bm.config.image_size_px, max(n_warmup + n_frames, max(BATCH_SIZES)), seed)
+    n_inputs = max(n_warmup + n_frames, max(BATCH_SIZES))
+    if weights == "shipped":
+        plm_net = load_shipped_plm_net(preset, device).eval()
+        frames = rendered_frames(PRESET_CONDITIONS[preset], n_inputs, seed)
+        latencies_s = np.random.default_rng(seed).uniform(*LATENCY_RANGE_S, size=n_inputs)
+    else:
+        bm = BaseModel(preset_config(preset)).eval()
+        plm_net = PLMNet(bm, TAPM(TAPMConfig(image_feature_dim=bm.image_feature_dim))).to(device).eval()
+        frames, latencies_s = _inputs(bm.config.image_size_px, n_inputs, seed)
+    bm = plm_net.bm
+    policies = {"bm": BaseModelPolicy(bm), "plm": PLMNetPolicy(plm_net)}
+    if torch.device(device).type == "cpu":  # PyTorch's quantised kernels and the sparse product: CPU only
+        policies["plm_int8"] = PLMNetPolicy(plm_net, tapm_int8=True)
+        policies["bm_sparse"] = sparse_first_layer_bm(bm)
+    policies["plm_reference"] = PLMNetPolicy(plm_net, fused=False)
     overhead = _overhead(policies, frames, latencies_s, n_warmup, n_frames, repeats)
     return {
         "image_size_px": list(bm.config.image_size_px),
@@ -117,16 +152,59 @@ def benchmark_preset(preset: str, n_frames: int, n_warmup: int, repeats: int, tr
         # The one frozen BM the TAPM reads from (the paper's Table 2 counts it twice, see notes).
         "tapm_frozen_params": count_parameters(plm_net, trainable=False),
         "plm_net_params": count_parameters(plm_net),
+        "image_features_nonzero_fraction": _nonzero_fraction(bm, frames[n_warmup : n_warmup + n_frames], device),
         **overhead,
         "max_abs_difference_fused_vs_reference": _max_difference(
             policies["plm"], policies["plm_reference"], frames, latencies_s
         ),
-        "max_abs_difference_int8_vs_reference": _max_difference(
-            policies["plm_int8"], policies["plm_reference"], frames, latencies_s
-        ),
+        **({"max_abs_difference_int8_vs_reference": _max_difference(
+            policies["plm_int8"], policies["plm_reference"], frames, latencies_s)} if "plm_int8" in policies else {}),
         "throughput_samples_per_s": _throughput(policies, frames, latencies_s, n_frames, repeats),
-        "training_samples_per_s": _training_speed(bm.config, train_batches, repeats, seed),
+        "training_samples_per_s": _training_speed(bm.config, train_batches, repeats, seed, device),
     }
+
+
+def sparse_first_layer_bm(bm):
+    """A batch-size-1 BM policy whose first FC layer skips zero features as PLM-Net's image branch does
+    (:class:`~plm_highway.models.plm_net.SparseInputLinear`; equal to the BM up to float rounding): timed
+    beside the BM to show how much of PLM-Net's low overhead a BM could have too."""
+    from plm_highway.models.inference import BaseModelPolicy
+    from plm_highway.models.plm_net import SparseInputLinear
+
+    first_layer = SparseInputLinear.of(bm.mlp[0].weight, bm.mlp[0].bias)
+
+    class SparseFirstLayerBM(BaseModelPolicy):
+        name = "BM (sparse first layer)"
+
+        def _forward(self, frames, speeds_mps, latencies_s):
+            z_o, z_v = self.model.encode(frames, speeds_mps)
+            return self.model.steering_from_first_layer(first_layer(self.model.mlp_input(z_o, z_v)))
+
+    return SparseFirstLayerBM(bm)
+
+
+def rendered_frames(conditions: str, n: int, seed: int) -> np.ndarray:
+    """``n`` frames the simulator renders under ``conditions`` (its camera), the expert driving the test track
+    (``collect``'s recording, displaced starts included, seeded): what a lane keeper sees."""
+    from plm_highway.data.collect import collect
+
+    episodes = math.ceil(n / (RENDERED_EPISODE_S * 20))  # at least 20 frames per second under any conditions
+    frames, _, _ = collect(track="test", progress=False, conditions=conditions, episodes=episodes,
+                           episode_seconds=RENDERED_EPISODE_S, seed=seed)
+    return np.ascontiguousarray(frames[:n])
+
+
+def _nonzero_fraction(bm, frames: np.ndarray, device) -> float:
+    """The mean fraction of nonzero image features z_o (what PLM-Net's one-frame form reads weights for)."""
+    import torch
+
+    nonzero, total = 0, 0
+    with torch.inference_mode():
+        for start in range(0, len(frames), 64):
+            chunk = torch.from_numpy(frames[start : start + 64]).to(device)
+            z_o, _ = bm.encode(chunk, torch.full((len(chunk),), SPEED_MPS, device=device))
+            nonzero, total = nonzero + int((z_o != 0).sum()), total + z_o.numel()
+    return nonzero / max(total, 1)
 
 
 def _inputs(image_size_px: tuple[int, int], n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -152,6 +230,7 @@ def _overhead(policies: dict, frames: np.ndarray, latencies_s: np.ndarray, n_war
             _time_interleaved(calls, range(n_warmup, n_warmup + n_frames), block=BLOCK_FRAMES, shift=repeat)
             for repeat in range(repeats)
         ]
+    forms = {"overhead_ratio": "plm", "int8_overhead_ratio": "plm_int8", "reference_overhead_ratio": "plm_reference"}
     repeats_summary = []
     for times in per_repeat:
         wall = {name: float(np.median(t[0])) for name, t in times.items()}
@@ -159,12 +238,11 @@ def _overhead(policies: dict, frames: np.ndarray, latencies_s: np.ndarray, n_war
         repeats_summary.append({
             **{f"{name}_ms_median": wall[name] for name in wall},
             **{f"{name}_cpu_ms_median": cpu[name] for name in cpu},
-            "overhead_ratio": wall["plm"] / wall["bm"],
-            "overhead_ratio_cpu": cpu["plm"] / cpu["bm"],
-            "int8_overhead_ratio": wall["plm_int8"] / wall["bm"],
-            "int8_overhead_ratio_cpu": cpu["plm_int8"] / cpu["bm"],
-            "reference_overhead_ratio": wall["plm_reference"] / wall["bm"],
-            "reference_overhead_ratio_cpu": cpu["plm_reference"] / cpu["bm"],
+            **{key: wall[side] / wall["bm"] for key, side in forms.items() if side in wall},
+            **{f"{key}_cpu": cpu[side] / cpu["bm"] for key, side in forms.items() if side in cpu},
+            # PLM-Net over a BM that skips zero features as PLM-Net's image branch does.
+            **({"overhead_ratio_vs_sparse_bm": wall["plm"] / wall["bm_sparse"],
+                "overhead_ratio_vs_sparse_bm_cpu": cpu["plm"] / cpu["bm_sparse"]} if "bm_sparse" in wall else {}),
         })
     summary = {key: float(np.median([r[key] for r in repeats_summary])) for key in repeats_summary[0]}
     return {**summary, "repeats": repeats_summary}
@@ -218,7 +296,7 @@ def _throughput(policies: dict, frames: np.ndarray, latencies_s: np.ndarray, n_f
             fn(0)
         medians = {name: [] for name in calls}
         for repeat in range(repeats):
-            times = _time_interleaved(calls, range(n_calls), block=max(1, BLOCK_FRAMES // batch_size), shift=repeat)
+            times = _time_interleaved(calls, range(n_calls), block=max(1, THROUGHPUT_BLOCK_SAMPLES // batch_size), shift=repeat)
             for name, (wall, _) in times.items():
                 medians[name].append(float(np.median(wall)))
         for name in calls:
@@ -226,8 +304,8 @@ def _throughput(policies: dict, frames: np.ndarray, latencies_s: np.ndarray, n_f
     return result
 
 
-def _training_speed(config, train_batches: int, repeats: int, seed: int) -> dict:
-    """Samples/s of the training loop on synthetic frames, BM and TAPM epochs alternating."""
+def _training_speed(config, train_batches: int, repeats: int, seed: int, device="cpu") -> dict:
+    """Samples/s of the training loop on synthetic frames on ``device``, BM and TAPM epochs alternating."""
     import torch
 
     from plm_highway.models.base_model import BaseModel
@@ -236,6 +314,7 @@ def _training_speed(config, train_batches: int, repeats: int, seed: int) -> dict
     from plm_highway.training.synthetic import render_lane_frames
     from plm_highway.training.train import TrainConfig, bm_loss, deterministic, freeze, tapm_loss, train_epoch
 
+    device = torch.device(device)
     rng = np.random.default_rng(seed)
     n_rows = TRAIN_BATCH_SIZE * train_batches
     steering = rng.uniform(-0.8, 0.8, n_rows).astype(np.float32)
@@ -249,10 +328,10 @@ def _training_speed(config, train_batches: int, repeats: int, seed: int) -> dict
             targets=np.repeat(steering[:, None], n_targets, axis=1),
         )
 
-    with deterministic(seed):
-        bm = BaseModel(config)
-        tapm = TAPM(TAPMConfig(image_feature_dim=bm.image_feature_dim))
-        frozen_bm = freeze(BaseModel(config))
+    with deterministic(seed, device):
+        bm = BaseModel(config).to(device)
+        tapm = TAPM(TAPMConfig(image_feature_dim=bm.image_feature_dim)).to(device)
+        frozen_bm = freeze(BaseModel(config).to(device))
         runs = {
             "bm": (bm, bm_loss(bm), rows(1)),
             "tapm": (tapm, tapm_loss(tapm, frozen_bm), rows(tapm.config.n_heads)),
@@ -266,7 +345,8 @@ def _training_speed(config, train_batches: int, repeats: int, seed: int) -> dict
         for repeat in range(repeats + 1):  # the first epoch of each warms up and is not counted
             for name, (model, loss_fn, labelled) in runs.items():
                 start = time.perf_counter()
-                train_epoch(model, loss_fn, optimizers[name], frames, labelled, train_config, generator)
+                # train_epoch reads the loss back to the host every batch, so the GPU's work is done when it returns.
+                train_epoch(model, loss_fn, optimizers[name], frames, labelled, train_config, generator, device=device)
                 if repeat > 0:
                     seconds[name].append(time.perf_counter() - start)
     return {name: n_rows / float(np.median(values)) for name, values in seconds.items()}
@@ -284,14 +364,15 @@ def closed_loop_check(conditions: str = "ideal", latency: str = CLOSED_LOOP_LATE
     differences with their intervals, whether the int8 mean lies within the exact form's interval,
     and the largest step-wise steering difference of each fused form from the reference forward.
     """
-    from plm_highway.evaluation.closed_loop import drive
-    from plm_highway.evaluation.policies import VisionPolicy, single_threaded_inference
     from plm_highway.evaluation.reproduce import conditions_named
-    from plm_highway.evaluation.run import Cell, drive_options, scored_steps
     from plm_highway.metrics.steering import common_span, steering_mae
     from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
     from plm_highway.models.shipped import load_shipped_plm_net
     from plm_highway.road.track import load_track
+    from plm_highway.rollout.cells import Cell, drive_options
+    from plm_highway.rollout.closed_loop import drive
+    from plm_highway.rollout.conditions import scored_steps
+    from plm_highway.rollout.policies import VisionPolicy, single_threaded_inference
 
     run_conditions = conditions_named(conditions)
     track_spec = load_track(track)
@@ -338,28 +419,26 @@ def closed_loop_check(conditions: str = "ideal", latency: str = CLOSED_LOOP_LATE
 
 
 def mean_within_ci(values, reference_values) -> bool:
-    """Whether the mean of ``values`` lies within the 95% CI of ``reference_values``' mean."""
+    """Whether the mean of ``values`` lies within the 95% CI of ``reference_values``' mean (False where that
+    interval is undefined: one reference value)."""
     reference = _mean_ci(reference_values)
-    return bool(abs(float(np.mean(values)) - reference["mean"]) <= reference["ci95_half_width"])
+    half_width = reference["ci95_half_width"]
+    return half_width is not None and bool(abs(float(np.mean(values)) - reference["mean"]) <= half_width)
 
 
 def _mean_ci(values) -> dict:
-    """Mean and 95% t-interval half-width (0 for a single value)."""
-    from scipy import stats
-
-    values = np.asarray(values, dtype=float)
-    half_width = 0.0
-    if len(values) > 1:
-        half_width = float(stats.t.ppf(0.975, len(values) - 1) * values.std(ddof=1) / np.sqrt(len(values)))
-    return {"mean": float(values.mean()), "ci95_half_width": half_width, "values": values.tolist()}
+    """Mean, 95% Student-t half-width (None for a single value: no interval) and the values, for the JSON."""
+    estimate = mean_ci(values)
+    return {"mean": estimate.mean, "ci95_half_width": estimate.half_width, "values": list(estimate.values)}
 
 
 def format_report(result: dict) -> str:
     conditions = result["conditions"]
     lines = [
-        f"{conditions['threads']} torch thread(s), load average {conditions['load_average_1min']:.2f} on "
-        f"{conditions['cpus']} CPUs; {conditions['frames']} timed frames per side and repeat after "
-        f"{conditions['warmup_frames']} warm-up, {conditions['repeats']} repeats (medians)",
+        f"{conditions['device']}, {conditions['threads']} torch thread(s), load average "
+        f"{conditions['load_average_1min']:.2f} on {conditions['cpus']} CPUs; {conditions['weights']} weights; "
+        f"{conditions['frames']} timed frames per side and repeat after {conditions['warmup_frames']} warm-up, "
+        f"{conditions['repeats']} repeats (medians)",
     ]
     target = result["target_overhead_ratio"]
 
@@ -368,53 +447,53 @@ def format_report(result: dict) -> str:
 
     for preset, figures in result["presets"].items():
         height, width = figures["image_size_px"]
+        has_int8 = "int8_overhead_ratio" in figures
 
         def per_repeat(key: str, figures=figures) -> str:
             return ", ".join(f"{r[key]:.3f}" for r in figures["repeats"])
 
+        int8_ms = f"| PLM-Net int8 TAPM {figures['plm_int8_ms_median']:.3f} " if has_int8 else ""
         lines += [
             "",
             f"preset {preset} ({height}x{width} px): BM {figures['bm_params']:,} parameters, TAPM "
-            f"{figures['tapm_trainable_params']:,} trainable + the frozen BM",
+            f"{figures['tapm_trainable_params']:,} trainable + the frozen BM; nonzero image features "
+            f"{figures['image_features_nonzero_fraction']:.1%}",
             f"  batch 1, median ms:  BM {figures['bm_ms_median']:.3f} | PLM-Net {figures['plm_ms_median']:.3f} "
-            f"| PLM-Net int8 TAPM {figures['plm_int8_ms_median']:.3f} "
-            f"| PLM-Net reference forward {figures['plm_reference_ms_median']:.3f}",
+            f"{int8_ms}| PLM-Net reference forward {figures['plm_reference_ms_median']:.3f}",
             f"  overhead PLM-Net (exact, fp32) / BM: {figures['overhead_ratio']:.3f} (repeats "
             f"{per_repeat('overhead_ratio')}; CPU time {figures['overhead_ratio_cpu']:.3f}); "
             f"{verdict(figures['overhead_ratio'])} the target <= {target}",
-            f"  overhead PLM-Net (int8 TAPM) / BM: {figures['int8_overhead_ratio']:.3f} (repeats "
-            f"{per_repeat('int8_overhead_ratio')}; CPU time {figures['int8_overhead_ratio_cpu']:.3f}); "
-            f"{verdict(figures['int8_overhead_ratio'])} the target <= {target}",
+        ]
+        if has_int8:
+            lines.append(
+                f"  overhead PLM-Net (int8 TAPM) / BM: {figures['int8_overhead_ratio']:.3f} (repeats "
+                f"{per_repeat('int8_overhead_ratio')}; CPU time {figures['int8_overhead_ratio_cpu']:.3f}); "
+                f"{verdict(figures['int8_overhead_ratio'])} the target <= {target}"
+            )
+        if "overhead_ratio_vs_sparse_bm" in figures:
+            lines.append(
+                f"  a BM with a sparse first layer (zero features skipped, as PLM-Net's image branch): "
+                f"{figures['bm_sparse_ms_median']:.3f} ms; PLM-Net over it {figures['overhead_ratio_vs_sparse_bm']:.3f} "
+                f"(CPU time {figures['overhead_ratio_vs_sparse_bm_cpu']:.3f})"
+            )
+        int8_difference = (f", int8 {figures['max_abs_difference_int8_vs_reference']:.2e}" if has_int8 else "")
+        lines += [
             f"  before (reference forward) / BM: {figures['reference_overhead_ratio']:.3f} (CPU time "
             f"{figures['reference_overhead_ratio_cpu']:.3f}); steering max |difference| from the reference: "
-            f"exact {figures['max_abs_difference_fused_vs_reference']:.2e}, int8 "
-            f"{figures['max_abs_difference_int8_vs_reference']:.2e}",
+            f"exact {figures['max_abs_difference_fused_vs_reference']:.2e}{int8_difference}",
         ]
         throughput = figures["throughput_samples_per_s"]
         lines.append("  batched throughput, samples/s: " + "; ".join(
-            f"batch {b}: BM {throughput['bm'][str(b)]:,.0f}, PLM-Net {throughput['plm'][str(b)]:,.0f}"
-            for b in BATCH_SIZES
+            f"batch {b}: BM {throughput['bm'][b]:,.0f}, PLM-Net {throughput['plm'][b]:,.0f}" for b in throughput["bm"]
         ))
         training = figures["training_samples_per_s"]
         lines.append(f"  training, samples/s: BM {training['bm']:,.0f}, TAPM (frozen BM) {training['tapm']:,.0f}")
-    lines += [
-        "",
-        f"PLM-Net / BM at batch size 1, median over {conditions['repeats']} repeats (wall time; CPU time in "
-        f"brackets), target <= {target}:",
-        f"  {'preset':8s} {'BM ms':>8s}  {'exact (fp32)':>22s}  {'int8 TAPM':>22s}  {'reference forward':>17s}",
-    ]
-    for preset, figures in result["presets"].items():
-        exact, int8 = figures["overhead_ratio"], figures["int8_overhead_ratio"]
-        exact_cell = f"{exact:.3f} ({figures['overhead_ratio_cpu']:.3f}) {verdict(exact)}"
-        int8_cell = f"{int8:.3f} ({figures['int8_overhead_ratio_cpu']:.3f}) {verdict(int8)}"
-        lines.append(
-            f"  {preset:8s} {figures['bm_ms_median']:8.3f}  {exact_cell:>22s}  {int8_cell:>22s}  "
-            f"{figures['reference_overhead_ratio']:17.3f}"
-        )
+    lines += ["", *format_summary(result)]
     for check in result.get("closed_loop", {}).values():
 
         def ci(figure: dict) -> str:
-            return f"{figure['mean']:.5f} +- {figure['ci95_half_width']:.5f}"
+            half_width = figure["ci95_half_width"]
+            return f"{figure['mean']:.5f} +- {'(one seed)' if half_width is None else f'{half_width:.5f}'}"
 
         within = "within" if check["int8_mean_within_fused_ci"] else "OUTSIDE"
         lines += [
@@ -431,3 +510,110 @@ def format_report(result: dict) -> str:
             f"{check['max_abs_steering_difference']:.2e}, int8 {check['max_abs_steering_difference_int8']:.2e}",
         ]
     return "\n".join(lines)
+
+
+def format_summary(result: dict) -> list[str]:
+    """The ratio table of both presets beside the paper's figures (what the README shows of a result)."""
+    conditions, paper, target = result["conditions"], result["paper"], result["target_overhead_ratio"]
+
+    def verdict(ratio: float) -> str:
+        return "meets" if ratio <= target else "MISSES"
+
+    lines = [
+        f"PLM-Net / BM at batch size 1 on {conditions['device']}, {conditions['weights']} weights, median over "
+        f"{conditions['repeats']} repeats (wall time; CPU time in brackets), target <= {target}:",
+        f"  {'preset':8s} {'BM ms':>8s} {'PLM-Net ms':>10s}  {'exact (fp32)':>22s}  {'int8 TAPM':>22s}  "
+        f"{'reference forward':>17s}",
+    ]
+    for preset, figures in result["presets"].items():
+        exact = figures["overhead_ratio"]
+        exact_cell = f"{exact:.3f} ({figures['overhead_ratio_cpu']:.3f}) {verdict(exact)}"
+        int8_cell = "n/a"
+        if "int8_overhead_ratio" in figures:
+            int8 = figures["int8_overhead_ratio"]
+            int8_cell = f"{int8:.3f} ({figures['int8_overhead_ratio_cpu']:.3f}) {verdict(int8)}"
+        lines.append(
+            f"  {preset:8s} {figures['bm_ms_median']:8.3f} {figures['plm_ms_median']:10.3f}  {exact_cell:>22s}  "
+            f"{int8_cell:>22s}  {figures['reference_overhead_ratio']:17.3f}"
+        )
+    lines.append(
+        f"  the paper's, 160x160 px: BM {paper['bm_ms']:.3f} ms, PLM-Net {paper['plm_net_ms']:.3f} ms, ratio "
+        f"{paper['plm_net_ms'] / paper['bm_ms']:.3f} (means over ~680 frames at batch size 1 on "
+        f"{paper['device']}; its {paper['source']})"
+    )
+    for preset, figures in result["presets"].items():
+        throughput, training = figures["throughput_samples_per_s"], figures["training_samples_per_s"]
+        repeats = ", ".join(f"{r['overhead_ratio']:.3f}" for r in figures["repeats"])
+        lines.append(
+            f"  {preset}: repeats {repeats}; samples/s at batch " + ", ".join(throughput["bm"]) + ": BM "
+            + " / ".join(f"{v:,.0f}" for v in throughput["bm"].values()) + ", PLM-Net "
+            + " / ".join(f"{v:,.0f}" for v in throughput["plm"].values())
+            + f"; training BM {training['bm']:,.0f}, TAPM {training['tapm']:,.0f}"
+        )
+    return lines
+
+
+
+def format_runs(results: list[dict]) -> list[str]:
+    """Several ``bench models`` runs side by side and the median of their ratios (the target is judged on the
+    median of runs; each run's ratio is itself the median of its repeats). What the README shows, rendered
+    from the committed result files."""
+    target = results[0]["target_overhead_ratio"]
+    presets = list(results[0]["presets"])
+    lines = []
+    for index, result in enumerate(results, start=1):
+        conditions = result["conditions"]
+        lines.append(f"measurement {index}: $ {result.get('command', 'plm-highway bench models')}")
+        lines.append(f"  {conditions['device']}, {conditions['threads']} torch thread(s), {conditions['weights']} "
+                     f"weights, load average {conditions['load_average_1min']:.1f} on {conditions['cpus']} CPUs, "
+                     f"{conditions['repeats']} repeats of {conditions['frames']} frames per side")
+        for preset in presets:
+            figures = result["presets"][preset]
+            repeats = ", ".join(f"{r['overhead_ratio']:.3f}" for r in figures["repeats"])
+            throughput, training = figures["throughput_samples_per_s"], figures["training_samples_per_s"]
+            lines.append(
+                f"  {preset:8s} BM {figures['bm_ms_median']:6.3f} ms, PLM-Net {figures['plm_ms_median']:6.3f} ms: "
+                f"{figures['overhead_ratio']:.3f} (repeats {repeats}; CPU time {figures['overhead_ratio_cpu']:.3f}); "
+                f"reference forward {figures['reference_overhead_ratio']:.3f}; nonzero image features "
+                f"{figures['image_features_nonzero_fraction']:.1%}"
+            )
+            if "overhead_ratio_vs_sparse_bm" in figures:
+                lines.append(
+                    f"  {'':8s} a BM with a sparse first layer: {figures['bm_sparse_ms_median']:6.3f} ms; PLM-Net "
+                    f"over it {figures['overhead_ratio_vs_sparse_bm']:.3f} (CPU time "
+                    f"{figures['overhead_ratio_vs_sparse_bm_cpu']:.3f})"
+                )
+            lines.append(
+                f"  {'':8s} samples/s at batch " + ", ".join(throughput["bm"]) + ": BM "
+                + " / ".join(f"{v:,.0f}" for v in throughput["bm"].values()) + ", PLM-Net "
+                + " / ".join(f"{v:,.0f}" for v in throughput["plm"].values())
+                + f"; training BM {training['bm']:,.0f}, TAPM {training['tapm']:,.0f}"
+            )
+    def median(preset: str, key: str) -> float:
+        return float(np.median([r["presets"][preset][key] for r in results]))
+
+    lines.append(f"PLM-Net / BM at batch size 1, median of {len(results)} runs (target <= {target}): " + ", ".join(
+        f"{preset} {median(preset, 'overhead_ratio'):.3f} "
+        f"{'meets' if median(preset, 'overhead_ratio') <= target else 'MISSES'} "
+        f"(CPU time {median(preset, 'overhead_ratio_cpu'):.3f})" for preset in presets))
+    paper = results[0]["paper"]
+    lines.append(f"the paper's, 160x160 px: BM {paper['bm_ms']:.3f} ms, PLM-Net {paper['plm_net_ms']:.3f} ms, ratio "
+                 f"{paper['plm_net_ms'] / paper['bm_ms']:.3f} ({paper['device']}; its {paper['source']})")
+    return lines
+
+
+def format_closed_loop_table(result: dict) -> list[str]:
+    """The ``--closed-loop`` check of a result as a markdown table (what the README shows of it)."""
+
+    def ci(figure: dict) -> str:
+        return f"{figure['mean']:.5f} +- {figure['ci95_half_width']:.5f}"
+
+    lines = ["| preset | reference forward | exact fused | int8 TAPM | int8 - exact, paired | within the CI? |",
+             "|---|---|---|---|---|---|"]
+    for preset, check in result["closed_loop"].items():
+        lines.append(
+            f"| {preset} ({check['conditions']}) | {ci(check['reference_forward_mae'])} | {ci(check['fused_mae'])} | "
+            f"{ci(check['fused_int8_mae'])} | {ci(check['int8_minus_fused_mae'])} | "
+            f"{'yes' if check['int8_mean_within_fused_ci'] else 'no'} |"
+        )
+    return lines

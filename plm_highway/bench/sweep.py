@@ -5,12 +5,13 @@
 ``--steps`` policy steps each, one model policy) several ways in one invocation and prints the
 wall times side by side with their ratio to the *fastest* one-env side:
 
-1. **one env at a time, default kernels, 1 thread**: :func:`~plm_highway.evaluation.closed_loop.drive`
-   per seed, the model with PyTorch's own kernel choice (batch 1), one torch thread;
+1. **one env at a time, default kernels, 1 thread**: :func:`~plm_highway.rollout.cells.run_cells` ``serial``
+   (one :func:`~plm_highway.rollout.closed_loop.drive` per seed), the model with PyTorch's own kernel choice
+   (batch 1), one torch thread;
 2. the same on **2 torch threads** (the serial side's other configuration on 2 cores);
 3. **one env at a time, batch-invariant kernels**: ``drive`` with the policy as the closed loop runs
    it (:mod:`plm_highway.models.batch_invariant`), the reference every other side is compared with;
-4. **batched, own envs**: :func:`~plm_highway.evaluation.batched.run_cells`, all N envs in one
+4. **batched, own envs**: :func:`~plm_highway.rollout.cells.run_cells`, all N envs in one
    batch, one forward pass per step (PLM-Net: per latency segment), one thread;
 5. **batched, 2 threads**: the same split over two Python threads, one batch each (one torch
    thread each; a forward pass releases the GIL, so one batch's envs step meanwhile);
@@ -50,9 +51,8 @@ def bench_sweep(n_envs: int = 16, steps: int = 100, policy: str = "plm", latency
     machine two torch threads at batch size 1 can take 20x longer than one)."""
     import torch
 
-    from plm_highway.evaluation.batched import RunCell, run_cells
-    from plm_highway.evaluation.closed_loop import drive
-    from plm_highway.evaluation.policies import VisionPolicy, make_policy, single_threaded_inference
+    from plm_highway.rollout.cells import RunCell, run_cells
+    from plm_highway.rollout.policies import VisionPolicy, make_policy, single_threaded_inference
 
     if not 1 <= repeats <= 100:
         raise ValueError(f"repeats {repeats}: must lie in [1, 100]")
@@ -63,7 +63,8 @@ def bench_sweep(n_envs: int = 16, steps: int = 100, policy: str = "plm", latency
     cells = [RunCell(f"seed {seed}", vision, track, latency, seed, max_steps=steps) for seed in range(n_envs)]
 
     def serial(policy_object: VisionPolicy) -> np.ndarray:
-        return _steering([drive(c.name, policy_object, track, latency, c.seed, max_steps=steps) for c in cells])
+        return _steering(run_cells([RunCell(c.name, policy_object, track, latency, c.seed, max_steps=steps)
+                                    for c in cells], serial=True))
 
     pool_side = f"process pool ({workers} workers, batched), cold"
     warm_side = f"process pool ({workers} workers, batched), warm"
@@ -97,8 +98,8 @@ def bench_sweep(n_envs: int = 16, steps: int = 100, policy: str = "plm", latency
 
     with _warm_pool(policy, track, latency, workers) as pool:
         with single_threaded_inference():
-            drive("warm-up", vision, track, latency, 0, max_steps=3)
-            drive("warm-up", default_kernels, track, latency, 0, max_steps=3)
+            run_cells([RunCell("warm-up", p, track, latency, 0, max_steps=3) for p in (vision, default_kernels)],
+                      serial=True)
         for _ in tqdm(range(repeats), desc="bench sweep repeats", leave=False):
             for name, function, threads, single in plan:
                 with single_threaded_inference() if single else contextlib.nullcontext():
@@ -126,7 +127,7 @@ def _vector_env_steering(vision, cells, steps: int) -> np.ndarray:
     """The runs through gymnasium's SyncVectorEnv; (N, steps) steering. Assumes no run ends early."""
     from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
-    from plm_highway.evaluation.closed_loop import make_env
+    from plm_highway.rollout.closed_loop import make_env
 
     envs = SyncVectorEnv([partial(make_env, c.track, c.latency) for c in cells], autoreset_mode=AutoresetMode.DISABLED)
     obs, infos = envs.reset(seed=[c.seed for c in cells])
@@ -144,27 +145,21 @@ def _vector_env_steering(vision, cells, steps: int) -> np.ndarray:
 
 def _pool_steering(policy: str, track: str, latency: str, n_envs: int, steps: int, workers: int,
                    pool=None) -> np.ndarray:
-    """The runs split over ``workers`` processes, (N, steps) steering; ``pool``: a warm pool to use, else a
-    fresh one is spawned (and its start-up timed with the runs)."""
-    from plm_highway.evaluation.cell_runner import worker_pool
+    """The runs split over ``workers`` processes, each chunk batched, (N, steps) steering; ``pool``: a warm
+    executor to map on, else a fresh pool is started (and its start-up timed with the runs)."""
+    from plm_highway.rollout.backends import LocalPool
+    from plm_highway.rollout.cells import RunCell, run_cells
 
-    chunks = [(policy, track, latency, tuple(range(n_envs))[w::workers], steps) for w in range(workers)]
-    chunks = [chunk for chunk in chunks if chunk[3]]
-    with contextlib.ExitStack() as stack:
-        if pool is None:
-            pool = stack.enter_context(worker_pool(len(chunks)))
-        steering = list(pool.map(_pool_chunk, chunks))
-    out = np.zeros((n_envs, steps))
-    for chunk, chunk_steering in zip(chunks, steering):
-        out[list(chunk[3])] = chunk_steering
-    return out
+    cells = [RunCell(f"seed {seed}", policy, track, latency, seed, max_steps=steps) for seed in range(n_envs)]
+    with LocalPool(workers, executor=pool) as backend:
+        return _steering(run_cells(cells, backend=backend))
 
 
 @contextlib.contextmanager
 def _warm_pool(policy: str, track: str, latency: str, workers: int):
     """A pool of ``workers`` processes that have imported everything and loaded the model before the clock
     starts, as the one-env sides have: the setup a sweep pays once, not per run."""
-    from plm_highway.evaluation.cell_runner import worker_pool
+    from plm_highway.rollout.backends import worker_pool
 
     with worker_pool(workers) as pool:
         pids: set[int] = set()
@@ -177,55 +172,51 @@ def _warm_pool(policy: str, track: str, latency: str, workers: int):
 
 
 def _warm_up(policy: str, track: str, latency: str) -> int:
-    """A worker: load the model and drive a few steps (imports, caches); its pid."""
-    _pool_chunk((policy, track, latency, (0,), 3))
+    """A worker: load the model the pooled runs use and drive a few steps (imports, caches); its pid."""
+    os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    from plm_highway.rollout.cells import RunCell, run_cells, worker_policy
+    from plm_highway.rollout.policies import SHIPPED_PRESET, single_threaded_inference
+
+    vision = worker_policy(policy, None, SHIPPED_PRESET)
+    with single_threaded_inference():
+        run_cells([RunCell("warm-up", vision, track, latency, 0, max_steps=3)])
     time.sleep(0.5)  # hold this worker so that the other warm-up task goes to another
     return os.getpid()
-
-
-def _pool_chunk(chunk) -> np.ndarray:
-    """A pool worker: the chunk's runs batched, with the model this process loads once (a warm pool's
-    workers have loaded it before the clock)."""
-    os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    from plm_highway.evaluation.batched import RunCell, run_cells
-    from plm_highway.evaluation.cell_runner import worker_policy
-    from plm_highway.evaluation.policies import SHIPPED_PRESET, single_threaded_inference
-
-    policy, track, latency, seeds, steps = chunk
-    vision = worker_policy(policy, None, SHIPPED_PRESET, "measured")
-    with single_threaded_inference():
-        logs = run_cells([RunCell(f"seed {s}", vision, track, latency, s, max_steps=steps) for s in seeds])
-    return _steering(logs)
 
 
 def bench_reproduce(seeds: int = 5, max_steps: int | None = 100, workers: int = 2, track: str = "test",
                     conditions: str = "ideal", batch_size: int = 32) -> dict:
     """``reproduce``'s runs of one track (reference + BM and PLM-Net per default setting, per seed) three ways:
-    serial (:func:`plm_highway.evaluation.run.run_cells`, one env at a time), batched in this process
+    serial (:func:`plm_highway.rollout.cells.run_cells` ``serial``, one env at a time), batched in this process
     (``--workers 0``), and batched on a pool of ``workers`` processes (started and loaded inside the
     time, as ``reproduce`` pays it). One torch thread per process. Identity: every logged column compared."""
-    from plm_highway.evaluation.cell_runner import drive_cells
-    from plm_highway.evaluation.closed_loop import LOG_COLUMNS
-    from plm_highway.evaluation.policies import single_threaded_inference
     from plm_highway.evaluation.reproduce import conditions_named, default_settings, plan_cells
-    from plm_highway.evaluation.run import make_policies, run_cells
     from plm_highway.road.track import load_track
+    from plm_highway.rollout.backends import LocalPool
+    from plm_highway.rollout.cells import run_cells, runs_under
+    from plm_highway.rollout.closed_loop import LOG_COLUMNS
+    from plm_highway.rollout.policies import make_policies, single_threaded_inference
 
     load = os.getloadavg()[0]
     run_conditions = conditions_named(conditions)
     track_spec = load_track(track)
     cells = plan_cells(list(default_settings(run_conditions)), list(range(seeds)), track_spec.name, run_conditions)
     policies = make_policies(None, run_conditions)
+    preset = run_conditions.checkpoint_preset
+    runs = runs_under(cells, track_spec, run_conditions, policies, max_steps)
+    named_runs = runs_under(cells, track_spec, run_conditions, None, max_steps)  # what workers load themselves
+
+    def parallel():
+        with LocalPool(workers) as backend:
+            return run_cells(named_runs, preset=preset, batch_size=batch_size, backend=backend)
+
     sides: dict[str, dict] = {}
     logs = {}
     with single_threaded_inference():
         for name, function in (
-                ("serial (one env at a time)", lambda: run_cells(cells, track_spec, run_conditions, policies, max_steps)),
-                ("batched (--workers 0)", lambda: drive_cells(cells, track_spec, run_conditions, policies, None,
-                                                              max_steps, batch_size=batch_size)),
-                (f"parallel ({workers} workers, batched)", lambda: drive_cells(
-                    cells, track_spec, run_conditions, None, None, max_steps, workers=workers,
-                    batch_size=batch_size))):
+                ("serial (one env at a time)", lambda: run_cells(runs, serial=True)),
+                ("batched (--workers 0)", lambda: run_cells(runs, preset=preset, batch_size=batch_size)),
+                (f"parallel ({workers} workers, batched)", parallel)):
             start = time.perf_counter()
             logs[name] = function()
             sides[name] = {"wall_s": time.perf_counter() - start}

@@ -15,7 +15,7 @@ import numpy as np
 
 from plm_highway.errors import BadInput
 from plm_highway.road.geometry import sample_reference
-from plm_highway.road.track import TrackSpec
+from plm_highway.road.spec import TrackSpec
 
 # Gray levels of the ground (uint8).
 OFFROAD_GRAY = 105

@@ -23,7 +23,7 @@ from plm_highway.errors import BadInput
 EXIT_OK, EXIT_BUG, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 # Adapter modules in the order their commands are listed; a group module lists sub-commands.
-ADAPTERS = ("demo", "collect", "train", "evaluate", "reproduce", "calibrate", "bm_response", "sweep", "estimate", "bench", "sim2real", "lessons")
+ADAPTERS = ("demo", "collect", "train", "evaluate", "reproduce", "calibrate", "bm_response", "sweep", "population", "estimate", "bench", "sim2real", "lessons", "docs")
 
 
 def _adapter(name: str):
@@ -61,6 +61,25 @@ def _add_command(subparsers, command: Command, prefix: tuple[str, ...], argv: li
     parser.set_defaults(command=" ".join(words), _run=command.run)
     if tuple(argv[:len(words)]) == words:
         command.configure(parser)
+        for action in parser._actions:  # every typed option reads ASCII digits only
+            if action.type is not None and action.type is not str:
+                action.type = _ascii_digits_only(action.type)
+
+
+def _ascii_digits_only(parse):
+    """An argparse type that first refuses digits other than 0-9: ``int``/``float`` would read Arabic-Indic or
+    full-width digits as numbers that no reader of the command line would take them for."""
+
+    def checked(text):
+        if isinstance(text, str):
+            for char in text:
+                if not char.isascii() and char.isdecimal():
+                    raise argparse.ArgumentTypeError(f"{text!r} holds the non-ASCII digit {char!r}; write numbers "
+                                                     "with the digits 0-9")
+        return parse(text)
+
+    checked.__name__ = getattr(parse, "__name__", "value")
+    return checked
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -89,9 +108,12 @@ def run_command(args: argparse.Namespace) -> int:
     gymnasium's errors, ...) is a bug in plm-highway: a bound or a check is missing. It prints its
     traceback and a request to report it, and exits 1, so a bug never looks like bad input.
     """
+    from plm_highway.io import protected_inputs
+
     prefix = f"plm-highway {args.command}: error:"
     try:
-        return int(args._run(args) or 0)
+        with protected_inputs(input_paths(args)):
+            return int(args._run(args) or 0)
     except KeyboardInterrupt:
         print(f"\nplm-highway {args.command}: interrupted; nothing was published", file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -105,6 +127,29 @@ def run_command(args: argparse.Namespace) -> int:
         print(f"plm-highway {args.command}: internal error: this is a bug in plm-highway, not in your input. "
               "Please report it with the command line and the traceback above.", file=sys.stderr)
         return EXIT_BUG
+
+
+# Options that name what a command writes; every other path an option or argument names is an input.
+OUTPUT_OPTIONS = frozenset({"out", "json", "json_path", "csv", "report_dir", "lessons"})
+
+
+def input_paths(args: argparse.Namespace) -> list[str]:
+    """Every existing path the command's options and arguments name, outputs aside: no output of the
+    command may replace or remove them (:func:`plm_highway.io.protected_inputs`). A value may hold
+    several (``trace:a.csv,trace:b.csv``); each piece that names an existing path counts."""
+    import os
+
+    found = []
+    for name, value in vars(args).items():
+        if name.startswith("_") or name in OUTPUT_OPTIONS or name in ("command", "command_line"):
+            continue
+        for text in value if isinstance(value, (list, tuple)) else [value]:
+            if not isinstance(text, str) or not text or "\x00" in text:
+                continue
+            pieces = {text, text.partition(":")[2]}
+            pieces |= {part.partition(":")[2] or part for piece in list(pieces) for part in piece.split(",")}
+            found += [piece for piece in sorted(pieces) if piece and os.path.lexists(piece)]
+    return found
 
 
 # What the router answers with exit 2 and one line, without a traceback:

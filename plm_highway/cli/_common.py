@@ -59,6 +59,23 @@ def add_overwrite(parser: argparse.ArgumentParser) -> None:
                         help="replace an earlier output of the same kind written by plm-highway (never anything else)")
 
 
+DEVICE_CHOICES = ("auto", "cpu", "cuda")  # plm_highway.models.device's, spelled here so --help imports no torch
+
+
+def add_device(parser: argparse.ArgumentParser, default: str = "auto") -> None:
+    """``--device auto|cpu|cuda``; :func:`device_of` turns it into a torch.device (``cuda`` without CUDA: exit 2)."""
+    parser.add_argument("--device", choices=DEVICE_CHOICES, default=default,
+                        help="where the models run: auto (a CUDA GPU when torch sees one, else the CPU), cpu, or "
+                             "cuda (refused when torch has no CUDA)")
+
+
+def device_of(args: argparse.Namespace):
+    """The torch.device that ``--device`` names (:class:`~plm_highway.errors.BadInput` for CUDA without CUDA)."""
+    from plm_highway.models.device import resolve_device
+
+    return resolve_device(args.device)
+
+
 def add_seed(parser: argparse.ArgumentParser, default: int = 0) -> None:
     parser.add_argument("--seed", type=SEED, default=default, help="random seed (0 to 2**32-1)")
 
@@ -78,8 +95,8 @@ def publish_figure_and_numbers(args, compute: Callable[[], dict], write: Callabl
     line, ``summary(result)`` lines print."""
     from pathlib import Path
 
-    from plm_highway.evaluation.policies import single_threaded_inference
     from plm_highway.io import FIGURE, check_target
+    from plm_highway.rollout.policies import single_threaded_inference
 
     check_target(args.out, FIGURE, overwrite=args.overwrite)
     check_target(Path(args.out).with_suffix(".json"), numbers_kind, overwrite=args.overwrite)

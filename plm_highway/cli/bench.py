@@ -2,7 +2,15 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_overwrite, bounded_float, bounded_int, defaults_of
+from plm_highway.cli._common import (
+    Command,
+    add_device,
+    add_overwrite,
+    bounded_float,
+    bounded_int,
+    defaults_of,
+    device_of,
+)
 
 GROUP_HELP = "benchmarks: both sides of a comparison in one run, and their ratio"
 
@@ -16,9 +24,8 @@ def configure_estimation(parser) -> None:
 
 
 def run_estimation(args) -> int:
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.estimation.bench import bench_dict, bench_estimation, bench_lines
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
 
     if args.json is not None:
         check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
@@ -49,9 +56,8 @@ def configure_memory(parser) -> None:
 def run_memory(args) -> int:
     from tqdm import tqdm
 
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.bench.memory import memory_lines, memory_run
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
 
     if args.json is not None:
         check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
@@ -91,9 +97,8 @@ def configure_metrics(parser) -> None:
 
 
 def run_metrics(args) -> int:
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.bench import metrics as bench
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
 
     bench.check_settings(args.points, args.repeat)
     if args.json is not None:  # fail now rather than after minutes of benchmarking
@@ -126,6 +131,11 @@ def configure_models(parser) -> None:
                              "preset under its conditions (default: ideal, paper: paper)")
     parser.add_argument("--closed-loop-steps", type=bounded_int(10, 1_000_000), default=None,
                         help="stop each closed-loop run after this many policy steps (default: the scored track)")
+    parser.add_argument("--weights", choices=bench.WEIGHTS, default="shipped",
+                        help="shipped: each preset's shipped checkpoints on frames the simulator renders under its "
+                             "conditions (what the closed loop runs); random: fresh weights on random frames "
+                             "(PLM-Net's one-frame cost depends on how many image features are zero)")
+    add_device(parser)
     parser.add_argument("--json", metavar="OUT.json", help="write the results to this JSON file")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random weights and inputs")
@@ -137,9 +147,8 @@ def run_models(args) -> int:
 
     import torch
 
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.bench import models as bench
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
     from plm_highway.models.config_checks import check_int
 
     check_int("--frames", args.frames, 1, bench.MAX_FRAMES)
@@ -148,12 +157,14 @@ def run_models(args) -> int:
     check_int("--train-batches", args.train_batches, 1, 10_000)
     check_int("--threads", args.threads, 1, os.cpu_count() or 1)
     check_int("--seed", args.seed, 0, 2**32 - 1)
+    device = device_of(args)
     if args.json:  # refuse before the benchmark runs, not after
         check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
     torch.set_num_threads(args.threads)
     presets = bench.PRESETS if args.preset == "both" else (args.preset,)
     result = bench.benchmark_models(presets, args.frames, args.warmup, args.repeats, args.train_batches, args.seed,
-                                    args.closed_loop, args.closed_loop_steps)
+                                    args.closed_loop, args.closed_loop_steps, device, args.weights)
+    result["command"] = args.command_line
     print(bench.format_report(result))
     if args.json:
         write_json(args.json, result, BENCH_RESULT, overwrite=args.overwrite)
@@ -186,9 +197,8 @@ def configure_env(parser) -> None:
 
 
 def run_env(args) -> int:
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.bench.env import EnvBenchConfig, bench_env, format_bench
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
 
     config = EnvBenchConfig(args.steps, args.repeats, args.latency, args.track)
     if args.json:
@@ -216,9 +226,8 @@ def configure_sweep(parser) -> None:
 
 
 def run_sweep(args) -> int:
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.bench.sweep import bench_sweep, report_lines
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
 
     if args.json:
         check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)
@@ -233,7 +242,7 @@ def run_sweep(args) -> int:
 
 def configure_reproduce(parser) -> None:
     from plm_highway.bench.sweep import bench_reproduce
-    from plm_highway.evaluation.run import CONDITION_NAMES
+    from plm_highway.rollout.conditions import CONDITION_NAMES
 
     d = defaults_of(bench_reproduce)
     parser.add_argument("--seeds", type=bounded_int(1, 1000), default=d["seeds"], help="seeds per setting")
@@ -249,9 +258,8 @@ def configure_reproduce(parser) -> None:
 
 
 def run_reproduce(args) -> int:
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.bench.sweep import bench_reproduce, reproduce_report_lines
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
 
     if args.json:
         check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)

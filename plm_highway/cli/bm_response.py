@@ -7,7 +7,7 @@ from plm_highway.cli._common import Command, add_overwrite, defaults_of, publish
 
 def configure(parser) -> None:
     from plm_highway.evaluation.response import DEFAULT_OUT, SEGMENTS, bm_response
-    from plm_highway.evaluation.run import CONDITION_NAMES
+    from plm_highway.rollout.conditions import CONDITION_NAMES
 
     d = defaults_of(bm_response)
     parser.add_argument("--out", default=str(DEFAULT_OUT),

@@ -14,10 +14,10 @@ from plm_highway.cli._common import (
 
 def configure(parser) -> None:
     from plm_highway.envs.config import MAX_PROCESSING_DELAY_STEPS, MAX_STEERING_TIME_CONSTANT_S
-    from plm_highway.evaluation.calibration import DEFAULT_OUT, READINGS, bm_calibration
-    from plm_highway.evaluation.run import CONDITION_NAMES, CONDITIONS, FRICTION_RANGE, SPEED_LOGICS
+    from plm_highway.evaluation.calibration import DEFAULT_OUT, READINGS, CalibrationOptions
+    from plm_highway.rollout.conditions import CONDITION_NAMES, CONDITIONS, FRICTION_RANGE, SPEED_LOGICS
 
-    d = defaults_of(bm_calibration)
+    d = defaults_of(CalibrationOptions)
     paper = CONDITIONS["paper"]
     parser.add_argument("--out", default=str(DEFAULT_OUT),
                         help="figure to write (PNG); its numbers go beside it with the suffix .json")
@@ -55,17 +55,25 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    from plm_highway.evaluation.calibration import CALIBRATION_JSON, bm_calibration, summary_lines, write_calibration
+    from plm_highway.evaluation.calibration import (
+        CALIBRATION_JSON,
+        CalibrationOptions,
+        bm_calibration,
+        summary_lines,
+        write_calibration,
+    )
+
+    options = CalibrationOptions(
+        track=args.track, seeds=args.seeds, conditions=args.conditions, checkpoints=args.checkpoints,
+        max_steps=args.max_steps, progress=not args.no_progress, workers=args.workers, speed_logic=args.speed_logic,
+        processing_delay_steps=args.processing_delay_steps, steering_time_constant_s=args.steering_time_constant_s,
+        friction_coefficient=args.friction_coefficient, reading=args.reading)
 
     def calibrate() -> dict:
-        return bm_calibration(args.track, args.seeds, args.conditions, args.checkpoints, args.max_steps,
-                              not args.no_progress, args.workers, speed_logic=args.speed_logic,
-                              processing_delay_steps=args.processing_delay_steps,
-                              steering_time_constant_s=args.steering_time_constant_s,
-                              friction_coefficient=args.friction_coefficient, reading=args.reading)
+        return bm_calibration(options)
 
     return publish_figure_and_numbers(args, calibrate, write_calibration, summary_lines, CALIBRATION_JSON)
 
 
 COMMANDS = [Command("calibrate", "the BM's steering MAE vs latency under the paper's conditions beside the paper's "
-                               "(issue 9's calibration figure and rules)", configure, run)]
+                               "(the calibration figure and rules)", configure, run)]

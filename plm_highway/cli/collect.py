@@ -19,7 +19,7 @@ FIELD_HELP = {
 
 def configure(parser) -> None:
     from plm_highway.data.collect import CAMERAS, DEMONSTRATORS, CollectConfig
-    from plm_highway.evaluation.run import CONDITION_NAMES
+    from plm_highway.rollout.conditions import CONDITION_NAMES
 
     defaults = CollectConfig()
     parser.add_argument("--track", default="train", help="train, test, unseen or a track JSON path")

@@ -8,11 +8,14 @@ GROUP_HELP = "model-based latency compensation: the delay-compensated lane-coord
 
 
 def configure_table3(parser) -> None:
-    from plm_highway.estimation.table3 import MAX_SEEDS
+    from plm_highway.estimation.table3 import MAX_SEEDS, MEASUREMENTS
 
     parser.add_argument("--seeds", type=bounded_int(1, MAX_SEEDS), default=5,
                         help="scored seeds 0..N-1 (at least 5 for the report's confidence intervals)")
     parser.add_argument("--scenarios", default="1,2,3,4", help="comma-separated scenario numbers (default all four)")
+    parser.add_argument("--measurements", default=",".join(MEASUREMENTS),
+                        help="comma-separated lane measurements: clean (the simulated camera's fit as it comes), "
+                             "realistic (plus the error the kit's detector makes on the kit's own frames)")
     parser.add_argument("--json", metavar="OUT.json", help="write the results to this JSON file")
     parser.add_argument("--out", metavar="DIR", help="write table3.json, table3.md and the Figure 7-10 style plots "
                                                      "(first seed) into this directory")
@@ -20,16 +23,21 @@ def configure_table3(parser) -> None:
 
 
 def run_table3(args) -> int:
+    from plm_highway.errors import BadInput
     from plm_highway.estimation.report import TABLE3_JSON, TABLE3_REPORT, publish_table3
-    from plm_highway.estimation.table3 import scenarios_by_number, table3
+    from plm_highway.estimation.table3 import MEASUREMENTS, scenarios_by_number, table3_report
     from plm_highway.io import check_target
 
     scenarios = scenarios_by_number(args.scenarios)
+    measurements = tuple(dict.fromkeys(m.strip() for m in args.measurements.split(",") if m.strip()))
+    unknown = [m for m in measurements if m not in MEASUREMENTS]
+    if unknown or not measurements:
+        raise BadInput(f"--measurements {args.measurements!r}: expected a comma-separated choice of {list(MEASUREMENTS)}")
     for path, kind in ((args.json, TABLE3_JSON), (args.out, TABLE3_REPORT)):
         if path is not None:  # refuse before minutes of simulation, not after
             check_target(path, kind, overwrite=args.overwrite)
-    runs: list = []
-    result = table3(args.seeds, scenarios=scenarios, keep_runs=runs if args.out else None)
+    runs: dict = {}
+    result = table3_report(args.seeds, measurements, scenarios, keep_runs=runs if args.out else None)
     print(result.markdown())
     for path in publish_table3(result, runs, args.json, args.out, overwrite=args.overwrite):
         print(f"wrote {path}")
@@ -38,21 +46,25 @@ def run_table3(args) -> int:
 
 def configure_compare(parser) -> None:
     from plm_highway.cli._common import defaults_of
-    from plm_highway.estimation.compare import MAX_SEEDS, CompareConfig, compare
+    from plm_highway.evaluation.plm_vs_ekf import MAX_SEEDS, CompareConfig, compare
 
     d, c = defaults_of(compare), defaults_of(CompareConfig)
+    parser.add_argument("--conditions", default="ideal,paper",
+                        help="comma-separated conditions, each driven in full (ideal: this simulator's setup; paper: "
+                             "the paper's loop, pipeline, camera, latency injection and checkpoints)")
     parser.add_argument("--seeds", type=bounded_int(1, MAX_SEEDS), default=d["seeds"],
-                        help="seeds 0..N-1, each a start pose, latency realisation and EKF sensor noise")
+                        help="seeds 0..N-1, each a start perturbation, latency realisation, image noise and EKF "
+                             "sensor noise")
     parser.add_argument("--track", default=c["track"], help="train, test, unseen or a track JSON path")
     parser.add_argument("--settings", default=",".join(c["settings"]),
-                        help="comma-separated latency profiles every policy drives")
+                        help="comma-separated latency profiles every policy drives (no latency is always driven)")
     parser.add_argument("--bias-latency", default=c["bias_latency"],
-                        help="latency at which PLM-Net and the EKF are told a wrong latency")
-    parser.add_argument("--biases", default=",".join(f"{b:g}" for b in c["biases_s"]),
-                        help="comma-separated latency estimate errors [s] (empty: none)")
+                        help="latency at which PLM-Net and the EKF are told a wrong latency (with --biases)")
+    parser.add_argument("--biases", default="", help="comma-separated latency estimate errors [s] (default: none)")
     parser.add_argument("--max-steps", type=bounded_int(2, 10_000_000),
-                        help="stop each run after this many policy steps (default: the whole track)")
-    parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: shipped)")
+                        help="stop each run after this many policy steps (default: the whole scored track)")
+    parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: the conditions' "
+                                              "shipped pair)")
     parser.add_argument("--workers", type=bounded_int(1, 16), default=d["workers"],
                         help="seeds driven at once in worker processes")
     parser.add_argument("--json", metavar="OUT.json", help="write the result JSON here")
@@ -63,8 +75,8 @@ def configure_compare(parser) -> None:
 
 def run_compare(args) -> int:
     from plm_highway.errors import BadInput
-    from plm_highway.estimation.compare import CompareConfig, compare, markdown
-    from plm_highway.estimation.compare_report import COMPARE_JSON, COMPARE_REPORT, publish_comparison
+    from plm_highway.evaluation.plm_vs_ekf import CompareConfig, compare, markdown
+    from plm_highway.evaluation.plm_vs_ekf_report import COMPARE_JSON, COMPARE_REPORT, publish_comparison
     from plm_highway.io import check_target
 
     try:
@@ -72,19 +84,23 @@ def run_compare(args) -> int:
     except ValueError:
         raise BadInput(f"--biases {args.biases!r}: expected comma-separated numbers of seconds") from None
     settings = tuple(s.strip() for s in args.settings.split(",") if s.strip())
-    config = CompareConfig(track=args.track, settings=settings, bias_latency=args.bias_latency, biases_s=biases,
-                           max_steps=args.max_steps)
+    names = tuple(dict.fromkeys(n.strip() for n in args.conditions.split(",") if n.strip()))
+    if not names:
+        raise BadInput(f"--conditions {args.conditions!r}: name at least one of ideal, paper")
+    configs = [CompareConfig(conditions=name, track=args.track, settings=settings, bias_latency=args.bias_latency,
+                             biases_s=biases, max_steps=args.max_steps) for name in names]
     for path, kind in ((args.json, COMPARE_JSON), (args.out, COMPARE_REPORT)):
-        if path is not None:  # refuse before an hour of driving, not after
+        if path is not None:  # refuse before hours of driving, not after
             check_target(path, kind, overwrite=args.overwrite)
-    result = compare(args.seeds, config, args.checkpoints, workers=args.workers)
-    print(markdown(result.to_dict()))
-    for path in publish_comparison(result, args.json, args.out, overwrite=args.overwrite):
+    results = [compare(args.seeds, config, args.checkpoints, workers=args.workers) for config in configs]
+    print(markdown([result.to_dict() for result in results]))
+    for path in publish_comparison(results, args.json, args.out, overwrite=args.overwrite):
         print(f"wrote {path}")
     return 0
 
 
 COMMANDS = [Command("table3", "reproduce seed paper 004's Table 3 in simulation (camera, EKF, delay-compensated EKF)",
                     configure_table3, run_table3),
-            Command("compare", "PLM-Net beside the delay-compensated EKF policy in the closed loop (same track, "
-                               "latencies, seeds)", configure_compare, run_compare)]
+            Command("compare", "PLM-Net, the Base Model and the EKF lane keeper without and with delay compensation "
+                               "in the closed loop (same track, conditions, latencies, seeds)", configure_compare,
+                    run_compare)]

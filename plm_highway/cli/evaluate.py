@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from plm_highway.cli._common import Command, add_overwrite, add_seed, bounded_int
+from plm_highway.cli._common import Command, add_device, add_overwrite, add_seed, bounded_int, device_of
 
 MAX_STEPS = 10_000_000
 
@@ -12,8 +12,8 @@ MAX_STEPS = 10_000_000
 def configure(parser) -> None:
     from plm_highway.cli._common import defaults_of
     from plm_highway.evaluation.evaluate import evaluate
-    from plm_highway.evaluation.policies import POLICY_NAMES
-    from plm_highway.evaluation.run import CONDITION_NAMES, INJECTION_LATENCY_SOURCE
+    from plm_highway.rollout.conditions import CONDITION_NAMES, INJECTION_LATENCY_SOURCE
+    from plm_highway.rollout.policies import POLICY_NAMES
 
     d = defaults_of(evaluate)
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
@@ -21,7 +21,8 @@ def configure(parser) -> None:
                         help="latency profile, e.g. const:0.2 or steps:0.0-0.35:1.0")
     parser.add_argument("--policy", choices=POLICY_NAMES, default=d["policy"],
                         help="plm: reference + BM baseline + PLM-Net; bm: the first two; expert: the expert twice; "
-                             "ekf: the lane EKF policy without latency, without and with delay compensation")
+                             "ekf: the EKF lane keeper without latency, without and with delay compensation, its LQR "
+                             "designed for the conditions' loop, actuator and processing delay")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: shipped)")
     parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],
                         help="ideal: this simulator's setup; paper: the paper's loop, pipeline, camera, latency "
@@ -38,19 +39,20 @@ def configure(parser) -> None:
     parser.add_argument("--out", metavar="DIR", help="write result.json and per-step CSV logs (one per run, and "
                                                      "steps.csv with the runs side by side) into this directory")
     add_overwrite(parser)
+    add_device(parser)
 
 
 def run(args) -> int:
     from plm_highway.evaluation.evaluate import EVALUATION_DIR, EVALUATION_JSON, evaluate, publish_results
-    from plm_highway.evaluation.policies import single_threaded_inference
     from plm_highway.io import check_target, json_text
+    from plm_highway.rollout.policies import single_threaded_inference
 
     for path, kind in ((args.json, EVALUATION_JSON), (args.out, EVALUATION_DIR)):
         if path is not None:
             check_target(path, kind, overwrite=args.overwrite)
     with single_threaded_inference():
         result, logs = evaluate(args.track, args.latency, args.policy, args.seed, args.max_steps, args.checkpoints,
-                                args.seeds, args.conditions, args.injection)
+                                args.seeds, args.conditions, args.injection, device_of(args))
     sys.stdout.write(json_text(result, EVALUATION_JSON))
     if args.json or args.out:
         publish_results(result, logs, args.json, args.out, overwrite=args.overwrite)

@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_overwrite, add_seed, bounded_float, bounded_int, defaults_of
+from plm_highway.cli._common import (
+    Command,
+    add_device,
+    add_overwrite,
+    add_seed,
+    bounded_float,
+    bounded_int,
+    defaults_of,
+    device_of,
+)
 
 
 def configure(parser) -> None:
-    from plm_highway.evaluation.reproduce import reproduce
-    from plm_highway.evaluation.run import CONDITION_NAMES, INJECTION_LATENCY_SOURCE
+    from plm_highway.evaluation.reproduce import ReproduceOptions
+    from plm_highway.rollout.conditions import CONDITION_NAMES, INJECTION_LATENCY_SOURCE
 
-    d = defaults_of(reproduce)
+    d = defaults_of(ReproduceOptions)
     parser.add_argument("--out", help="output directory (default: figures/reproduce, figures/reproduce/TRACK for a "
                                       "track other than test, figures/reproduce-paper-conditions[/TRACK] under "
                                       "--conditions paper)")
@@ -47,18 +56,24 @@ def configure(parser) -> None:
                         help="envs stepped together, one forward pass per model and step")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_overwrite(parser)
+    add_device(parser)
 
 
 def run(args) -> int:
-    from plm_highway.evaluation.policies import single_threaded_inference
     from plm_highway.evaluation.protocol import setting_label
-    from plm_highway.evaluation.reproduce import output_dir, reproduce
+    from plm_highway.evaluation.reproduce import ReproduceOptions, output_dir, reproduce
+    from plm_highway.rollout.policies import single_threaded_inference
 
+    options = ReproduceOptions(
+        track=args.track, settings=None if args.settings is None else tuple(args.settings),
+        checkpoints=args.checkpoints, seed=args.seed, seeds=args.seeds, conditions=args.conditions,
+        injection=args.injection, max_steps=args.max_steps,
+        generalise=None if args.generalise is None else tuple(args.generalise), sweep=args.sweep,
+        sweep_max=args.sweep_max, sweep_step=args.sweep_step, workers=args.workers, batch_size=args.batch_size,
+        out=args.out, overwrite=args.overwrite, progress=not args.no_progress, command=args.command_line,
+        device=str(device_of(args)))
     with single_threaded_inference():
-        results = reproduce(args.track, args.settings, args.checkpoints, args.seed, args.max_steps, args.out,
-                            args.generalise, args.sweep, args.sweep_max, args.sweep_step, not args.no_progress,
-                            args.command_line, overwrite=args.overwrite, seeds=args.seeds, conditions=args.conditions,
-                            workers=args.workers, batch_size=args.batch_size, injection=args.injection)
+        results = reproduce(options)
     out = output_dir(args.out, args.track, results["track"], args.conditions)
     for target in results["targets"]:
         print(f"{'met   ' if target['met'] else 'MISSED'} {setting_label(target['setting']):>26}: {target['target']}: "

@@ -17,6 +17,9 @@ GROUP_HELP = "find where a simulator and a recording disagree, and why"
 # The recording bounds (rows, duration, sample rate) are checked when a recording is read, see
 # plm_highway/sim2real/recording.py; these bound only what an option alone can get wrong.
 MAX_SECONDS = 4 * 3600.0
+# Shorter blocks interleave fitted and held-out samples closer than the dynamics remember (a delay, a
+# steering lag): the held-out score would then measure interpolation, not prediction.
+MIN_BLOCK_S = 1.0
 
 
 def finite_nonzero(text: str) -> float:
@@ -43,10 +46,11 @@ def configure_diagnose(parser) -> None:
                         default=defaults["anchor_s"],
                         help="re-anchor the replayed pose to the recording every this many seconds "
                              "(at least two samples, at most the recording)")
-    parser.add_argument("--block-s", type=bounded_float(0.0, MAX_SECONDS, open_minimum=True),
+    parser.add_argument("--block-s", type=bounded_float(MIN_BLOCK_S, MAX_SECONDS),
                         default=defaults["block_s"],
                         help="length of the alternating cross-validation blocks (default: duration/16 in 2.5-8 s; "
-                             "the recording must hold at least four)")
+                             f"at least {MIN_BLOCK_S:g} s, so held-out samples are not the neighbours of fitted "
+                             "ones; the recording must hold at least four)")
     parser.add_argument("--split", choices=["blocks", "halves"], default=defaults["split"],
                         help="held-out data: 2-fold alternating blocks or fit the first half, score the second")
     parser.add_argument("--signal", choices=["auto", "yaw_rate", "heading"], default=defaults["signal"],

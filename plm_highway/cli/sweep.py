@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_overwrite, bounded_int, defaults_of
+from plm_highway.cli._common import Command, add_device, add_overwrite, bounded_int, defaults_of
 
 
 def configure(parser) -> None:
     import argparse
 
-    from plm_highway.evaluation.policies import POLICY_NAMES
-    from plm_highway.sweep.backends import BACKENDS, MAX_WORKERS, default_workers
+    from plm_highway.rollout.backends import BACKENDS, MAX_WORKERS, default_workers
+    from plm_highway.rollout.policies import POLICY_NAMES
     from plm_highway.sweep.grid import MAX_STEPS, SweepGrid
     from plm_highway.sweep.runner import run_sweep
 
@@ -39,6 +39,7 @@ def configure(parser) -> None:
                         help="envs stepped together per worker (one batched forward pass per step)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_overwrite(parser)
+    add_device(parser)
 
 
 def run(args) -> int:
@@ -51,7 +52,7 @@ def run(args) -> int:
     grid = grid_from_mapping(data, "sweep options")
     summary = run_sweep(grid, args.out, workers=args.workers, backend=args.backend, address=args.address,
                         batch_size=args.batch_size, checkpoints=args.checkpoints, overwrite=args.overwrite,
-                        progress=not args.no_progress)
+                        progress=not args.no_progress, device=args.device)
     print(f"{summary['cells']} runs ({summary['ran']} run now, {summary['resumed']} kept from earlier)")
     print(f"wrote {summary['table']}")
     for path in summary["figures"]:

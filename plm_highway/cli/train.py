@@ -3,8 +3,9 @@
 Option bounds are :class:`~plm_highway.training.train.TrainConfig`'s (``--epochs`` in [1, 1000],
 ``--max-samples`` in [2, 10**9], ``--balance-max-per-bin`` 0 (off) or in [1, 10**9], ``--seed``
 in [0, 2**63 - 1]), ``--threads`` in [1, the CPUs this process may use] (more only oversubscribes
-the cores), and ``--delta-grid`` as :func:`~plm_highway.models.tapm.validate_delta_grid` (1 to 32
-latencies in (0, 10] s, increasing). All are checked before the dataset is read.
+the cores; default 2 whatever the CPU affinity, so that one command trains the same bytes everywhere), and
+``--delta-grid`` as :func:`~plm_highway.models.tapm.validate_delta_grid` (1 to 32 latencies in (0, 10] s,
+increasing). All are checked before the dataset is read, ``--device cuda`` where torch has no CUDA too (exit 2).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import argparse
 import json
 import os
 
-from plm_highway.cli._common import Command, add_overwrite
+from plm_highway.cli._common import Command, add_device, add_overwrite, device_of
 from plm_highway.errors import BadInput
 
 PRESET_CHOICES = ("default", "paper")
@@ -38,9 +39,11 @@ def _common_options(parser: argparse.ArgumentParser) -> None:
                              "[s] of the same episode (0 to 2; 0 pairs each frame with its own steering, as the "
                              "original did)")
     parser.add_argument("--threads", type=int,
-                        help="torch intra-op threads (default: the CPUs this process may use)")
+                        help="torch intra-op threads (default 2 whatever the CPUs: the thread count changes the "
+                             "weights' last bits, so one command gives one result; recorded in model.json)")
     parser.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
                         help="no progress bars or per-epoch lines (--no-progress, as the other commands spell it)")
+    add_device(parser)
     add_overwrite(parser)
 
 
@@ -75,29 +78,34 @@ def _set_threads(args) -> None:
     import torch
 
     from plm_highway.models.config_checks import check_int
+    from plm_highway.training.train import DEFAULT_THREADS
 
+    # A fixed default, not the CPUs this process may use: the thread count splits torch's reductions, so
+    # the same command must use the same count on every machine and under every CPU affinity.
     cpus = available_cpus()
-    torch.set_num_threads(cpus if args.threads is None else check_int("--threads", args.threads, 1, cpus))
+    threads = DEFAULT_THREADS if args.threads is None else check_int("--threads", args.threads, 1,
+                                                                       max(cpus, DEFAULT_THREADS))
+    torch.set_num_threads(threads)
 
 
 def run_bm(args) -> int:
     from plm_highway.training.train import train_base_model
 
-    config = _config(args)
+    config, device = _config(args), device_of(args)
     _set_threads(args)
     description = train_base_model(args.data, args.out, args.preset, config, args.command_line,
-                                   overwrite=args.overwrite)
+                                   overwrite=args.overwrite, device=device)
     return _report(args, description)
 
 
 def run_tapm(args) -> int:
     from plm_highway.training.train import check_bm_preset, parse_delta_grid, train_tapm
 
-    config, delta_grid_s = _config(args), parse_delta_grid(args.delta_grid)
+    config, delta_grid_s, device = _config(args), parse_delta_grid(args.delta_grid), device_of(args)
     _set_threads(args)
     check_bm_preset(args.bm, args.preset)
     description = train_tapm(args.data, args.out, args.bm, config, delta_grid_s,
-                             args.command_line, overwrite=args.overwrite)
+                             args.command_line, overwrite=args.overwrite, device=device)
     return _report(args, description)
 
 

@@ -22,15 +22,14 @@ import gymnasium
 import numpy as np
 from tqdm import tqdm
 
-import plm_highway  # noqa: F401  (registers the env)
 from plm_highway.camera.pinhole import PAPER_CAMERA
 from plm_highway.data.dataset import STEP_COLUMNS
 from plm_highway.errors import BadInput
-from plm_highway.evaluation.run import CONDITIONS
 from plm_highway.expert import ExpertPolicy, HumanDemonstrator
 from plm_highway.expert.controller import ExpertParams
 from plm_highway.expert.human import HumanParams
 from plm_highway.models.config_checks import check_choice, check_int, check_number
+from plm_highway.rollout.conditions import CONDITIONS
 
 DEMONSTRATOR_STREAM = 13  # the human demonstrator draws from np.random.default_rng([seed, DEMONSTRATOR_STREAM])
 RECOVERY_WINDOW_S = 2.0  # frames this soon after a displaced start are flagged `perturbed`

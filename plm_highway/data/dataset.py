@@ -32,10 +32,11 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.errors import BadInput
-from plm_highway.io import directory_kind, write_output
+from plm_highway.io import JsonLimits, directory_kind, load_json, parse_json, read_bounded, write_output
 
 FORMAT = "plm_highway.dataset/1"
 MAX_MANIFEST_BYTES = 4 * 1024 * 1024
+MANIFEST_LIMITS = JsonLimits(max_bytes=MAX_MANIFEST_BYTES, max_depth=16, max_nodes=200_000, max_int_digits=30)
 MAX_SAMPLES = 10_000_000
 MAX_FRAME_SIDE_PX = 4096
 STEP_COLUMNS: dict[str, type] = {
@@ -55,7 +56,7 @@ STEP_COLUMNS: dict[str, type] = {
 def _has_dataset_manifest(path: Path) -> bool:
     """Datasets written before output markers existed: a manifest of this format."""
     try:
-        return json.loads((path / "manifest.json").read_text(encoding="utf-8")).get("format") == FORMAT
+        return load_json(path / "manifest.json", MANIFEST_LIMITS).get("format") == FORMAT
     except (OSError, ValueError, AttributeError):
         return False
 
@@ -114,12 +115,7 @@ def _read_manifest(path: Path) -> dict:
     size_bytes = path.stat().st_size
     if size_bytes > MAX_MANIFEST_BYTES:
         raise BadInput(f"{path}: {size_bytes} bytes, a dataset manifest is at most {MAX_MANIFEST_BYTES}")
-    try:
-        manifest = json.loads(path.read_bytes().decode("utf-8-sig"))
-    except UnicodeDecodeError as exc:
-        raise BadInput(f"{path}: not UTF-8 text ({exc})") from exc
-    except json.JSONDecodeError as exc:
-        raise BadInput(f"{path}: not valid JSON ({exc})") from exc
+    manifest = parse_json(read_bounded(path, MAX_MANIFEST_BYTES, "dataset manifest"), str(path), MANIFEST_LIMITS)
     if not isinstance(manifest, dict):
         raise BadInput(f"{path}: expected a JSON object, found {type(manifest).__name__}")
     if manifest.get("format") != FORMAT:

@@ -24,7 +24,10 @@ with a :class:`~plm_highway.errors.BadInput` naming the key, the value and the r
 ``vehicle_model``/``_params``    see :mod:`plm_highway.vehicle.models`
 ===============================  ===============================================================
 
-Unknown keys are refused too: a misspelt setting must not silently fall back to its default.
+Unknown keys are refused too: a misspelt setting must not silently fall back to its default. So
+are other values of highway-env's settings that this env does not use (``observation``,
+``action``, ``manual_control`` and the viewer's: :data:`FIXED_SETTINGS`), a config that is not a
+dict, and integers too large for a float (refused by range, not by an OverflowError).
 """
 
 from __future__ import annotations
@@ -38,21 +41,55 @@ MAX_STEERING_TIME_CONSTANT_S = 5.0
 MAX_PROCESSING_DELAY_STEPS = 10
 
 
+def as_float(value) -> float:
+    """A number as a float; NaN for anything else, and for an integer too large for a float (10**400)."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return math.nan
+    try:
+        return float(value)
+    except OverflowError:
+        return math.nan
+
+
+def shown(value, limit: int = 40) -> str:
+    """``repr(value)``, cut: a 400-digit integer is named, not printed whole."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
 def number_in(config: dict, key: str, low: float, high: float, open_low: bool = False, where: str = "config") -> float:
     """``config[key]`` as a float in [low, high] ((low, high] with ``open_low``), or a clear error."""
     value = config[key]
-    number = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
+    number = as_float(value)
     if not ((low < number if open_low else low <= number) and number <= high):  # False for NaN
         bracket = "(" if open_low else "["
-        raise BadInput(f"{where}[{key!r}] = {value!r}: must be a number in {bracket}{low:g}, {high:g}]")
+        raise BadInput(f"{where}[{key!r}] = {shown(value)}: must be a number in {bracket}{low:g}, {high:g}]")
     return number
 
 
 def integer_in(config: dict, key: str, low: int, high: int, where: str = "config") -> int:
     value = config[key]
     if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        raise BadInput(f"{where}[{key!r}] = {value!r}: must be an integer from {low} to {high}")
+        raise BadInput(f"{where}[{key!r}] = {shown(value)}: must be an integer from {low} to {high}")
     return value
+
+
+# highway-env settings this env does not use (it draws its own camera frames and top-down view, drives
+# one car, and fixes its observation and action): any value but highway-env's default would be ignored
+# silently, so it is refused instead.
+FIXED_SETTINGS = ("observation", "action", "manual_control", "real_time_rendering", "render_agent",
+                  "show_trajectories", "centering_position", "other_vehicles_type",
+                  "neighbour_vehicles_connected_lanes")
+
+
+def check_fixed_settings(config: dict, defaults: dict) -> None:
+    for key in FIXED_SETTINGS:
+        if key in defaults and config.get(key) != defaults[key]:
+            raise BadInput(f"config[{key!r}] = {shown(config.get(key), 80)}: this env does not use it "
+                           f"(it is fixed to {defaults[key]!r}); leave it out")
+    if not isinstance(config.get("offscreen_rendering"), (bool, type(None))):
+        raise BadInput(f"config['offscreen_rendering'] = {shown(config.get('offscreen_rendering'))}: must be true "
+                       "or false")
 
 
 def check_unknown_keys(config: dict, defaults: dict) -> None:
@@ -88,7 +125,7 @@ def check_start(start: dict, track, lane_offsets_m: tuple[float, ...], start_lan
     if start_lane is None:
         lane = track.lanes // 2
     elif isinstance(start_lane, bool) or not isinstance(start_lane, int) or not 0 <= start_lane < track.lanes:
-        raise BadInput(f"config['start_lane'] = {start_lane!r}: must be None or a lane index from 0 to "
+        raise BadInput(f"config['start_lane'] = {shown(start_lane)}: must be None or a lane index from 0 to "
                          f"{track.lanes - 1} (track {track.name!r} has {track.lanes} lanes)")
     else:
         lane = start_lane

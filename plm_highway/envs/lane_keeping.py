@@ -42,13 +42,13 @@ from highway_env.road.road import Road
 from plm_highway.camera.ground_map import DEFAULT_MAP_PX_PER_M, ground_map
 from plm_highway.camera.pinhole import PAPER_CAMERA, CameraConfig, PinholeCamera  # noqa: F401 (PAPER_CAMERA re-exported)
 from plm_highway.camera.topdown import TopDownView
-from plm_highway.envs.config import check_env_config, check_start, check_unknown_keys
+from plm_highway.envs.config import check_env_config, check_fixed_settings, check_start, check_unknown_keys
 from plm_highway.envs.ego_vehicle import TrackVehicle
 from plm_highway.envs.speed import SharpTurnBraking, SpeedSchedule, parse_sharp_turn_braking, parse_speed
 from plm_highway.errors import BadInput
 from plm_highway.road.builder import BuiltRoad, build_road
 from plm_highway.road.geometry import SegmentLookup, reference_pose_at
-from plm_highway.road.track import TrackSpec, load_track, parse_track
+from plm_highway.road.track import TrackSpec, resolve_track
 from plm_highway.vehicle.models import checked_params, vehicle_model
 
 ACTION_RANGE = (-1, 1)  # normalised steering
@@ -218,7 +218,17 @@ class LaneKeepingCameraEnv(AbstractEnv):
 
     # -- gymnasium API ---------------------------------------------------------------------------
 
+    def configure(self, config: dict) -> None:
+        if config is not None and not isinstance(config, dict):
+            raise BadInput(f"config: must be a dict of settings, got {type(config).__name__}")
+        super().configure(config)
+
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if options is not None and not isinstance(options, dict):
+            raise BadInput(f"reset options: must be a dict, got {type(options).__name__}")
+        if options and "config" in options and not isinstance(options["config"], dict):
+            raise BadInput(f"reset options['config']: must be a dict of settings, got "
+                           f"{type(options['config']).__name__}")
         self._start_overrides = {k: v for k, v in (options or {}).items() if k in START_KEYS}
         unknown = sorted(set(options or {}) - set(self._start_overrides) - {"config"})
         if unknown:
@@ -227,7 +237,9 @@ class LaneKeepingCameraEnv(AbstractEnv):
 
     def define_spaces(self) -> None:
         # Called by highway-env before every reset builds anything: the place to refuse bad settings.
-        check_unknown_keys(self.config, self.default_config())
+        defaults = self.default_config()
+        check_unknown_keys(self.config, defaults)
+        check_fixed_settings(self.config, defaults)
         check_env_config(self.config)
         self.camera_config = CameraConfig.from_dict(self.config["camera"])
         self.observation_type = DashCameraObservation(self)
@@ -306,12 +318,7 @@ class LaneKeepingCameraEnv(AbstractEnv):
         self._ego = vehicle  # the same car, without highway-env's property lookup in the hot path
 
     def _track_from_config(self) -> TrackSpec:
-        track = self.config["track"]
-        if isinstance(track, TrackSpec):
-            return track
-        if isinstance(track, dict):
-            return parse_track(track, source="config['track']")
-        return load_track(track)
+        return resolve_track(self.config["track"], source="config['track']")
 
     @property
     def start_lane(self) -> int:

@@ -12,6 +12,7 @@ import bisect
 import math
 from dataclasses import dataclass
 
+from plm_highway.envs.config import as_float, shown
 from plm_highway.errors import BadInput
 from plm_highway.vehicle.paper_units import paper_unit_to_front_wheel_rad
 
@@ -46,16 +47,16 @@ def parse_speed(value, where: str = "config['speed_mps']") -> SpeedSchedule:
         return SpeedSchedule((0.0,), (_speed(value, where),))
     if not isinstance(value, (list, tuple)) or not value:
         raise BadInput(f"{where}: must be a speed in m/s or a non-empty list of [time_s, speed_mps] pairs, "
-                         f"got {value!r}")
+                         f"got {shown(value)}")
     if len(value) > MAX_SCHEDULE_POINTS:
         raise BadInput(f"{where}: {len(value)} schedule points exceed the limit of {MAX_SCHEDULE_POINTS}")
     times, speeds = [], []
     for index, point in enumerate(value):
         if not isinstance(point, (list, tuple)) or len(point) != 2 or not all(_is_number(v) for v in point):
-            raise BadInput(f"{where}[{index}]: must be a [time_s, speed_mps] pair of numbers, got {point!r}")
-        time_s = float(point[0])
+            raise BadInput(f"{where}[{index}]: must be a [time_s, speed_mps] pair of numbers, got {shown(point)}")
+        time_s = as_float(point[0])
         if not (math.isfinite(time_s) and 0.0 <= time_s <= MAX_SCHEDULE_TIME_S):
-            raise BadInput(f"{where}[{index}]: time_s {point[0]!r} outside [0, {MAX_SCHEDULE_TIME_S:.0f}] s")
+            raise BadInput(f"{where}[{index}]: time_s {shown(point[0])} outside [0, {MAX_SCHEDULE_TIME_S:.0f}] s")
         if times and time_s <= times[-1]:
             raise BadInput(f"{where}[{index}]: time_s {time_s} must be later than the previous {times[-1]}")
         times.append(time_s)
@@ -68,9 +69,9 @@ def _is_number(value) -> bool:
 
 
 def _speed(value, where: str) -> float:
-    speed = float(value) if _is_number(value) else math.nan
+    speed = as_float(value)
     if not (math.isfinite(speed) and 0.0 < speed <= MAX_SPEED_MPS):
-        raise BadInput(f"{where}: speed {value!r} m/s outside (0, {MAX_SPEED_MPS:.0f}] m/s")
+        raise BadInput(f"{where}: speed {shown(value)} m/s outside (0, {MAX_SPEED_MPS:.0f}] m/s")
     return speed
 
 
@@ -135,9 +136,9 @@ def parse_sharp_turn_braking(value, where: str = "config['sharp_turn_braking']")
     fields = {}
     for key, raw in value.items():
         low, high = SHARP_TURN_BRAKING_BOUNDS[key]
-        number = float(raw) if _is_number(raw) else math.nan
+        number = as_float(raw)
         if not (low < number <= high):
-            raise BadInput(f"{where}[{key!r}] = {raw!r}: must be a number in ({low:g}, {high:g}]")
+            raise BadInput(f"{where}[{key!r}] = {shown(raw)}: must be a number in ({low:g}, {high:g}]")
         fields[key] = number
     logic = SharpTurnBraking(**fields)
     if logic.min_speed_mps >= logic.max_speed_mps:

@@ -11,7 +11,7 @@ from plm_highway.estimation.table3 import ScenarioRun
 from plm_highway.io import pyplot, save_figure_into
 
 
-def plot_scenario_run(run: ScenarioRun, path: str | Path) -> Path:
+def plot_scenario_run(run: ScenarioRun, path: str | Path, measurement: str = "clean") -> Path:
     """d, dpsi and v_n over time for one run, saved at ``path`` (a place staged by :mod:`plm_highway.io`)."""
     plt = pyplot()
 
@@ -33,7 +33,8 @@ def plot_scenario_run(run: ScenarioRun, path: str | Path) -> Path:
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=8, ncol=2)
     axes[-1].set_xlabel("time [s] (grey: lead-in, not scored)")
-    fig.suptitle(f"Scenario {run.scenario.number}: {run.scenario.description} (seed {run.seed})")
+    fig.suptitle(f"Scenario {run.scenario.number}: {run.scenario.description} (seed {run.seed}, "
+                 f"{measurement} lane measurement)")
     fig.tight_layout()
     path = Path(path)
     save_figure_into(fig, path, dpi=110)

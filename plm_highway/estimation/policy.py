@@ -20,9 +20,12 @@ sensors carry to the present.
 ``latency_bias_s`` is a misestimated latency: the frame is re-stamped at
 ``time_s - (observation_age_s + latency_bias_s)`` (kept within ``[oldest history, now]``).
 
-Controller: the path curvature that makes the lateral offset a damped second-order system,
-``kappa_path = kappa + (-k_d d - k_v v_n) / u^2``, with ``k_d = w^2``, ``k_v = 2 zeta w``, turned into a
-front-wheel angle by the single-track model's steady state, ``delta = (L + K u^2) kappa_path``.
+Controller: a discrete LQR on the lane-coordinate error model (:mod:`plm_highway.estimation.lateral_control`)
+fed the EKF's ``[d, dpsi, v, r]``, with the curvature feedforward that leaves no steady offset, taken at the
+EKF's curvature. Its plant is the car the estimator models (``vehicle``), the loop period, the steering
+actuator's lag and the processing delay (``timing``) and the steering range (``max_steering_rad``): under a
+set of conditions all of them are the conditions' own (:func:`plm_highway.rollout.policies.ekf_plant`);
+the weights follow Bryson's rule with the tolerances of :class:`~plm_highway.estimation.lateral_control.BrysonTolerances`.
 """
 
 from __future__ import annotations
@@ -32,11 +35,18 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from plm_highway.camera.pinhole import CameraConfig
+from plm_highway.camera.pinhole import PAPER_CAMERA, CameraConfig
 from plm_highway.estimation.ekf import EstimatorConfig, LaneStateEstimator
 from plm_highway.estimation.lane_camera import LaneDetector, LaneDetectorConfig, LaneMeasurement
-from plm_highway.estimation.lane_model import KAPPA, VN, D
+from plm_highway.estimation.lane_model import DPSI, KAPPA, D, R, V
+from plm_highway.estimation.lateral_control import (
+    BrysonTolerances,
+    LoopTiming,
+    LqrLaneController,
+    single_track_equivalent,
+)
 from plm_highway.estimation.sensors import ImuConfig, SteeringSensorConfig
+from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE
 from plm_highway.vehicle.single_track import SingleTrackParams
 
 INFO_YAW_RATE = "yaw_rate_radps"
@@ -46,10 +56,19 @@ INFO_FRONT_WHEEL_ANGLE = "front_wheel_angle_rad"
 # highway-env's kinematic bicycle (5 m wheelbase, reference point in the middle) as a single-track car
 # with tires so stiff that they do not slip: neutral steer, r = u delta / L, v = b r, as the kinematic
 # model. The mass and inertia only scale the (very fast) tire transients.
-KINEMATIC_ENV_VEHICLE = SingleTrackParams(
-    cg_to_front_m=2.5, cg_to_rear_m=2.5, mass_kg=1500.0, yaw_inertia_kgm2=1500.0 * 2.5 * 2.5,
-    cornering_stiffness_front=1.5e6, cornering_stiffness_rear=1.5e6,
-)
+KINEMATIC_ENV_VEHICLE = single_track_equivalent(HIGHWAY_ENV_VEHICLE)
+
+
+# The lane measurement's error per camera, measured on the train track (never the test track) by
+# measure_camera_noise() with the expert driving: the filter takes the full standard deviations. Heavy-tailed
+# (robust std about 0.04 m, 0.008 rad, 0.0007 1/m: the misses are near curve entries and exits, where the fitted
+# parabola sees the next segment) and correlated frame to frame.
+MEASURED_CAMERA_STD = {
+    # the kit's 200x66 frames: std 0.142 m, 0.0293 rad, 0.0039 1/m over 2487 frames
+    CameraConfig(): (0.14, 0.029, 0.0039),
+    # the paper camera (800x800 cropped to 160x160): std 0.157 m, 0.0311 rad, 0.0040 1/m over 2485 frames
+    CameraConfig.from_dict(PAPER_CAMERA): (0.16, 0.031, 0.0040),
+}
 
 
 @dataclass(frozen=True)
@@ -60,25 +79,28 @@ class EkfPolicyConfig:
     compensate_delay: bool = True  # False: each frame is fused as if captured now (the uncompensated EKF)
     lane_width_m: float = 4.0  # the kit's tracks
     camera: CameraConfig = field(default_factory=CameraConfig)  # the env's camera
-    # The lane measurement's error on the kit's 200x66 frames, measured on the train track (never the test
-    # track) by measure_camera_noise(): standard deviations 0.142 m, 0.0293 rad, 0.0039 1/m over 2487 frames.
-    # Heavy-tailed (robust std 0.041 m, 0.0076 rad, 0.0007 1/m: the misses are near curve entries, where the
-    # fitted parabola sees the next segment) and correlated frame to frame; the filter takes the full std.
-    camera_std: tuple[float, float, float] = (0.14, 0.029, 0.0039)
+    # The lane measurement's error [d m, dpsi rad, kappa 1/m] as the filter takes it; None: the value measured for
+    # this camera (MEASURED_CAMERA_STD).
+    camera_std: tuple[float, float, float] | None = None
     process_std: tuple[float, ...] = (0.02, 0.01, 0.3, 0.3, 0.03, 0.004)
     imu: ImuConfig = ImuConfig()
     steering_sensor: SteeringSensorConfig = SteeringSensorConfig()
     history_s: float = 1.0
-    natural_frequency_radps: float = 2.0
-    damping_ratio: float = 0.9
+    # The loop and what lies between the command and the tyres (the conditions'): part of the plant the LQR is
+    # designed for (plm_highway.estimation.lateral_control), derived from the conditions, not tuned.
+    timing: LoopTiming = LoopTiming()
+    tolerances: BrysonTolerances = BrysonTolerances()
 
     def __post_init__(self):
+        if self.camera_std is None:
+            if self.camera not in MEASURED_CAMERA_STD:
+                raise ValueError(f"EkfPolicyConfig: no lane-measurement noise measured for camera {self.camera}; "
+                                 "measure it with measure_camera_noise(camera=...) and pass camera_std")
+            object.__setattr__(self, "camera_std", MEASURED_CAMERA_STD[self.camera])
         if not (math.isfinite(self.latency_bias_s) and abs(self.latency_bias_s) <= 1.0):
             raise ValueError(f"EkfPolicyConfig.latency_bias_s={self.latency_bias_s!r} must be within +-1 s")
         if not (math.isfinite(self.max_steering_rad) and 0 < self.max_steering_rad <= 1.0):
             raise ValueError(f"EkfPolicyConfig.max_steering_rad={self.max_steering_rad!r} must be in (0, 1] rad")
-        if self.natural_frequency_radps <= 0 or self.damping_ratio <= 0:
-            raise ValueError("EkfPolicyConfig: natural_frequency_radps and damping_ratio must be positive")
 
     @property
     def estimator(self) -> EstimatorConfig:
@@ -95,6 +117,7 @@ class EkfLaneKeepingPolicy:
         self.config = config
         self.seed = seed
         self.detector = LaneDetector(config.camera, LaneDetectorConfig(lane_width_m=config.lane_width_m))
+        self.controller = LqrLaneController(config.vehicle, config.timing, config.max_steering_rad, config.tolerances)
         self.reset()
 
     def reset(self) -> None:
@@ -106,6 +129,8 @@ class EkfLaneKeepingPolicy:
         self._last_heading: tuple[float, float] | None = None  # (time, heading) for the yaw-rate fallback
         self.camera_updates = 0
         self.frames_skipped = 0
+        self.controller.reset()
+        self._wheel_angle_rad = 0.0
 
     def __call__(self, frame: np.ndarray, info: dict) -> float:
         now_s = float(info["time_s"])
@@ -127,8 +152,8 @@ class EkfLaneKeepingPolicy:
             self._last_heading = (now_s, heading)
         lateral_acceleration = float(info.get(INFO_LATERAL_ACCELERATION, speed_mps * yaw_rate))
         wheel_angle = float(info.get(INFO_FRONT_WHEEL_ANGLE, float(info["steering"]) * config.max_steering_rad))
-        return (config.steering_sensor.measure(wheel_angle, self.rng),
-                config.imu.measure(yaw_rate, lateral_acceleration, self.rng))
+        self._wheel_angle_rad = config.steering_sensor.measure(wheel_angle, self.rng)
+        return self._wheel_angle_rad, config.imu.measure(yaw_rate, lateral_acceleration, self.rng)
 
     def _fuse_frame(self, frame: np.ndarray, capture_s: float) -> None:
         oldest_s = self.estimator.history[0].time_s
@@ -147,41 +172,51 @@ class EkfLaneKeepingPolicy:
         self.camera_updates += 1
 
     def _control(self, state: np.ndarray, speed_mps: float) -> float:
-        config = self.config
-        w = config.natural_frequency_radps
-        path_kappa = state[KAPPA] + (-w * w * state[D] - 2 * config.damping_ratio * w * state[VN]) / speed_mps ** 2
-        vehicle = config.vehicle
-        steer_rad = (vehicle.wheelbase_m + vehicle.understeer_gradient_rad_per_mps2 * speed_mps ** 2) * path_kappa
-        return float(np.clip(steer_rad / config.max_steering_rad, -1.0, 1.0))
+        lane_state = state[[D, DPSI, V, R]]
+        steer_rad = self.controller.command(lane_state, speed_mps, float(state[KAPPA]), self._wheel_angle_rad)
+        return float(np.clip(steer_rad / self.config.max_steering_rad, -1.0, 1.0))
 
 
-def ekf_policy(compensate_delay: bool = True, latency_bias_s: float = 0.0, seed: int = 0) -> EkfLaneKeepingPolicy:
-    """The EKF lane-keeping policy as ``plm-highway evaluate --policy ekf`` drives it (default config)."""
-    return EkfLaneKeepingPolicy(EkfPolicyConfig(latency_bias_s=latency_bias_s, compensate_delay=compensate_delay),
-                                seed=seed)
+def ekf_policy(compensate_delay: bool = True, latency_bias_s: float = 0.0, seed: int = 0,
+               **plant) -> EkfLaneKeepingPolicy:
+    """The EKF lane-keeping policy as ``plm-highway evaluate --policy ekf`` drives it; ``plant``: the
+    :class:`EkfPolicyConfig` fields a set of conditions fixes (``camera``, ``max_steering_rad``, ``timing``,
+    ``vehicle``), the ideal conditions' by default."""
+    return EkfLaneKeepingPolicy(EkfPolicyConfig(latency_bias_s=latency_bias_s, compensate_delay=compensate_delay,
+                                                **plant), seed=seed)
 
 
 def measure_camera_noise(track="train", seed: int = 0, max_steps: int | None = None,
-                         camera: CameraConfig | None = None) -> dict:
+                         camera: CameraConfig | None = None, steady_only: bool = False) -> dict:
     """The policy's lane measurement against the env's privileged state, with the expert driving ``track``.
 
     Every frame is measured as it is rendered (no latency: the error of the measurement itself), tracked
-    frame to frame as the policy does. Returns ``{"frames", "missed", "bias", "std", "robust_std"}``, the
-    last three as ``[d m, dpsi rad, kappa 1/m]`` (robust std: 1.4826 x median absolute deviation).
+    frame to frame as the policy does. ``steady_only``: only frames whose view holds no change of curvature
+    (the car more than :data:`STEADY_MARGIN_M` past the last segment start and the next one beyond the
+    detector's reach plus that margin), the road the Table 3 scenarios drive on.
+
+    Returns ``{"frames", "missed", "frame_period_s", "bias", "std", "robust_std", "lag1_correlation",
+    "correlation_time_s"}``, per component ``[d m, dpsi rad, kappa 1/m]`` (robust std: 1.4826 x median
+    absolute deviation; the correlation from consecutive measured frames, its time ``-period / ln(rho)``).
     """
     import gymnasium
 
-    import plm_highway  # noqa: F401  (registers the env)
     from plm_highway.expert import ExpertPolicy
+    from plm_highway.road.geometry import segment_starts_m
 
     env = gymnasium.make("plm_highway/LaneKeeping-v0",
                          config={"track": track, **({"camera": asdict(camera)} if camera is not None else {})})
     try:
         frame, info = env.reset(seed=seed)
-        detector = LaneDetector(env.unwrapped.camera_config, LaneDetectorConfig(lane_width_m=env.unwrapped.track.lane_width_m))
+        base = env.unwrapped
+        detector_config = LaneDetectorConfig(lane_width_m=base.track.lane_width_m)
+        detector = LaneDetector(base.camera_config, detector_config)
+        changes_m = segment_starts_m(base.track)[1:-1]
+        reach_m = detector_config.max_forward_m + STEADY_MARGIN_M
+        frame_period_s = 1.0 / base.config["policy_frequency"]
         expert = ExpertPolicy()
         expert.reset()
-        previous, errors, missed, steps = None, [], 0, 0
+        previous, errors, kept, missed, steps = None, [], [], 0, 0
         while max_steps is None or steps < max_steps:
             measurement = detector.measure(frame, previous)
             if measurement is None:
@@ -190,16 +225,42 @@ def measure_camera_noise(track="train", seed: int = 0, max_steps: int | None = N
                 previous = measurement
                 truth = (info["lateral_offset_m"], info["heading_error_rad"], info["curvature_1pm"])
                 errors.append(measurement.vector - np.asarray(truth))
+                ahead_m = changes_m - info["arc_length_m"]
+                kept.append(not steady_only or not np.any((ahead_m > -STEADY_MARGIN_M) & (ahead_m < reach_m)))
             frame, _, terminated, truncated, info = env.step(np.array([expert(frame, info)], dtype=np.float32))
             steps += 1
             if terminated or truncated:
                 break
     finally:
         env.close()
-    if not errors:
-        raise ValueError(f"measure_camera_noise: no lane measured on track {track!r}")
-    errors = np.array(errors)
-    median = np.median(errors, axis=0)
-    return {"frames": len(errors), "missed": missed, "bias": errors.mean(axis=0).tolist(),
-            "std": errors.std(axis=0).tolist(),
-            "robust_std": (1.4826 * np.median(np.abs(errors - median), axis=0)).tolist()}
+    errors, kept = np.array(errors).reshape(-1, 3), np.array(kept, bool)
+    if not kept.any():
+        raise ValueError(f"measure_camera_noise: no lane measured on track {track!r}"
+                         f"{' away from curvature changes' if steady_only else ''}")
+    return {"frames": int(kept.sum()), "missed": missed, "frame_period_s": frame_period_s,
+            **error_statistics(errors, kept, frame_period_s)}
+
+
+STEADY_MARGIN_M = 5.0  # the car's length and a step of travel either side of a curvature change
+
+
+def error_statistics(errors: np.ndarray, kept: np.ndarray, period_s: float) -> dict:
+    """Bias, std, robust std and frame-to-frame correlation of ``errors[kept]`` ((n, k), one row per frame).
+
+    The lag-1 correlation pairs consecutive frames that are both kept; its time is ``-period_s / ln(rho)``
+    (0 for rho <= 0: no memory from one frame to the next).
+    """
+    errors, kept = np.asarray(errors, float), np.asarray(kept, bool)
+    chosen = errors[kept]
+    median = np.median(chosen, axis=0)
+    pairs = kept[1:] & kept[:-1]
+    correlation = []
+    for column in range(errors.shape[1]):
+        first, second = errors[:-1, column][pairs], errors[1:, column][pairs]
+        ok = len(first) > 2 and first.std() > 0 and second.std() > 0
+        correlation.append(float(np.corrcoef(first, second)[0, 1]) if ok else 0.0)
+    return {"bias": chosen.mean(axis=0).tolist(), "std": chosen.std(axis=0).tolist(),
+            "robust_std": (1.4826 * np.median(np.abs(chosen - median), axis=0)).tolist(),
+            "lag1_correlation": correlation,
+            "correlation_time_s": [-period_s / math.log(rho) if 0 < rho < 1 else (math.inf if rho >= 1 else 0.0)
+                                   for rho in correlation]}

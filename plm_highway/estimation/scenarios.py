@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plm_highway.road.track import TrackSpec, advance_pose, parse_track
+from plm_highway.road.spec import TrackSpec, advance_pose
+from plm_highway.road.track import parse_track
 from plm_highway.vehicle.single_track import (
     SEED_PAPER_VEHICLE,
     SingleTrackParams,

@@ -64,6 +64,44 @@ class SteeringSensorConfig:
         return float(value)
 
 
+@dataclass(frozen=True)
+class LaneMeasurementNoise:
+    """Error added to the camera's lane measurement ``[d m, dpsi rad, kappa 1/m]``: a constant bias plus
+    Gauss-Markov noise (first order, stationary std ``std``, correlation time ``correlation_time_s``), so that
+    measurements close in time share their error as a lane detector's do from frame to frame."""
+
+    bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    std: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    correlation_time_s: tuple[float, float, float] = (0.0, 0.0, 0.0)  # 0: independent from one frame to the next
+
+    def __post_init__(self):
+        for name in ("bias", "std", "correlation_time_s"):
+            values = getattr(self, name)
+            if len(values) != 3 or not all(math.isfinite(v) for v in values):
+                raise ValueError(f"LaneMeasurementNoise.{name}: need 3 finite values, got {values!r}")
+            if name != "bias" and min(values) < 0:
+                raise ValueError(f"LaneMeasurementNoise.{name}: must be >= 0, got {values!r}")
+
+    def sample(self, times_s, rng: np.random.Generator) -> np.ndarray:
+        """The errors ``(n, 3)`` of measurements captured at ``times_s`` (non-decreasing), the first stationary."""
+        times_s = np.asarray(times_s, float)
+        if times_s.ndim != 1 or np.any(np.diff(times_s) < 0) or not np.all(np.isfinite(times_s)):
+            raise ValueError("LaneMeasurementNoise.sample: times_s must be finite and non-decreasing")
+        std = np.asarray(self.std)
+        tau = np.asarray(self.correlation_time_s)
+        draws = rng.standard_normal((len(times_s), 3))
+        out = np.empty((len(times_s), 3))
+        state = std * draws[0] if len(times_s) else None
+        for k in range(len(times_s)):
+            if k:
+                gap_s = times_s[k] - times_s[k - 1]
+                with np.errstate(divide="ignore"):
+                    keep = np.where(tau > 0, np.exp(-gap_s / np.where(tau > 0, tau, 1.0)), 0.0)
+                state = keep * state + np.sqrt(1.0 - keep ** 2) * std * draws[k]
+            out[k] = state
+        return out + np.asarray(self.bias)
+
+
 class PerFrameDelay(LatencyProfile):
     """A new processing delay for every frame, uniform in [low_s, high_s]: call once per frame."""
 

@@ -1,4 +1,4 @@
-"""The Base Model's degradation under the paper's conditions, beside the paper's (issue 9's calibration rule).
+"""The Base Model's degradation under the paper's conditions, beside the paper's (the calibration rule).
 
 The BM (the conditions' shipped checkpoints) drives the track once per seed without latency (the
 reference) and once per seed and latency with it; each latency's steering MAE is taken against the
@@ -7,7 +7,7 @@ radians. The noise floor is the reference against itself under the next seed. Th
 (Tables 3, A1, A3, A5: MAE against its BM without latency, in units of 450 deg of steering wheel) are
 converted to front-wheel radians through :data:`~plm_highway.evaluation.protocol.PAPER_STEERING_RATIO`.
 
-The two rules (issue 9):
+The two rules:
 
 - **rises clearly**: the BM's mean MAE at 0.15 s is at least :data:`RISE_FACTOR` times the mean noise floor;
 - **like the paper**: at 0.15, 0.20, 0.25 and 0.30 s the mean MAE is within a factor :data:`PAPER_FACTOR`
@@ -22,7 +22,7 @@ the weave's largest swings, the second counts the rest of the track as a fixed e
 Which latency stands for the paper's "0.15 s" depends on the reading (:data:`READINGS`): the paper states
 seconds, but the original code counted its constant latencies in frames (9, 12, 15, 18: the stated seconds at
 60 fps) in a FIFO filled once per iteration of its 30 Hz loop, so the latency it injected may have been twice
-the stated one (the 2x timebase ambiguity of issue 9). ``reading="loop-frames"`` drives that reading: the
+the stated one (the 2x timebase ambiguity of the paper's text). ``reading="loop-frames"`` drives that reading: the
 paper's 0.15 s row is compared with our BM at 9 frames of the 30 Hz loop, 0.30 s.
 """
 
@@ -30,33 +30,28 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from plm_highway.evaluation import paper_results as paper
-from plm_highway.evaluation.policies import make_policy
-from plm_highway.evaluation.protocol import (
-    PAPER_STEERING_RATIO,
-    PAPER_TRACK,
-    mean_ci,
-    noise_floor,
-    parse_seeds,
-    penalised_mae,
-)
-from plm_highway.evaluation.run import (
+from plm_highway.evaluation.protocol import PAPER_STEERING_RATIO, PAPER_TRACK, noise_floor, penalised_mae
+from plm_highway.io import file_kind, pyplot, write_figure_and_numbers
+from plm_highway.metrics.intervals import mean_ci
+from plm_highway.metrics.steering import common_span, steering_errors
+from plm_highway.models.config_checks import check_choice
+from plm_highway.rollout.cells import Cell, advancing, local_workers, progress_bar, run_cells, runs_under
+from plm_highway.rollout.conditions import (
     CONDITIONS,
     ORIGINAL_FRAME_READING_FPS,
     ORIGINAL_LOOP_HZ,
-    Cell,
-    progress_bar,
     with_friction_limit,
     with_pipeline,
     with_speed_logic,
 )
-from plm_highway.io import file_kind, pyplot, write_figure_and_numbers
-from plm_highway.metrics.steering import common_span, steering_errors
-from plm_highway.models.config_checks import check_choice
+from plm_highway.rollout.policies import make_policy
+from plm_highway.rollout.seeds import parse_seeds
 from plm_highway.vehicle.paper_units import paper_unit_to_front_wheel_rad
 
 LATENCIES_S = (0.0, 0.15, 0.20, 0.25, 0.30)  # as the paper states them
@@ -86,7 +81,7 @@ def injected_latency_s(paper_latency_s: float, reading: str = "stated") -> float
 
 def judge(per_latency: dict[float, dict], floor: dict) -> dict:
     """The two rules on measured means; ``per_latency[latency_s]["mae_rad"]`` and ``floor["mae_rad"]`` are
-    :class:`~plm_highway.evaluation.protocol.Estimate` dicts, as is ``["mae_penalised_rad"]``: the paper rule
+    :class:`~plm_highway.metrics.intervals.Estimate` dicts, as is ``["mae_penalised_rad"]``: the paper rule
     is judged on the common-span MAE and again on the penalised MAE (the protocol's second variant)."""
     rise = per_latency[0.15]["mae_rad"]["mean"] / floor["mae_rad"]["mean"] if floor["mae_rad"]["mean"] > 0 \
         else math.inf
@@ -104,23 +99,41 @@ def _paper_rule(per_latency: dict[float, dict], metric: str, what: str) -> dict:
             "met": all(1.0 / PAPER_FACTOR <= ratio <= PAPER_FACTOR for ratio in ratios.values())}
 
 
-def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: str = "paper",
-                   checkpoints=None, max_steps: int | None = None, progress: bool = True, workers: int = 0,
-                   speed_logic: str = "constant", processing_delay_steps: int | None = None,
-                   steering_time_constant_s: float | None = None, friction_coefficient: float | None = None,
-                   reading: str = "stated") -> dict:
-    """Drive the BM at :data:`LATENCIES_S` (as ``reading`` injects them, :func:`injected_latency_s`) under
-    ``seeds``; return the per-seed MAEs, their means with 95% CIs (front-wheel radians), the noise floor, the
-    paper's numbers and the two rules judged. ``workers`` 0 drives the runs batched in this process; >= 1 on
-    that many processes (the same numbers, bit for bit).
-    ``speed_logic`` (:data:`~plm_highway.evaluation.run.SPEED_LOGICS`): constant speed, or the original run
-    scripts' braking on sharp steering. ``processing_delay_steps`` and ``steering_time_constant_s`` replace the
-    conditions' assumed pipeline (:func:`~plm_highway.evaluation.run.with_pipeline`; None keeps it).
-    ``friction_coefficient`` gives the car tires that saturate at that many g
-    (:func:`~plm_highway.evaluation.run.with_friction_limit`; None: the conditions' car)."""
-    from plm_highway.evaluation.cell_runner import drive_cells
-    from plm_highway.road.track import load_track
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """What ``plm-highway calibrate`` is asked to do: its options, typed (the command line builds one).
 
+    ``seeds``: a count N (seeds 0..N-1) or a list, at least two (the noise floor). ``workers`` 0 drives the runs
+    batched in this process; >= 1 on that many processes (the same numbers, bit for bit). ``speed_logic``
+    (:data:`~plm_highway.rollout.conditions.SPEED_LOGICS`): constant speed, or the original run scripts' braking on
+    sharp steering. ``processing_delay_steps`` and ``steering_time_constant_s`` replace the conditions' assumed
+    pipeline (:func:`~plm_highway.rollout.conditions.with_pipeline`; None keeps it). ``friction_coefficient``
+    gives the car tires that saturate at that many g (:func:`~plm_highway.rollout.conditions.with_friction_limit`;
+    None: the conditions' car). ``reading``: how the paper's latencies are injected (:data:`READINGS`).
+    """
+
+    track: str = PAPER_TRACK
+    seeds: str | int | tuple[int, ...] = 5
+    conditions: str = "paper"
+    checkpoints: str | None = None
+    max_steps: int | None = None
+    progress: bool = True
+    workers: int = 0
+    speed_logic: str = "constant"
+    processing_delay_steps: int | None = None
+    steering_time_constant_s: float | None = None
+    friction_coefficient: float | None = None
+    reading: str = "stated"
+
+
+def bm_calibration(options: CalibrationOptions = CalibrationOptions()) -> dict:
+    """Drive the BM at :data:`LATENCIES_S` (as ``options.reading`` injects them, :func:`injected_latency_s`) under
+    the options' seeds; return the per-seed MAEs, their means with 95% CIs (front-wheel radians), the noise floor,
+    the paper's numbers and the two rules judged."""
+    from plm_highway.road.track import resolve_track
+
+    o = options
+    track, seeds, conditions, checkpoints, reading = o.track, o.seeds, o.conditions, o.checkpoints, o.reading
     injected_s = {latency_s: injected_latency_s(latency_s, reading) for latency_s in LATENCIES_S}
     spec_of = {latency_s: f"const:{injected:g}" for latency_s, injected in injected_s.items()}
     seed_list = parse_seeds(seeds)
@@ -128,15 +141,19 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
         from plm_highway.errors import BadInput
 
         raise BadInput(f"--seeds {seeds!r}: the noise floor needs at least two seeds")
-    spec = load_track(track)
-    chosen = with_friction_limit(with_pipeline(with_speed_logic(CONDITIONS[conditions], speed_logic),
-                                               processing_delay_steps, steering_time_constant_s), friction_coefficient)
-    policies = None if workers else {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset)}
+    spec = resolve_track(track)
+    chosen = with_friction_limit(with_pipeline(with_speed_logic(CONDITIONS[conditions], o.speed_logic),
+                                               o.processing_delay_steps, o.steering_time_constant_s),
+                                 o.friction_coefficient)
+    policies = None if o.workers else {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset)}
     cells = [Cell("reference" if latency_s == 0 else "baseline", "bm", spec_of[latency_s], seed,
                   f"BM {injected_s[latency_s]:.2f} s seed {seed}") for seed in seed_list for latency_s in LATENCIES_S]
-    bar = progress_bar(len(cells), progress, desc="calibration")
+    runs = runs_under(cells, spec, chosen, policies, o.max_steps)
+    bar = progress_bar(len(cells), o.progress, desc="calibration")
     try:
-        logs = drive_cells(cells, spec, chosen, policies, checkpoints, max_steps, bar, workers=workers)
+        with local_workers(o.workers) as backend:
+            logs = run_cells(runs, checkpoints, preset=chosen.checkpoint_preset, backend=backend,
+                             on_done=advancing(bar))
     finally:
         bar.close()
     by_cell = {(cell.seed, cell.latency): log for cell, log in zip(cells, logs)}
@@ -161,9 +178,9 @@ def bm_calibration(track: str = PAPER_TRACK, seeds: str | int = 5, conditions: s
     pipeline = (chosen.processing_delay_steps, chosen.steering_time_constant_s)
     as_conditions = pipeline == (CONDITIONS[conditions].processing_delay_steps,
                                  CONDITIONS[conditions].steering_time_constant_s)
-    return {"track": spec.name, "conditions": conditions, "speed_logic": speed_logic, "seeds": seed_list,
+    return {"track": spec.name, "conditions": conditions, "speed_logic": o.speed_logic, "seeds": seed_list,
             "processing_delay_steps": pipeline[0], "steering_time_constant_s": pipeline[1],
-            "pipeline_as_conditions": as_conditions, "friction_coefficient": friction_coefficient,
+            "pipeline_as_conditions": as_conditions, "friction_coefficient": o.friction_coefficient,
             "reading": reading, "latencies_s": list(LATENCIES_S),
             "steps": [log.steps for log in references], "reference_left_road": [r.left_road for r in references],
             "steering_ratio": PAPER_STEERING_RATIO, "max_steering_rad": chosen.max_steering_rad,

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 from plm_highway.metrics.steering import ERROR_NAMES, common_span, reduction_pct, steering_errors
 
 if TYPE_CHECKING:  # the run module pulls in the simulator; the comparison needs only its columns
-    from plm_highway.evaluation.closed_loop import RunLog
+    from plm_highway.rollout.closed_loop import RunLog
 
 __all__ = ["steering_comparison"]
 

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from plm_highway.evaluation.closed_loop import drive
 from plm_highway.evaluation.plots import draw_road
-from plm_highway.evaluation.policies import make_policy
 from plm_highway.io import FIGURE, check_target, pyplot, save_figure
 from plm_highway.latency import parse_profile
-from plm_highway.road.track import load_track
+from plm_highway.road.track import resolve_track
+from plm_highway.rollout.closed_loop import drive
+from plm_highway.rollout.policies import make_policy
 
 
 def _choose_policy(name: str):
@@ -30,12 +30,12 @@ def _choose_policy(name: str):
 def zigzag(latency="const:0.25", track="test", policy="auto", seed=0, out="figures/zigzag.png",
            overwrite=False) -> dict:
     check_target(out, FIGURE, overwrite=overwrite)
-    spec = parse_profile(latency if not _is_number(latency) else f"const:{latency}").spec
+    profile = parse_profile(latency if not _is_number(latency) else f"const:{latency}")
     policy = _choose_policy(policy)
-    track_spec = load_track(track)
+    track_spec = resolve_track(track)
     runs = {
-        "no latency": drive("reference", make_policy(policy), track, "const:0", seed),
-        f"latency {spec}": drive("baseline", make_policy(policy), track, spec, seed),
+        "no latency": drive("reference", make_policy(policy), track_spec, "const:0", seed),
+        f"latency {profile.spec}": drive("baseline", make_policy(policy), track_spec, profile, seed),
     }
     _plot(track_spec, runs, policy, out, overwrite)
     return {name: log.summary() for name, log in runs.items()} | {"policy": policy, "figure": str(out)}

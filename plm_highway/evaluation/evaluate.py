@@ -5,8 +5,10 @@
 - ``mitigated`` (``--policy plm``): PLM-Net fed the delayed observations and told their age.
 
 With ``--policy ekf`` the three runs are the model-based policy's own (seed paper 004): the EKF
-policy without latency, the EKF fusing each late frame as if it were current (no delay
-compensation), and the EKF re-stamping it at its measured capture time and re-estimating to now.
+lane keeper without latency, fusing each late frame as if it were current (no delay
+compensation), and re-stamping it at its measured capture time and re-estimating to now; under
+``--conditions paper`` its controller's plant is those conditions' loop, actuator, processing delay
+and steering range (:func:`~plm_highway.rollout.policies.ekf_plant`).
 All runs share the track and the seed, so the same latency realisation.
 
 The JSON holds ``track``, ``latency``, ``policy``, ``seed``, ``runs`` (per-run summary),
@@ -22,12 +24,16 @@ run and metric succeeded.
 from __future__ import annotations
 
 from plm_highway.errors import BadInput
-from plm_highway.evaluation.closed_loop import LOG_COLUMNS, RunLog, drive, make_env
-from plm_highway.evaluation.policies import make_policy
+from plm_highway.evaluation import protocol
 from plm_highway.evaluation.trajectory import trajectory_method, trajectory_metrics
 from plm_highway.io import directory_kind, file_kind, json_text, write_csv_into, write_outputs
-from plm_highway.latency import parse_profile
-from plm_highway.road.track import TrackSpec, load_track
+from plm_highway.latency import LatencyProfile, parse_profile
+from plm_highway.road.track import TrackSpec, resolve_track
+from plm_highway.rollout.cells import Cell, drive_options, run_cells, runs_under
+from plm_highway.rollout.closed_loop import LOG_COLUMNS, RunLog, drive, make_env
+from plm_highway.rollout.conditions import CONDITIONS, Conditions, baseline_latency, scored_steps, with_injection
+from plm_highway.rollout.policies import make_policy
+from plm_highway.rollout.seeds import parse_seeds
 
 COMBINED_COLUMNS = ("steering", "latency_s", "observation_age_s", "x_m", "y_m", "lateral_offset_m", "segment")
 
@@ -36,46 +42,42 @@ EVALUATION_JSON = file_kind("evaluation", "an evaluation result JSON file")
 EVALUATION_DIR = directory_kind("evaluation-run", "a plm-highway evaluation directory")
 
 
-def check_inputs(track, latency, max_steps=None) -> tuple[TrackSpec, str]:
-    """Validate the track and latency spec the way the runs will use them; (track spec, latency spec)."""
-    track_spec = load_track(track)
-    latency_spec = parse_profile(latency).spec
-    make_env(track, latency_spec).close()  # the latency must fit the wrapper's buffer
+def check_inputs(track, latency, max_steps=None) -> tuple[TrackSpec, LatencyProfile]:
+    """The boundary of a run's inputs: the track resolved to its spec and the latency spec parsed to its profile,
+    each once, and checked the way the runs will use them (the latency must fit the wrapper's buffer)."""
+    track_spec = resolve_track(track)
+    profile = parse_profile(latency)
+    make_env(track_spec, profile).close()
     if max_steps is not None and max_steps < 1:
         raise ValueError(f"--max-steps {max_steps}: must be at least 1")
-    return track_spec, latency_spec
+    return track_spec, profile
 
 
-def run_steps(track, max_steps: int | None, conditions: str = "ideal") -> int | None:
+def run_steps(track_spec: TrackSpec, max_steps: int | None, conditions: Conditions = CONDITIONS["ideal"]) -> int | None:
     """Steps each run drives under ``conditions``: one lap of a closed track, an open track until the
-    camera could first see its end (:func:`plm_highway.evaluation.run.scored_steps`), at most ``max_steps``."""
-    from plm_highway.evaluation.run import CONDITIONS, scored_steps
-
-    track_spec = load_track(track) if not isinstance(track, TrackSpec) else track
-    return scored_steps(track_spec, CONDITIONS[conditions], max_steps)
+    camera could first see its end (:func:`plm_highway.rollout.conditions.scored_steps`), at most ``max_steps``."""
+    return scored_steps(track_spec, conditions, max_steps)
 
 
-def compare_runs(logs: dict[str, RunLog], track, latency_spec: str, policy: str, seed: int,
-                 track_spec: TrackSpec | None = None) -> dict:
-    """The result dict of runs already driven (``reference``, ``baseline``, optionally ``mitigated``);
-    ``track_spec``: ``track`` already resolved."""
-    result = {"track": str(track if not isinstance(track, TrackSpec) else track.name), "latency": latency_spec,
+def compare_runs(logs: dict[str, RunLog], track_spec: TrackSpec, latency_spec: str, policy: str, seed: int,
+                 track_label: str | None = None) -> dict:
+    """The result dict of runs already driven (``reference``, ``baseline``, optionally ``mitigated``) on
+    ``track_spec``; ``track_label``: the track as the user named it (default: the spec's name)."""
+    result = {"track": track_label or track_spec.name, "latency": latency_spec,
               "policy": policy, "seed": seed, "runs": {name: log.summary() for name, log in logs.items()}}
     if "mitigated" in logs:
-        from plm_highway.evaluation.protocol import steering_over_common_span
-        result["steering"] = steering_over_common_span(logs)
-    track_spec = track_spec or (track if isinstance(track, TrackSpec) else load_track(track))
+        result["steering"] = protocol.steering_over_common_span(logs)
     result["trajectory"] = trajectory_metrics(logs, track_spec)
     result["trajectory_method"] = trajectory_method(track_spec)
     return result
 
 
 def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps=None, checkpoints=None,
-             seeds=None, conditions: str = "ideal", injection: str | None = None) -> tuple[dict, dict]:
+             seeds=None, conditions: str = "ideal", injection: str | None = None, device="cpu") -> tuple[dict, dict]:
     """Run the comparison; returns (result dict, {run name: RunLog}).
 
     ``seeds`` (a count N: seeds ``seed .. seed+N-1``, or a list): every run once per seed, each seed with its own
-    start perturbation (:func:`plm_highway.evaluation.run.start_perturbation`); the result is the first seed's, plus
+    start perturbation (:func:`plm_highway.rollout.conditions.start_perturbation`); the result is the first seed's, plus
     ``seeds``, ``per_seed`` (each seed's ``runs`` and ``steering``) and ``over_seeds`` (mean and 95% CI of every
     steering error and reduction). Without ``seeds``: the single run of ``seed``, centred start (as before).
 
@@ -84,23 +86,28 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
     per seed, is driven as ``reproduce`` drives it (a seed above 0 also perturbs the start). ``injection``
     (``--injection``) replaces the conditions' latency injection, as for ``reproduce``.
     """
-    from plm_highway.evaluation.run import CONDITIONS, with_injection
-
     if conditions not in CONDITIONS:
         raise BadInput(f"--conditions {conditions!r}: expected one of {list(CONDITIONS)}")
-    if (conditions != "ideal" or injection is not None) and policy == "ekf":
-        raise BadInput(f"--policy ekf with --conditions {conditions}"
-                       f"{'' if injection is None else f' --injection {injection}'}: the EKF policy is built for the "
-                       "ideal conditions' car, loop and latency injection; use --conditions ideal without --injection")
     chosen = with_injection(CONDITIONS[conditions], injection)
-    track_spec, latency_spec = check_inputs(track, latency, max_steps)
-    max_steps = run_steps(track_spec, max_steps, conditions)
-    if seeds is not None or conditions != "ideal" or injection is not None:
-        if policy == "ekf":  # each seed needs its own sensor-noise stream; compare over seeds with 'estimate compare'
+    track_label = track.name if isinstance(track, TrackSpec) else str(track)
+    track_spec, profile = check_inputs(track, latency, max_steps)
+    latency_spec = profile.spec
+    max_steps = run_steps(track_spec, max_steps, CONDITIONS[conditions])
+    if policy == "ekf":
+        if seeds is not None:  # each seed needs its own sensor-noise stream; compare over seeds with 'estimate compare'
             raise BadInput("--seeds with --policy ekf: not supported by evaluate; use 'plm-highway estimate compare'")
-        seed_list = [seed] if seeds is None else _seed_list(seeds, seed)
-        result, logs = _evaluate_seeds(track, track_spec, latency_spec, policy, seed_list, max_steps, checkpoints,
-                                       chosen)
+        logs = _drive_ekf(track_spec, latency_spec, seed, max_steps, chosen,
+                          as_conditions=conditions != "ideal" or injection is not None)
+        result = compare_runs(logs, track_spec, latency_spec, policy, seed, track_label)
+        if conditions != "ideal":
+            result["conditions"] = conditions
+        if injection is not None:
+            result["injection"] = injection
+        return result, logs
+    if seeds is not None or conditions != "ideal" or injection is not None:
+        seed_list = [seed] if seeds is None else parse_seeds(seeds, seed)
+        result, logs = _evaluate_seeds(track_label, track_spec, latency_spec, policy, seed_list, max_steps,
+                                       checkpoints, chosen, device)
         if seeds is None:  # one run per role: no per-seed summary
             for key in ("seeds", "per_seed", "over_seeds"):
                 result.pop(key, None)
@@ -109,52 +116,56 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
         if injection is not None:
             result["injection"] = injection
         return result, logs
-    if policy == "ekf":
-        from plm_highway.estimation.policy import ekf_policy
-
-        policies = {"reference": make_policy("ekf", seed=seed), "baseline": ekf_policy(compensate_delay=False, seed=seed),
-                    "mitigated": make_policy("ekf", seed=seed)}
-    else:
-        base_policy = "expert" if policy == "expert" else "bm"
-        policies = {"reference": make_policy(base_policy, checkpoints),
-                    "baseline": make_policy(base_policy, checkpoints)}
-        if policy == "plm":
-            policies["mitigated"] = make_policy("plm", checkpoints)
+    base_policy = "expert" if policy == "expert" else "bm"
+    policies = {"reference": make_policy(base_policy, checkpoints, device=device),
+                "baseline": make_policy(base_policy, checkpoints, device=device)}
+    if policy == "plm":
+        policies["mitigated"] = make_policy("plm", checkpoints, device=device)
     logs = {}
     for name, run_policy in policies.items():
-        logs[name] = drive(name, run_policy, track_spec, "const:0" if name == "reference" else latency_spec, seed,
+        logs[name] = drive(name, run_policy, track_spec, "const:0" if name == "reference" else profile, seed,
                            max_steps=max_steps)
-    return compare_runs(logs, track, latency_spec, policy, seed, track_spec), logs
+    return compare_runs(logs, track_spec, latency_spec, policy, seed, track_label), logs
 
 
-def _seed_list(seeds, first_seed: int) -> list[int]:
-    from plm_highway.evaluation.protocol import parse_seeds
+def _drive_ekf(track_spec: TrackSpec, latency_spec: str, seed: int, max_steps: int | None, chosen: Conditions,
+               as_conditions: bool) -> dict[str, RunLog]:
+    """The EKF lane keeper's three runs: without latency, late frames fused as if current, late frames re-stamped.
 
-    if isinstance(seeds, int) or (isinstance(seeds, str) and "," not in seeds):
-        return [first_seed + k for k in parse_seeds(seeds)]
-    return parse_seeds(seeds)
+    Its plant (camera, steering range, loop, actuator lag, processing delay, car) is ``chosen``'s
+    (:func:`~plm_highway.rollout.policies.ekf_plant`). ``as_conditions``: drive as ``reproduce`` drives the
+    conditions (their env settings, injection, image noise, start perturbation); otherwise the default env
+    from a centred start, as the other policies' single runs under the ideal conditions.
+    """
+    runs = {"reference": ("const:0", True), "baseline": (latency_spec, False), "mitigated": (latency_spec, True)}
+    logs = {}
+    for role, (latency, compensate) in runs.items():
+        policy = make_policy("ekf", seed=seed, conditions=chosen, compensate_delay=compensate)
+        options = (drive_options(Cell(role, "ekf", latency, seed), chosen, max_steps) if as_conditions
+                   else {"max_steps": max_steps})
+        logs[role] = drive(role, policy, track_spec, latency, seed, **options)
+    return logs
 
 
-def _evaluate_seeds(track, track_spec: TrackSpec, latency_spec: str, policy: str, seeds: list[int],
-                    max_steps: int | None, checkpoints, chosen) -> tuple[dict, dict]:
-    """The runs of every seed under the conditions ``chosen`` (a :class:`~plm_highway.evaluation.run.Conditions`)."""
-    from plm_highway.evaluation import protocol
-    from plm_highway.evaluation.cell_runner import drive_cells
-    from plm_highway.evaluation.run import Cell, baseline_latency
-
+def _evaluate_seeds(track_label: str, track_spec: TrackSpec, latency_spec: str, policy: str, seeds: list[int],
+                    max_steps: int | None, checkpoints, chosen: Conditions, device="cpu") -> tuple[dict, dict]:
+    """The runs of every seed under the conditions ``chosen``."""
     base_policy = "expert" if policy == "expert" else "bm"
-    policies = {base_policy: make_policy(base_policy, checkpoints, preset=chosen.checkpoint_preset)}
+    # The model policies loaded once here; the expert is made per run by the runner.
+    policies = {} if base_policy == "expert" else {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset,
+                                                                             device=device)}
     roles = {"reference": base_policy, "baseline": base_policy}
     if policy == "plm":
         policies["plm"] = make_policy("plm", checkpoints, latency_source=chosen.latency_source,
-                                      preset=chosen.checkpoint_preset)
+                                      preset=chosen.checkpoint_preset, device=device)
         roles["mitigated"] = "plm"
     driven = {"reference": "const:0", "baseline": baseline_latency(latency_spec, chosen), "mitigated": latency_spec}
     cells = [Cell(role, who, driven[role], seed, setting=latency_spec) for seed in seeds for role, who in roles.items()]
     # Batched (one forward pass per model and step); batch-invariant models: each run is its one-env run.
-    logs = drive_cells(cells, track_spec, chosen, policies, checkpoints, max_steps)
+    logs = run_cells(runs_under(cells, track_spec, chosen, policies, max_steps), checkpoints,
+                     preset=chosen.checkpoint_preset, device=device)
     per_seed_logs = [dict(zip(roles, logs[k:k + len(roles)])) for k in range(0, len(logs), len(roles))]
-    first = compare_runs(per_seed_logs[0], track, latency_spec, policy, seeds[0], track_spec)
+    first = compare_runs(per_seed_logs[0], track_spec, latency_spec, policy, seeds[0], track_label)
     first["seeds"] = seeds
     first["per_seed"] = [{"seed": seed, "runs": {name: log.summary() for name, log in seed_logs.items()},
                           **({"steering": protocol.steering_over_common_span(seed_logs)} if policy == "plm" else {})}

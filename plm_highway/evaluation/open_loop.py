@@ -27,11 +27,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from plm_highway.evaluation import protocol
-from plm_highway.evaluation.closed_loop import drive
-from plm_highway.evaluation.run import Cell, Conditions, drive_options, scored_steps
 from plm_highway.latency.wrapper import served_steps
+from plm_highway.metrics.intervals import mean_ci
 from plm_highway.metrics.steering import reduction_pct
 from plm_highway.road.track import TrackSpec
+from plm_highway.rollout.cells import Cell, drive_options
+from plm_highway.rollout.closed_loop import drive
+from plm_highway.rollout.conditions import Conditions, scored_steps
 
 PREDICTION_BATCH = 128  # frames per forward pass: the paper BM's activations for 128 160x160 frames are ~80 MB
 
@@ -122,7 +124,7 @@ def measure_open_loop(track_spec: TrackSpec, conditions: Conditions, policies: d
     """Per latency, over ``seeds``: ``{"lag_steps", "holding_mae", "plm_mae", "reduction_pct"}`` (Estimates;
     the reduction is computed per seed), plus ``per_seed`` lists of (holding, PLM-Net) MAEs.
 
-    ``policies``: ``{"bm", "plm"}`` as :func:`~plm_highway.evaluation.run.make_policies` gives them.
+    ``policies``: ``{"bm", "plm"}`` as :func:`~plm_highway.rollout.policies.make_policies` gives them.
     """
     steps = scored_steps(track_spec, conditions, max_steps)
     lags = {latency_s: lag_steps(latency_s, conditions.policy_frequency_hz) for latency_s in latencies_s}
@@ -139,7 +141,7 @@ def measure_open_loop(track_spec: TrackSpec, conditions: Conditions, policies: d
         holding, plm = zip(*pairs)
         out[latency_s] = {
             "lag_steps": lags[latency_s],
-            "holding_mae": protocol.mean_ci(list(holding)), "plm_mae": protocol.mean_ci(list(plm)),
-            "reduction_pct": protocol.mean_ci([reduction_pct(h, p) for h, p in pairs]),
+            "holding_mae": mean_ci(list(holding)), "plm_mae": mean_ci(list(plm)),
+            "reduction_pct": mean_ci([reduction_pct(h, p) for h, p in pairs]),
             "per_seed": [{"holding_mae": h, "plm_mae": p} for h, p in pairs]}
     return out

@@ -230,6 +230,19 @@ TARGETS = {
     },
 }
 
+# Section 4.8 (Computational Cost Analysis) of the Sensors text: inference at batch size 1 on the GPU of
+# Section 4.7, after discarding the first 50 samples (given in the text, not in a table).
+INFERENCE = {
+    "source": "Section 4.8 (Computational Cost Analysis); hardware and software: Section 4.7",
+    "device": "NVIDIA GeForce RTX 2080 Ti (Intel i7-10700K host), TensorFlow-GPU 1.12.0, CUDA 9, cuDNN 7.1.2",
+    "batch_size": 1,
+    "bm_ms": 2.352,  # mean per frame (p95 4.532 ms, N = 670)
+    "bm_p95_ms": 4.532,
+    "plm_net_ms": 5.909,  # mean per frame (p95 9.880 ms, N = 686)
+    "plm_net_p95_ms": 9.880,
+    "overhead_ms": 3.557,
+}
+
 NOTES = (
     (
         "Splitting rule used: the Sensors text prints each value with at most 3 decimals, at most 6 "

@@ -1,7 +1,7 @@
 """The comparison protocol: settings and their labels, seeds, errors over a common span, confidence
 intervals, the paper's numbers as the only targets, and where PLM-Net is worse.
 
-Rules (issue 9):
+Rules:
 
 - **Common span.** For one setting and seed, the reference, the BM with latency and PLM-Net are
   compared over the steps all three reached (:func:`plm_highway.metrics.steering.common_span`), so a
@@ -9,7 +9,7 @@ Rules (issue 9):
   its own outcome (time and place), and a second, penalised MAE counts every step the run missed
   (up to the reference's length) as an error of :data:`OFF_ROAD_PENALTY` (normalised steering).
 - **Seeds.** Every setting runs under each seed; the report gives the mean over seeds and a 95%
-  Student-t confidence interval (:func:`mean_ci`), and a noise floor: the BM at 0 s against itself
+  Student-t confidence interval (:func:`plm_highway.metrics.intervals.mean_ci`), and a noise floor: the BM at 0 s against itself
   under the next seed.
 - **Units.** Errors in normalised steering (1 = the env's ``max_steering_rad`` at the front
   wheels), in front-wheel radians, and in the paper's unit (1 = 450 deg of steering wheel) through
@@ -24,18 +24,15 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy import stats
 
 from plm_highway.errors import BadInput
 from plm_highway.evaluation import paper_results as paper
+from plm_highway.metrics.intervals import Estimate, mean_ci
 from plm_highway.metrics.steering import ERROR_NAMES, common_span, reduction_pct, steering_errors
 from plm_highway.vehicle.paper_units import PAPER_FULL_SCALE_DEG, PAPER_STEERING_RATIO
 
-CONFIDENCE = 0.95
-MAX_SEEDS = 1000
 OFF_ROAD_PENALTY = 1.0  # normalised steering error counted for each step a run missed after leaving the road
 MAX_STEERING_RAD = 0.2  # the env's front-wheel angle at steering 1 (envs.lane_keeping default config)
 PAPER_TRACK = "test"  # the paper's numbers are for its test track
@@ -46,11 +43,22 @@ PAPER_TRACK = "test"  # the paper's numbers are for its test track
 # ---------------------------------------------------------------------------------------------
 
 
+_SPEC_START = re.compile(r"\s*(?:none|[0-9.]+|(?:const|steps|frames|sine|ramp|trace):)")
+
+
 def split_settings(items) -> list[str]:
-    """Latency specs from space- or comma-separated items, duplicates dropped, in order."""
+    """Latency specs from space- or comma-separated items, duplicates dropped, in order. A comma inside a
+    trace file's path stays in the path (``trace:runs/a,b.csv``): a piece that does not start a spec
+    continues the trace spec before it."""
     specs: list[str] = []
     for item in items:
-        for spec in str(item).split(","):
+        pieces: list[str] = []
+        for piece in str(item).split(","):
+            if pieces and pieces[-1].strip().startswith("trace:") and not _SPEC_START.match(piece):
+                pieces[-1] += "," + piece
+            else:
+                pieces.append(piece)
+        for spec in pieces:
             if spec.strip() and spec.strip() not in specs:
                 specs.append(spec.strip())
     if not specs:
@@ -84,10 +92,12 @@ def setting_label(spec: str) -> str:
 
 
 def setting_tag(spec: str) -> str:
-    """File-name part for a setting: ``0.20s``, ``time_varying`` or the spec made safe."""
+    """File-name part for a setting: ``0.20s``, ``time_varying`` or the spec made safe; two latencies that
+    differ get two tags (``0.199s`` and ``0.20s``: rounding never merges them)."""
     match = re.fullmatch(r"const:([0-9.]+)", spec)
     if match:
-        return f"{float(match.group(1)):.2f}s"
+        value = float(match.group(1))
+        return f"{value:.2f}s" if round(value, 2) == value else f"{value:g}s"
     if spec == "steps:0.0-0.35:1.0":
         return "time_varying"
     return re.sub(r"[^A-Za-z0-9.]+", "_", spec).strip("_")
@@ -100,93 +110,6 @@ def is_constant(spec: str) -> bool:
 def constant_latency_s(spec: str) -> float | None:
     """The latency of a constant setting (``const:0.20`` -> 0.2), or None for any other setting."""
     return float(spec.partition(":")[2]) if is_constant(spec) else None
-
-
-def legacy_baseline_spec(spec: str) -> str:
-    """The constant latency the BM baseline of setting ``spec`` runs at under the legacy FIFO.
-
-    In the original code's time-variant run (``run_neural_..._synced_rand.py``) the random delta was drawn,
-    published and printed, but the BM's input buffer was cut to the *configured* constant delta: the BM
-    never saw a varying latency. Which constant the configuration held is not in the published code; the
-    paper's time-variant BM MAE (0.3336) equals its 0.25-s BM MAE (0.3347) to 0.3%, which is what a BM run
-    at the middle of 9..21 frames (15: 0.25 s in the paper's 60-fps reading) gives. The middle of the
-    profile's range is taken: ``(low + high) / 2`` for ``steps:``, the middle frame count for ``frames:``;
-    a constant setting is its own.
-    """
-    from plm_highway.latency.profiles import ConstantProfile, FramesProfile, StepsProfile, parse_profile
-
-    profile = parse_profile(spec)
-    if isinstance(profile, ConstantProfile):
-        return spec
-    if isinstance(profile, StepsProfile):
-        return f"const:{(profile.low_s + profile.high_s) / 2:g}"
-    if isinstance(profile, FramesProfile):
-        return f"const:{(profile.low_frames + profile.high_frames) // 2 / profile.rate_hz:g}"
-    raise BadInput(f"setting {spec!r}: the legacy FIFO runs the BM baseline at a constant latency, defined for "
-                   "'steps:' and 'frames:' profiles (the original's); use --injection time for this profile")
-
-
-# ---------------------------------------------------------------------------------------------
-# seeds and confidence intervals
-# ---------------------------------------------------------------------------------------------
-
-
-def parse_seeds(value) -> list[int]:
-    """``--seeds``: a count N (seeds 0..N-1) or a list ``a,b,c`` (or a list of ints); distinct, >= 0."""
-    if isinstance(value, int) and not isinstance(value, bool):
-        items: list = [value]
-        count = True
-    elif isinstance(value, str):
-        items = [v.strip() for v in value.split(",") if v.strip()]
-        count = len(items) == 1 and "," not in value
-    else:
-        items = [str(v).strip() for v in value]
-        count = False
-    try:
-        numbers = [int(v) for v in items]
-    except ValueError:
-        raise BadInput(f"--seeds {value!r}: expected a count (e.g. 5) or a comma-separated list of seeds "
-                       "(e.g. 0,3,7)") from None
-    if count:
-        n = numbers[0]
-        if not 1 <= n <= MAX_SEEDS:
-            raise BadInput(f"--seeds {n}: a count must lie in [1, {MAX_SEEDS}]")
-        return list(range(n))
-    if not numbers or len(numbers) > MAX_SEEDS or any(n < 0 or n >= 2 ** 32 for n in numbers):
-        raise BadInput(f"--seeds {value!r}: give 1..{MAX_SEEDS} seeds, each in [0, 2**32)")
-    if len(set(numbers)) != len(numbers):
-        raise BadInput(f"--seeds {value!r}: a seed is repeated")
-    return numbers
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """Mean over seeds with its two-sided confidence interval (None with fewer than two values)."""
-
-    mean: float
-    low: float | None
-    high: float | None
-    n: int
-
-    @property
-    def half_width(self) -> float | None:
-        return None if self.low is None else (self.high - self.low) / 2.0
-
-    def as_dict(self) -> dict:
-        return asdict(self)
-
-
-def mean_ci(values: Sequence[float], confidence: float = CONFIDENCE) -> Estimate:
-    """Mean of ``values`` and the Student-t confidence interval of the mean (NaN-free input)."""
-    data = np.asarray(list(values), dtype=float)
-    if data.size == 0 or not np.all(np.isfinite(data)):
-        raise ValueError(f"mean_ci: needs at least one finite value, got {data.tolist()}")
-    mean = float(np.mean(data))
-    if data.size < 2:
-        return Estimate(mean, None, None, int(data.size))
-    sem = float(np.std(data, ddof=1) / math.sqrt(data.size))
-    half = float(stats.t.ppf(0.5 + confidence / 2.0, data.size - 1)) * sem
-    return Estimate(mean, mean - half, mean + half, int(data.size))
 
 
 # ---------------------------------------------------------------------------------------------

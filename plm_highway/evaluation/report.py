@@ -1,15 +1,13 @@
 """The reproduction's result, one typed object, rendered to Markdown (a Jinja2 template), CSV and figures.
 
 :class:`Reproduction` is what ``plm-highway reproduce`` measured: the conditions, the seeds, per
-track and setting the estimates over seeds (:class:`~plm_highway.evaluation.protocol.Estimate`), the
+track and setting the estimates over seeds (:class:`~plm_highway.metrics.intervals.Estimate`), the
 targets judged, the sentences saying where PLM-Net is worse, the sweep. :func:`write_report`
 publishes ``report.md``, the CSV tables, ``results.json`` and the figures in one step.
 """
 
 from __future__ import annotations
 
-import json
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,8 +15,21 @@ import jinja2
 
 from plm_highway.evaluation import paper_results as paper
 from plm_highway.evaluation import protocol
-from plm_highway.evaluation.protocol import Estimate, is_constant, paper_key, setting_label, setting_tag
-from plm_highway.evaluation.run import (
+from plm_highway.evaluation.protocol import is_constant, paper_key, setting_label, setting_tag
+from plm_highway.evaluation.trajectory import METRIC_LABELS, METRICS, PARTS, RESAMPLE_SPACING_M, representative_segment
+from plm_highway.io import (
+    JsonLimits,
+    directory_kind,
+    json_text,
+    load_json,
+    unique_file_names,
+    write_csv_into,
+    write_output,
+)
+from plm_highway.metrics.intervals import Estimate, mean_ci
+from plm_highway.metrics.steering import ERROR_NAMES, reduction_pct
+from plm_highway.road.track import TrackSpec
+from plm_highway.rollout.conditions import (
     PAPER_CONDITION_ITEMS,
     PAPER_CONDITIONS_NOT_REPRODUCED,
     Conditions,
@@ -26,10 +37,6 @@ from plm_highway.evaluation.run import (
     scored_steps,
     sight_m,
 )
-from plm_highway.evaluation.trajectory import METRIC_LABELS, METRICS, PARTS, RESAMPLE_SPACING_M, representative_segment
-from plm_highway.io import directory_kind, json_text, write_csv_into, write_output
-from plm_highway.metrics.steering import ERROR_NAMES, reduction_pct
-from plm_highway.road.track import TrackSpec
 
 RUNS = ("reference", "baseline", "mitigated")
 RUN_ROW_LABELS = {"reference": "BM, no latency (ref)", "baseline": "BM, latency {label}",
@@ -43,7 +50,7 @@ SHORT_METRIC = {"pcm": "PCM", "frechet_dist": "Frechet", "area_between_two_curve
 def _is_reproduce_report(path: Path) -> bool:
     """Report directories written before output markers existed: results.json recording this command."""
     try:
-        command = json.loads((path / "results.json").read_text(encoding="utf-8")).get("command", "")
+        command = load_json(path / "results.json", JsonLimits(max_bytes=64 << 20, max_nodes=10_000_000)).get("command", "")
     except (OSError, ValueError, AttributeError):
         return False
     return (path / "report.md").is_file() and str(command).startswith("plm-highway reproduce")
@@ -309,7 +316,7 @@ def injection_differences(r: Reproduction) -> dict[str, dict[str, Estimate]]:
     for spec in r.injection_comparison.settings:
         runs = injection_runs(r, spec)
         pairs = list(zip(runs["legacy-fifo"][1]["per_seed"], runs["time"][1]["per_seed"]))
-        out[spec] = {name: protocol.mean_ci([value(a) - value(b) for a, b in pairs]) for name, value in values.items()}
+        out[spec] = {name: mean_ci([value(a) - value(b) for a, b in pairs]) for name, value in values.items()}
     return out
 
 
@@ -841,10 +848,11 @@ def write_report(r: Reproduction, main: dict, others: dict, out: Path, overwrite
         figure_files = {spec: setting_figures(entry["logs"], main["track_spec"], spec, tmp, "", r.track.name)
                         for spec, entry in main["settings"].items()}
         other_figures: dict[str, dict[str, str]] = {}
+        prefixes = dict(zip(others, unique_file_names(list(others), suffix="_")))  # distinct even if alike once safe
         for name, measured in others.items():
             spec = list(measured["settings"])[-1]  # the last setting (time-varying by default) stands for the rest
             other_figures[name] = setting_figures(measured["settings"][spec]["logs"], measured["track_spec"], spec, tmp,
-                                                  re.sub(r"[^A-Za-z0-9.-]+", "_", name) + "_", name)
+                                                  prefixes[name], name)
             other_figures[name]["setting"] = spec
         if r.sweep is not None:
             figures.plot_sweep(r.sweep, f"Latency sweep on the {r.track.name} track: BM and PLM-Net", tmp / "sweep.png")

@@ -1,7 +1,7 @@
 """``plm-highway reproduce``: the paper's Tables 3-6 / A1-A6 and Figures 9-14 on our simulator, under a stated
-protocol. This module plans and drives the runs; :mod:`~plm_highway.evaluation.run` drives cells,
-:mod:`~plm_highway.evaluation.protocol` holds the comparison rules, :mod:`~plm_highway.evaluation.report`
-renders the result.
+protocol. This module plans the runs (:class:`ReproduceOptions`: what the command is asked) and drives them
+through :func:`plm_highway.rollout.cells.run_cells`; :mod:`~plm_highway.evaluation.protocol` holds the
+comparison rules, :mod:`~plm_highway.evaluation.report` renders the result.
 
 For each latency setting (default: constant 0.15, 0.20, 0.25, 0.30 s and the time-varying
 ``steps:0.0-0.35:1.0``; under ``--conditions paper`` also the original's frame profiles) and each
@@ -21,47 +21,80 @@ The checkpoints are trained on the ``train`` track; nothing here is tuned on the
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 from plm_highway.errors import BadInput
 from plm_highway.evaluation import protocol
-from plm_highway.evaluation.batched import DEFAULT_BATCH_SIZE
-from plm_highway.evaluation.cell_runner import MAX_WORKERS, drive_cells, worker_pool
+from plm_highway.evaluation import sweep as sweep_module
 from plm_highway.evaluation.evaluate import compare_runs
 from plm_highway.evaluation.open_loop import constant_latencies, measure_open_loop
-from plm_highway.evaluation.policies import checkpoint_pair
-from plm_highway.evaluation.protocol import (  # noqa: F401  (the names earlier code imported from here)
-    is_constant,
-    paper_key,
-    setting_label,
-    setting_tag,
-    split_settings,
-)
+from plm_highway.evaluation.protocol import is_constant, split_settings
 from plm_highway.evaluation.report import REPRODUCE_REPORT, Reproduction, write_report
-from plm_highway.evaluation.run import (
-    CONDITIONS,
+from plm_highway.io import check_target
+from plm_highway.metrics.intervals import mean_ci
+from plm_highway.road.track import TrackSpec, resolve_track
+from plm_highway.rollout.backends import MAX_WORKERS, default_workers
+from plm_highway.rollout.cells import (
+    DEFAULT_BATCH_SIZE,
+    MAX_BATCH_SIZE,
     Cell,
-    Conditions,
-    baseline_latency,
+    advancing,
     check_env,
-    make_policies,
+    local_workers,
     progress_bar,
     run_cells,
-    with_injection,
+    runs_under,
 )
-from plm_highway.io import check_target
-from plm_highway.road.track import TrackSpec, load_track
+from plm_highway.rollout.conditions import CONDITIONS, Conditions, baseline_latency, with_injection
+from plm_highway.rollout.policies import checkpoint_pair, make_policies
+from plm_highway.rollout.seeds import parse_seeds
 
 DEFAULT_SETTINGS = ("const:0.15", "const:0.2", "const:0.25", "const:0.3", "steps:0.0-0.35:1.0")
 DEFAULT_OUT = Path("figures/reproduce")
 DEFAULT_GENERALISATION = {"test": ("unseen",)}  # main track -> tracks of the generalisation section
 DEFAULT_SEEDS = 5
 OTHER_INJECTION = {"time": "legacy-fifo", "legacy-fifo": "time"}  # what the time-varying settings are compared with
-MAX_BATCH_SIZE = 4096
 RUNS = ("reference", "baseline", "mitigated")
 
-__all__ = ["DEFAULT_OUT", "DEFAULT_SETTINGS", "REPRODUCE_REPORT", "default_settings", "output_dir", "reproduce",
-           "run_track"]
+__all__ = ["DEFAULT_OUT", "DEFAULT_SETTINGS", "REPRODUCE_REPORT", "ReproduceOptions", "default_settings", "output_dir",
+           "reproduce", "run_track"]
+
+
+@dataclass(frozen=True)
+class ReproduceOptions:
+    """What ``plm-highway reproduce`` is asked to do: its options, typed (the command line builds one).
+
+    ``seeds``: a count N (seeds ``seed .. seed+N-1``) or a list; ``settings`` None: :func:`default_settings`;
+    ``generalise`` None: the tracks of :data:`DEFAULT_GENERALISATION`. The runs of each track are driven batched
+    (``batch_size`` envs per forward pass) on a local pool of ``workers`` processes (None: one per CPU; 0:
+    batched in this process); the results depend on neither (batch-invariant models). ``injection`` replaces
+    the conditions' latency injection (:func:`~plm_highway.rollout.conditions.with_injection`); the
+    time-varying settings of the main track are also driven under the other injection, for the report's
+    comparison of the two. ``sweep``: also the latency sweep up to ``sweep_max`` in ``sweep_step`` and PLM-Net
+    with a wrong latency estimate. ``command``: the command line the report records.
+    """
+
+    track: str = "test"
+    settings: tuple[str, ...] | None = None
+    checkpoints: str | None = None
+    seed: int = 0
+    seeds: int | str | tuple[int, ...] = DEFAULT_SEEDS
+    conditions: str = "ideal"
+    injection: str | None = None
+    max_steps: int | None = None
+    generalise: tuple[str, ...] | None = None
+    sweep: bool = False
+    sweep_max: float = 0.5
+    sweep_step: float = 0.05
+    workers: int | None = None
+    batch_size: int = DEFAULT_BATCH_SIZE
+    out: str | None = None
+    overwrite: bool = False
+    progress: bool = True
+    command: str = ""
+    device: str = "cpu"  # where the models run: cpu, cuda, auto (see plm_highway.models.device)
 
 
 def output_dir(out, track, track_name: str, conditions: str = "ideal") -> Path:
@@ -93,7 +126,7 @@ def conditions_named(name) -> Conditions:
 
 def plan_cells(specs: list[str], seeds: list[int], track_name: str, conditions: Conditions | None = None) -> list[Cell]:
     """Per seed: the reference, then per setting the BM and PLM-Net with that latency (the BM at the constant
-    latency the legacy FIFO gives it, :func:`~plm_highway.evaluation.run.baseline_latency`, under ``conditions``)."""
+    latency the legacy FIFO gives it, :func:`~plm_highway.rollout.conditions.baseline_latency`, under ``conditions``)."""
     cells = []
     for seed in seeds:
         cells.append(Cell("reference", "bm", "const:0", seed, f"{track_name}: reference, seed {seed}"))
@@ -105,18 +138,22 @@ def plan_cells(specs: list[str], seeds: list[int], track_name: str, conditions: 
 
 
 def measure_track(track_spec: TrackSpec, specs: list[str], seeds: list[int], conditions: Conditions, policies: dict,
-                  max_steps: int | None, bar, drive_fn=None, runner=None) -> dict:
+                  max_steps: int | None, bar, drive: Callable[[list[Cell], TrackSpec, Conditions, dict], list] | None = None
+                  ) -> dict:
     """Drive every cell of one track; ``{"track_spec", "references": [per seed], "settings": {spec: entry}}``.
 
-    An entry holds ``per_seed`` (each seed's ``evaluate``-style result, steering over the common span of
-    the three runs), ``steering`` (:class:`~plm_highway.evaluation.protocol.Estimate` per error and run),
-    ``trajectory`` (mean over seeds) and ``logs`` (seed ``seeds[0]``'s runs, for the figures).
+    ``drive(cells, track_spec, conditions, policies)`` drives the cells and returns their logs in order (default:
+    one at a time in this process, :func:`~plm_highway.rollout.cells.run_cells` ``serial``). An entry holds
+    ``per_seed`` (each seed's ``evaluate``-style result, steering over the common span of the three runs),
+    ``steering`` (:class:`~plm_highway.metrics.intervals.Estimate` per error and run), ``trajectory`` (mean over
+    seeds) and ``logs`` (seed ``seeds[0]``'s runs, for the figures).
     """
     cells = plan_cells(specs, seeds, track_spec.name, conditions)
-    if runner is not None:  # batched / pooled: runner(cells, track_spec, conditions, policies, max_steps, bar)
-        logs = runner(cells, track_spec, conditions, policies, max_steps, bar)
+    if drive is not None:
+        logs = drive(cells, track_spec, conditions, policies)
     else:
-        logs = run_cells(cells, track_spec, conditions, policies, max_steps, bar, drive_fn)
+        logs = run_cells(runs_under(cells, track_spec, conditions, policies, max_steps), serial=True,
+                         on_done=advancing(bar))
     by_cell = dict(zip((c.key for c in cells), logs))
     references = [by_cell[("reference", "const:0", seed)] for seed in seeds]
     settings = {}
@@ -135,13 +172,13 @@ def measure_track(track_spec: TrackSpec, specs: list[str], seeds: list[int], con
                           "logs": first_logs}
     floor = protocol.noise_floor(references)
     return {"track_spec": track_spec, "references": references, "settings": settings,
-            "noise_floor": protocol.mean_ci(floor) if floor else None}
+            "noise_floor": mean_ci(floor) if floor else None}
 
 
 def run_track(track, specs: list[str], policies: dict, seed: int, max_steps: int | None, progress=None) -> dict:
     """One seed under ``ideal`` conditions (kept for Lesson 3's grading, which names it):
     ``{"track_spec", "reference", "settings": {spec: {"result", "logs"}}}``."""
-    track_spec = track if isinstance(track, TrackSpec) else load_track(track)
+    track_spec = resolve_track(track)
     bar = progress if progress is not None and hasattr(progress, "update") else None
     measured = measure_track(track_spec, list(specs), [seed], CONDITIONS["ideal"], policies, max_steps, bar)
     settings = {spec: {"result": entry["per_seed"][0], "logs": entry["logs"]}
@@ -154,105 +191,91 @@ def run_track(track, specs: list[str], policies: dict, seed: int, max_steps: int
 # ---------------------------------------------------------------------------------------------
 
 
-def reproduce(track="test", settings=None, checkpoints=None, seed=0, max_steps=None, out=None, generalise=None,
-              sweep=False, sweep_max=0.5, sweep_step=0.05, progress=True, command="", overwrite=False,
-              seeds=DEFAULT_SEEDS, conditions="ideal", workers=None, batch_size=DEFAULT_BATCH_SIZE,
-              injection=None) -> dict:
-    """Validate everything, drive every cell, then write the report; returns the results dict (JSON-ready).
-
-    ``seeds``: a count N (seeds ``seed .. seed+N-1``) or a list; ``settings`` None: :func:`default_settings`.
-    The runs of each track are driven batched (``batch_size`` envs per forward pass) on a local pool
-    of ``workers`` processes (None: one per CPU; 0: batched in this process); the results do not
-    depend on either (batch-invariant models, :mod:`~plm_highway.evaluation.cell_runner`).
-    The ``--sweep`` runs are driven the same way, after the settings'. ``injection`` (``--injection``) replaces the conditions'
-    latency injection (:func:`~plm_highway.evaluation.run.with_injection`); the time-varying settings of the main
-    track are also driven under the other injection, for the report's comparison of the two.
-    """
-    from plm_highway.evaluation import sweep as sweep_module
-    from plm_highway.sweep.backends import default_workers
-
-    workers = default_workers() if workers is None else workers
+def reproduce(options: ReproduceOptions) -> dict:
+    """Validate everything, drive every cell, then write the report; returns the results dict (JSON-ready)."""
+    o = options
+    workers = default_workers() if o.workers is None else o.workers
     if not 0 <= workers <= MAX_WORKERS:
         raise BadInput(f"--workers {workers}: must lie in [0, {MAX_WORKERS}]")
-    if not 1 <= batch_size <= MAX_BATCH_SIZE:
-        raise BadInput(f"--batch-size {batch_size}: must lie in [1, {MAX_BATCH_SIZE}]")
+    if not 1 <= o.batch_size <= MAX_BATCH_SIZE:
+        raise BadInput(f"--batch-size {o.batch_size}: must lie in [1, {MAX_BATCH_SIZE}]")
 
-    conditions = with_injection(conditions_named(conditions), injection)
-    seed_list = _seed_list(seeds, seed)
-    specs = split_settings(settings if settings is not None else default_settings(conditions))
+    conditions = with_injection(conditions_named(o.conditions), o.injection)
+    seed_list = parse_seeds(o.seeds, o.seed)
+    specs = split_settings(o.settings if o.settings is not None else default_settings(conditions))
     varying = [spec for spec in specs if not is_constant(spec)]
     compared = with_injection(conditions, OTHER_INJECTION[conditions.injection]) if varying else None
-    if max_steps is not None and max_steps < 1:
-        raise BadInput(f"--max-steps {max_steps}: must be at least 1")
-    main_spec = load_track(track)
-    if generalise is None:
-        generalise = DEFAULT_GENERALISATION.get(str(track), ())
-    other_specs = [load_track(t) for t in dict.fromkeys(str(t) for t in generalise) if t != str(track)]
+    if o.max_steps is not None and o.max_steps < 1:
+        raise BadInput(f"--max-steps {o.max_steps}: must be at least 1")
+    main_spec = resolve_track(o.track)
+    generalise = DEFAULT_GENERALISATION.get(str(o.track), ()) if o.generalise is None else o.generalise
+    other_specs = [resolve_track(t) for t in dict.fromkeys(str(t) for t in generalise) if t != str(o.track)]
+    named: dict[str, str] = {}
+    for spec_ in (main_spec, *other_specs):  # the report keys each track's results and figures by its name
+        if spec_.name in named:
+            raise BadInput(f"--generalise: tracks {named[spec_.name]!r} and {spec_.source!r} are both named "
+                           f"{spec_.name!r}; give each track a name of its own (field 'name')")
+        named[spec_.name] = spec_.source
     for track_spec in (main_spec, *other_specs):
         for spec in specs:
             check_env(track_spec, spec, conditions)
             check_env(track_spec, baseline_latency(spec, conditions), conditions)
     for spec in varying:
         check_env(main_spec, baseline_latency(spec, compared), compared)
-    latencies = sweep_module.sweep_latencies(sweep_max, sweep_step) if sweep else []
-    bm_path, tapm_path = checkpoint_pair(checkpoints, conditions.checkpoint_preset)
-    policies = make_policies(checkpoints, conditions)
-    compared_policies = make_policies(checkpoints, compared) if compared else None
+    latencies = sweep_module.sweep_latencies(o.sweep_max, o.sweep_step) if o.sweep else []
+    bm_path, tapm_path = checkpoint_pair(o.checkpoints, conditions.checkpoint_preset)
+    policies = make_policies(o.checkpoints, conditions, o.device)
+    compared_policies = make_policies(o.checkpoints, compared, o.device) if compared else None
     grid_max_s = round(float(policies["plm"].model_policy.model.delta_ref_s[-1]), 6)  # the TAPM's last latency
-    out = output_dir(out, track, main_spec.name, conditions.name)
-    check_target(out, REPRODUCE_REPORT, overwrite=overwrite)
+    out = output_dir(o.out, o.track, main_spec.name, conditions.name)
+    check_target(out, REPRODUCE_REPORT, overwrite=o.overwrite)
 
     n_runs = len(seed_list) * ((1 + 2 * len(specs)) * (1 + len(other_specs)) + (1 + 2 * len(varying) if varying else 0))
-    if sweep:
+    if o.sweep:
         n_runs += len(sweep_module.planned_runs(latencies, sweep_module.LATENCY_BIASES_S, grid_max_s))
     open_loop_latencies = constant_latencies(specs, conditions.policy_frequency_hz)
     n_runs += len(seed_list) if open_loop_latencies else 0  # one more reference run per seed, its frames kept
-    bar = progress_bar(n_runs, progress)
-
-    pool = worker_pool(workers) if workers else None  # one pool for every track: workers load the models once
-
-    def runner(cells, track_spec, run_conditions, run_policies, run_max_steps, run_bar):
-        return drive_cells(cells, track_spec, run_conditions, run_policies, checkpoints, run_max_steps, run_bar,
-                           workers, batch_size, pool=pool)
-
+    bar = progress_bar(n_runs, o.progress)
     try:
-        main = measure_track(main_spec, specs, seed_list, conditions, policies, max_steps, bar, runner=runner)
-        others = {s.name: measure_track(s, specs, seed_list, conditions, policies, max_steps, bar, runner=runner)
-                  for s in other_specs}
-        open_loop = measure_open_loop(main_spec, conditions, policies, seed_list, open_loop_latencies, max_steps, bar)
-        injection_comparison = None
-        if compared is not None:
-            injection_comparison = (compared, measure_track(main_spec, varying, seed_list, compared,
-                                                            compared_policies, max_steps, bar, runner=runner))
-        sweep_result = None
-        if sweep:
-            def drive_sweep(runs):
-                cells = [Cell("sweep", "bm" if key == "bm" else "plm", f"const:{latency_s:g}", seed_list[0],
-                              f"sweep: {key} {latency_s:.2f} s", latency_bias_s=bias_s) for key, latency_s, bias_s in runs]
-                return runner(cells, main_spec, conditions, policies, max_steps, bar)
+        # One pool for every track: its workers load the models once.
+        with local_workers(workers) as backend:
+            def drive(cells, track_spec, run_conditions, run_policies):
+                # On workers the runs name their policies (each worker loads them); here they share those loaded.
+                runs = runs_under(cells, track_spec, run_conditions, None if backend else run_policies, o.max_steps)
+                bar.set_postfix_str(f"{track_spec.name}: {len(cells)} runs "
+                                    f"{f'on {workers} workers' if backend else 'batched'}", refresh=True)
+                return run_cells(runs, o.checkpoints, preset=run_conditions.checkpoint_preset,
+                                 batch_size=o.batch_size, backend=backend, on_done=advancing(bar), device=o.device)
 
-            sweep_result = sweep_module.latency_sweep(
-                main_spec, policies["bm"], policies["plm"], main["references"][0], seed_list[0], None, latencies,
-                sweep_module.LATENCY_BIASES_S, grid_max_s, drive_runs=drive_sweep)
+            main = measure_track(main_spec, specs, seed_list, conditions, policies, o.max_steps, bar, drive)
+            others = {s.name: measure_track(s, specs, seed_list, conditions, policies, o.max_steps, bar, drive)
+                      for s in other_specs}
+            open_loop = measure_open_loop(main_spec, conditions, policies, seed_list, open_loop_latencies,
+                                          o.max_steps, bar)
+            injection_comparison = None
+            if compared is not None:
+                injection_comparison = (compared, measure_track(main_spec, varying, seed_list, compared,
+                                                                compared_policies, o.max_steps, bar, drive))
+            sweep_result = None
+            if o.sweep:
+                def drive_sweep(runs):
+                    cells = [Cell("sweep", "bm" if key == "bm" else "plm", f"const:{latency_s:g}", seed_list[0],
+                                  f"sweep: {key} {latency_s:.2f} s", latency_bias_s=bias_s)
+                             for key, latency_s, bias_s in runs]
+                    return drive(cells, main_spec, conditions, policies)
+
+                sweep_result = sweep_module.latency_sweep(
+                    main_spec, policies["bm"], policies["plm"], main["references"][0], seed_list[0], None, latencies,
+                    sweep_module.LATENCY_BIASES_S, grid_max_s, drive_runs=drive_sweep)
     finally:
         bar.close()
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
-    if progress:
+    if o.progress:
         print(f"reproduce: all {n_runs} runs done; writing the tables, figures and report to {out}", file=sys.stderr)
-    result = Reproduction.build(command or "plm-highway reproduce", conditions, seed_list, max_steps, main, others,
+    result = Reproduction.build(o.command or "plm-highway reproduce", conditions, seed_list, o.max_steps, main, others,
                                 sweep_result, _checkpoint_info(bm_path, tapm_path), injection_comparison,
                                 open_loop)
-    write_report(result, main, others, out, overwrite)
+    write_report(result, main, others, out, o.overwrite)
     return result.as_json()
-
-
-def _seed_list(seeds, first_seed: int) -> list[int]:
-    if isinstance(seeds, int) and not isinstance(seeds, bool):
-        return [first_seed + k for k in protocol.parse_seeds(seeds)]
-    if isinstance(seeds, str) and "," not in seeds:
-        return [first_seed + k for k in protocol.parse_seeds(seeds)]
-    return protocol.parse_seeds(seeds)
 
 
 def _checkpoint_info(bm_path: Path, tapm_path: Path) -> dict:

@@ -24,10 +24,10 @@ import numpy as np
 
 from plm_highway.errors import BadInput
 from plm_highway.evaluation.protocol import PAPER_TRACK
-from plm_highway.evaluation.run import CONDITIONS, Conditions
 from plm_highway.expert.controller import ExpertParams, expert_steering
 from plm_highway.io import file_kind, pyplot, write_figure_and_numbers
 from plm_highway.models.config_checks import check_choice
+from plm_highway.rollout.conditions import CONDITIONS, Conditions
 
 OFFSETS_M = tuple(round(float(x), 2) for x in np.arange(-5.0, 5.001, 0.5))
 HEADINGS_RAD = tuple(round(float(x), 2) for x in np.arange(-0.20, 0.2001, 0.04))
@@ -69,11 +69,10 @@ def bm_response(track: str = PAPER_TRACK, conditions: str = "paper", checkpoints
     lane's centre to the road edge) are refused."""
     import gymnasium
 
-    import plm_highway  # noqa: F401  (registers the env)
     from plm_highway.envs import ENV_ID
-    from plm_highway.evaluation.policies import checkpoint_pair
     from plm_highway.models.checkpoints import load_base_model
     from plm_highway.models.inference import BaseModelPolicy
+    from plm_highway.rollout.policies import checkpoint_pair
 
     chosen = CONDITIONS[conditions]
     law = demonstrator_law(chosen)

@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from plm_highway.evaluation.closed_loop import RunLog, drive
-from plm_highway.evaluation.policies import VisionPolicy
-from plm_highway.evaluation.run import biased
 from plm_highway.io import write_csv_into
 from plm_highway.metrics.steering import common_span, steering_mae
+from plm_highway.rollout.cells import run_cells
+from plm_highway.rollout.closed_loop import RunCell, RunLog
+from plm_highway.rollout.policies import VisionPolicy, biased
 
 SWEEP_MAX_S = 0.5
 SWEEP_STEP_S = 0.05
@@ -60,16 +60,17 @@ def latency_sweep(track, bm_policy, plm_policy: VisionPolicy, reference: RunLog,
     """Drive the sweep; returns ``{"rows": [...], "leaves_road_at_s": {policy: latency or None}, ...}``.
 
     ``drive_runs`` takes the :func:`planned_runs` (policy key, latency, bias) and returns their logs in order
-    (``reproduce`` drives them batched, on its pool); by default they are driven one at a time with
-    :func:`~plm_highway.evaluation.closed_loop.drive` and the given policies.
+    (``reproduce`` drives them batched, on its pool); by default they are driven one at a time
+    (:func:`~plm_highway.rollout.cells.run_cells`, ``serial``) with the given policies.
     """
     latencies = sweep_latencies() if latencies is None else latencies
     reference_steering = reference.columns["steering"]
     rows = [_row("bm", 0.0, 0.0, reference, reference_steering)]
     runs = planned_runs(latencies, biases, grid_max_s)
     if drive_runs is None:
-        logs = [drive(f"sweep: {key} {latency_s:.2f} s", bm_policy if key == "bm" else biased(plm_policy, bias_s),
-                      track, f"const:{latency_s:g}", seed, max_steps=max_steps) for key, latency_s, bias_s in runs]
+        logs = run_cells([RunCell(f"sweep: {key} {latency_s:.2f} s", bm_policy if key == "bm" else biased(plm_policy, bias_s),
+                                  track, f"const:{latency_s:g}", seed, max_steps=max_steps)
+                          for key, latency_s, bias_s in runs], serial=True)
     else:
         logs = drive_runs(runs)
     for (key, latency_s, bias_s), log in zip(runs, logs):

@@ -61,7 +61,7 @@ from plm_highway.metrics import (
 from plm_highway.metrics._validation import as_curve, as_series, check_same_length
 from plm_highway.road.builder import lane_offsets_m
 from plm_highway.road.geometry import SEGMENT_KINDS, sample_reference, segment_starts_m
-from plm_highway.road.track import TrackSpec, load_track
+from plm_highway.road.track import TrackSpec, resolve_track
 
 RESAMPLE_SPACING_M = 0.1  # arc-length spacing both curves are resampled at before comparing (see above)
 LANE_CENTRE_SAMPLING_M = 0.25  # polyline the lane centre is cut from (chord error < 0.1 mm at R >= 80 m)
@@ -209,8 +209,8 @@ def run_trajectory_metrics(columns: dict, track: TrackSpec, centre: LaneCentre |
 
 def trajectory_metrics(logs: dict, track, start_lane: int | None = None,
                        spacing_m: float = RESAMPLE_SPACING_M) -> dict[str, dict[str, dict[str, float | None]]]:
-    """``{part: {run: {metric: value}}}`` for run logs ``{name: RunLog}`` on ``track`` (spec or name)."""
-    track = track if isinstance(track, TrackSpec) else load_track(track)
+    """``{part: {run: {metric: value}}}`` for run logs ``{name: RunLog}`` on ``track`` (a spec, name or path)."""
+    track = resolve_track(track)
     centre = LaneCentre(track, start_lane_offset_m(track, start_lane))
     per_run = {name: run_trajectory_metrics(log.columns, track, centre, spacing_m) for name, log in logs.items()}
     return {part: {name: per_run[name][part] for name in logs} for part in PARTS}
@@ -218,7 +218,7 @@ def trajectory_metrics(logs: dict, track, start_lane: int | None = None,
 
 def trajectory_method(track, start_lane: int | None = None, spacing_m: float = RESAMPLE_SPACING_M) -> dict:
     """How the trajectory numbers were made, for the JSON beside them."""
-    track = track if isinstance(track, TrackSpec) else load_track(track)
+    track = resolve_track(track)
     return {
         "compared_with": "centre line of the starting lane, over the stretch each run covered",
         "lane_offset_m": start_lane_offset_m(track, start_lane),

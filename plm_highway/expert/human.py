@@ -17,7 +17,7 @@ Every random draw comes from the ``np.random.Generator`` the caller passes to :m
 run is reproducible from the caller's seed. Parameters are data (:class:`HumanParams`); each one's
 source is in :data:`HUMAN_PARAM_SOURCES`.
 
-Calibration targets (issue 9): the spread of the paper's steering data (Table 1: std 0.177, quartiles -0.069
+Calibration targets: the spread of the paper's steering data (Table 1: std 0.177, quartiles -0.069
 and 0.059, in units of 450 deg of steering wheel; with the 12:1 steering ratio of
 :mod:`plm_highway.evaluation.protocol`, 0.177 is 0.116 rad at the front wheels), and, through the Base Model
 that imitates this driver, the paper's BM degradation with latency. The tracking is the stiffest that keeps
@@ -60,7 +60,7 @@ HUMAN_PARAM_SOURCES = {
     "max_steering_rate_radps": "1.0 rad/s at the front wheels = 690 deg/s at a 12:1 hand wheel, the upper end of the "
                                "300-700 deg/s hand-wheel rates measured for ordinary and evasive driving (0.6 rad/s "
                                "adds enough phase lag to make this driver weave off the road)",
-    "natural_frequency_radps": "calibrated (issue 9): the stiffest tracking this driver keeps on the road over the "
+    "natural_frequency_radps": "calibrated: the stiffest tracking this driver keeps on the road over the "
                                "whole train track (2.0 rad/s; 2.2 leaves it at 0.15 s reaction delay); the Base Model "
                                "imitating it inherits the gain without the driver's delays, so it is stable without "
                                "latency and, like the paper's BM, oscillates once 0.15-0.3 s of latency are added "
@@ -71,7 +71,7 @@ HUMAN_PARAM_SOURCES = {
     "heading_noise_rad": "calibrated with offset_noise_m",
     "wander_time_constant_s": "the slow lateral wander of human lane keeping (seconds)",
     "motor_noise_rad": "calibrated with offset_noise_m: per-step hand noise, smoothed by the hand's lag",
-    "max_steering_rad": "the car's full scale: the paper conditions' 0.4 rad (plm_highway.evaluation.run)",
+    "max_steering_rad": "the car's full scale: the paper conditions' 0.4 rad (plm_highway.rollout.conditions)",
 }
 
 

@@ -46,6 +46,7 @@ ATTACHMENT = re.compile(r"\(attachment:([\w.-]+\.png)\)")
 SCHEMA_VERSION = 3
 COURSE_ID = "plm_highway"
 MAX_SUBMISSION_BYTES = 50_000_000  # a lesson notebook with outputs is ~1 MB; larger is not a submission
+MAX_NOTEBOOK_DEPTH = 64  # a notebook's JSON nests about 6 deep (widget state a little more)
 CELL_TIMEOUT_S = 900
 
 
@@ -281,11 +282,24 @@ def find_submissions(submissions_dir: Path, lesson_names: list[str]) -> dict[str
                 if path.stat().st_size > MAX_SUBMISSION_BYTES:
                     raise ValueError(f"{path}: {path.stat().st_size} bytes, more than the "
                                      f"{MAX_SUBMISSION_BYTES} a lesson notebook can be")
+                _check_nesting(path)
                 found.setdefault(student_dir.name, {})[name] = path
     if not found:
         raise ValueError(f"{submissions_dir}: no submissions; expected <student>/<lesson>.ipynb with a lesson "
                          f"name from {lesson_names}")
     return found
+
+
+def _check_nesting(path: Path) -> None:
+    """Refuse a notebook nested deeper than any notebook is before nbformat's recursive parser reads it
+    (200,000 levels crash it); anything else unreadable is left to the grader, which scores it zero."""
+    from plm_highway.errors import BadInput
+    from plm_highway.io.bounded import json_depth
+
+    depth, _ = json_depth(path.read_bytes().decode("utf-8", "replace"))
+    if depth > MAX_NOTEBOOK_DEPTH:
+        raise BadInput(f"{path}: brackets nested {depth} deep; a lesson notebook needs at most {MAX_NOTEBOOK_DEPTH} "
+                       "(nesting limit)")
 
 
 @contextlib.contextmanager

@@ -43,8 +43,8 @@ class Reference:
 REFERENCES: tuple[Reference, ...] = (
     # Lesson 1: the delay buffer and the drive with late snapshots
     Reference("lesson1.DelayBuffer", "plm_highway.latency.wrapper:LatencyWrapper", "latency wrapper"),
-    Reference("lesson1.drive_with_latency", "plm_highway.evaluation.closed_loop:drive", "closed-loop driver"),
-    Reference("lesson1.drive_with_latency", "plm_highway.evaluation.closed_loop:make_env", "delayed environment"),
+    Reference("lesson1.drive_with_latency", "plm_highway.rollout.closed_loop:drive", "closed-loop driver"),
+    Reference("lesson1.drive_with_latency", "plm_highway.rollout.closed_loop:make_env", "delayed environment"),
     Reference("lesson1.drive_with_latency", "plm_highway.latency.wrapper:LatencyWrapper", "latency wrapper"),
     # Lesson 2: future labels, the TAPM heads, Algorithm 1
     Reference("lesson2.future_labels", "plm_highway.training.labels:future_steering_labels", "future labels"),

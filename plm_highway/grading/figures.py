@@ -25,8 +25,8 @@ def _save(fig, path: Path, overwrite: bool) -> Path:
 
 def lesson1_figure(plt):
     """Figure 2: the expert's lateral offset with fresh and with 0.25 s old snapshots."""
-    from plm_highway.evaluation.closed_loop import drive
     from plm_highway.expert import ExpertPolicy
+    from plm_highway.rollout.closed_loop import drive
 
     fig, ax = plt.subplots(figsize=(10, 3.2))
     for latency_s, colour in ((0.0, "tab:green"), (0.25, "tab:red")):

@@ -133,8 +133,8 @@ def check_growing_latency(buffer_class, seed: int | None = None) -> None:
 def check_zigzag(drive_with_latency) -> None:
     """The car's true offsets equal those of the kit's closed loop with the same latency, and 0.25 s old
     snapshots make the lane keeper weave at least twice as much as fresh ones."""
-    from plm_highway.evaluation.closed_loop import drive
     from plm_highway.expert import ExpertPolicy
+    from plm_highway.rollout.closed_loop import drive
 
     offsets = {}
     for latency_s in (0.0, 0.25):

@@ -181,8 +181,8 @@ def check_resample(resample, seed: int | None = None) -> None:
 @functools.lru_cache(maxsize=4)
 def kit_table_3_runs(max_steps: int | None, checkpoints: str | None, latency: str = TABLE_3_LATENCY) -> dict:
     """The three runs of Table 3 driven by the kit (what a correct ``drive_table_3`` returns)."""
-    from plm_highway.evaluation.closed_loop import drive
-    from plm_highway.evaluation.policies import make_policy
+    from plm_highway.rollout.closed_loop import drive
+    from plm_highway.rollout.policies import make_policy
 
     return {
         "reference": drive("reference", make_policy("bm", checkpoints), "test", "const:0", 0, max_steps=max_steps),

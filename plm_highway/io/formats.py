@@ -7,9 +7,11 @@ Top-level outputs go through :func:`plm_highway.io.outputs.write_output` (safe, 
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 import os
+import re
 import shlex
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -17,6 +19,8 @@ from pathlib import Path
 from plm_highway.io.outputs import JSON_MARKER_KEY, PNG_SOFTWARE, OutputKind, file_kind, write_output, write_outputs
 
 FIGURE = file_kind("figure", "a figure (PNG)")
+# What `plm-highway bench ... --json` writes (the bench commands and the sim2real benchmarks alike).
+BENCH_RESULT = file_kind("bench-result", "a benchmark result JSON file")
 
 
 def json_safe(value):
@@ -73,8 +77,32 @@ def format_cell(value) -> str:
     return str(value)
 
 
+def unique_file_names(labels: Sequence[str], keys: Sequence[str] | None = None, suffix: str = "",
+                      max_chars: int = 80) -> list[str]:
+    """One file name per label, made safe (``[A-Za-z0-9.+-]``), and distinct whenever the ``keys`` (what
+    each name stands for; default: the labels) differ: labels that look alike once made safe or cut
+    (two tracks ``a/t.json`` and ``b/t.json`` shown as ``t``), or differ only in case (case-insensitive
+    filesystems), get a short hash of their key."""
+    keys = list(labels) if keys is None else list(keys)
+    if len(keys) != len(labels) or len(set(keys)) != len(keys):
+        raise ValueError(f"one distinct key per label is needed, got {keys}")
+    safe = [re.sub(r"[^A-Za-z0-9.+-]+", "-", label).strip("-")[:max_chars] or "unnamed" for label in labels]
+    folded = [name.lower() for name in safe]
+    names = []
+    for key, name, lowered in zip(keys, safe, folded):
+        if folded.count(lowered) > 1:
+            name = f"{name}-{hashlib.sha1(key.encode('utf-8')).hexdigest()[:8]}"
+        names.append(name + suffix)
+    return names
+
+
 def save_figure_into(fig, path: Path, dpi: int = 120, **savefig_options) -> None:
-    """Save a matplotlib figure as PNG, tagged so that plm-highway recognises it later."""
+    """Save a matplotlib figure as PNG, tagged so that plm-highway recognises it later.
+
+    ``path`` lies in a freshly staged output: a file already there means two figures got one name,
+    which is refused rather than letting the second silently replace the first."""
+    if os.path.lexists(path):
+        raise RuntimeError(f"internal error: two figures of one output are both named {Path(path).name!r}")
     fig.savefig(path, format="png", dpi=dpi, metadata={"Software": PNG_SOFTWARE}, **savefig_options)
 
 

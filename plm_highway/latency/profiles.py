@@ -56,6 +56,7 @@ MIN_RATE_HZ = 1.0
 MAX_RATE_HZ = 1000.0
 MAX_TRACE_BYTES = 32 * 1024 * 1024
 MAX_TRACE_ROWS = 1_000_000
+MAX_TRACE_COLUMNS = 64  # t, latency_s and a few notes: a row of millions of cells is refused before it is built
 MAX_TRACE_DURATION_S = 1e6
 
 SPEC_FORMS = ("none", "S", "const:S", "steps:LO-HI:PERIOD", "frames:LO-HI:EVERY@RATE", "sine:MEAN:AMP:PERIOD",
@@ -67,8 +68,10 @@ SPEC_HELP = (
     "ramp:FROM-TO:SECONDS | trace:PATH.csv (columns t, latency_s). Latencies 0..10 s, periods 0.001..1e6 s"
 )
 
-_DECIMAL = re.compile(r"(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
-_INTEGER = re.compile(r"\d{1,9}")
+# ASCII digits only: Python's float() also reads Arabic-Indic or full-width digits, which no reader of
+# the spec would take for the same number.
+_DECIMAL = re.compile(r"(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)
+_INTEGER = re.compile(r"\d{1,9}", re.ASCII)
 _CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")  # tab, CR and LF are whitespace, not garbage
 
 
@@ -326,6 +329,8 @@ def parse_profile(spec: str | LatencyProfile | float) -> LatencyProfile:
     if isinstance(spec, (int, float, np.integer, np.floating)) and not isinstance(spec, (bool, np.bool_)):
         try:
             return ConstantProfile(float(spec))
+        except OverflowError:
+            raise BadInput(f"latency {str(spec)[:40]}...: too large a number of seconds") from None
         except ValueError as error:
             raise BadInput(f"latency {spec!r}: {error}") from None
     if not isinstance(spec, str):
@@ -470,7 +475,10 @@ def _read_bounded(path: Path) -> bytes:
 
 
 def _parse_trace_rows(path: Path, text: str) -> tuple[np.ndarray, np.ndarray]:
+    from plm_highway.io import check_csv_columns
+
     name = repr(str(path))
+    check_csv_columns(text, f"trace file {name}", MAX_TRACE_COLUMNS)
     reader = csv.reader(io.StringIO(text, newline=""))
     try:
         header = [column.strip() for column in next(reader)]

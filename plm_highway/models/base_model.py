@@ -169,7 +169,7 @@ class BaseModel(nn.Module):
         features = [z_o, z_v]
         if self.accel_embedding is not None:
             if accel_mps2 is None:
-                accel_mps2 = torch.zeros(len(z_o), dtype=z_o.dtype)
+                accel_mps2 = torch.zeros(len(z_o), dtype=z_o.dtype, device=z_o.device)
             features.append(self.accel_embedding(accel_mps2.view(-1, 1)))
         return torch.cat(features, dim=1)
 

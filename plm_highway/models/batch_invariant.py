@@ -23,6 +23,9 @@ Inside :func:`batch_invariant_ops` (one torch thread):
   multiple of 16 values so that every row starts on a 64-byte boundary (MKL's path depends on
   alignment too). A row's sums then do not depend on its position in the product nor on the other rows.
 
+On a GPU the mode runs the same 8-row products through ``F.linear`` (cuBLAS) and leaves the
+convolutions to cuDNN; nothing here checks batch invariance there.
+
 Every other operation the models use is element-wise (exact IEEE operations, or ``tanh``, whose
 vector and scalar kernels agree) or a min/max. What makes this hold is MKL's and oneDNN's kernel
 choice, which no documentation promises: ``tests/test_batch_invariant.py`` checks it for the
@@ -110,7 +113,7 @@ def linear(input, weight, bias=None):
     weight = _padded(weight, (padded_out, padded_width))
     if bias is not None:
         bias = _padded(bias, (padded_out,))
-    if MKL_PACKED_PRODUCTS:
+    if MKL_PACKED_PRODUCTS and buffer.device.type == "cpu":
         packed = _cached(weight, "mkl", lambda: torch.ops.mkl._mkl_reorder_linear_weight(weight, ROWS_PER_PRODUCT))
         products = [torch.ops.mkl._mkl_linear(buffer[start : start + ROWS_PER_PRODUCT], packed, weight, bias,
                                               ROWS_PER_PRODUCT) for start in range(0, padded_rows, ROWS_PER_PRODUCT)]

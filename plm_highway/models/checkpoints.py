@@ -12,8 +12,9 @@ shipped in ``plm_highway/checkpoints``).
 
 Loading checks, in this order, and refuses with a ValueError naming the file and the culprit:
 
-1. the JSON: at most :data:`MAX_DESCRIPTION_BYTES`, UTF-8 (a byte-order mark is accepted), an
-   object with the expected ``format`` and ``kind``;
+1. the JSON: at most :data:`MAX_DESCRIPTION_BYTES`, UTF-8 (a byte-order mark is accepted), read
+   within :data:`DESCRIPTION_LIMITS` (:mod:`plm_highway.io.bounded`: depth, values, no key twice),
+   an object with the expected ``format`` and ``kind``;
 2. ``architecture``: known fields of the right types within the bounds documented in
    :mod:`plm_highway.models.base_model` and :mod:`plm_highway.models.tapm`, before any layer is
    allocated;
@@ -24,9 +25,15 @@ Loading checks, in this order, and refuses with a ValueError naming the file and
    and misshapen keys are named, with both shapes), every value finite;
 5. the weights' sha256 fingerprint equals the recorded ``fingerprint`` (a ``.pt`` swapped for
    other weights of the same shapes is refused), and for a TAPM the BM it is combined with has the
-   recorded ``bm_fingerprint``.
+   recorded ``bm_fingerprint``;
+6. the description's own seal (``description_sha256``, the sha256 of every other field): a latency
+   grid, preset, label lead or any other field edited after saving is refused, even where the
+   weights' shapes would still fit.
 
-Saving refuses non-finite weights (a diverged training run).
+Saving refuses non-finite weights (a diverged training run). Devices: weights are saved from CPU copies of
+the ``state_dict`` (a model on a GPU writes the same bytes as the same weights on the CPU) and loaded on the
+CPU (``map_location="cpu"``, memory-mapped), checked, and then moved to the ``device`` the loader is asked
+for (``load_base_model(path, device="cuda")``; default the CPU, for a TAPM its BM's device).
 """
 
 from __future__ import annotations
@@ -40,8 +47,9 @@ import torch
 from torch import nn
 
 from plm_highway.errors import BadInput
-from plm_highway.io import directory_kind
+from plm_highway.io import JsonLimits, directory_kind, load_json, parse_json, read_bounded
 from plm_highway.models.base_model import BaseModel, BaseModelConfig
+from plm_highway.models.device import module_device, resolve_device
 from plm_highway.models.plm_net import PLMNet
 from plm_highway.models.tapm import TAPM, TAPMConfig
 
@@ -50,13 +58,15 @@ KIND_BASE_MODEL = "base_model"
 KIND_TAPM = "tapm"
 MAX_DESCRIPTION_BYTES = 4 * 1024 * 1024
 MAX_WEIGHTS_BYTES = 1024**3
+DESCRIPTION_LIMITS = JsonLimits(max_bytes=MAX_DESCRIPTION_BYTES, max_depth=16, max_nodes=100_000, max_int_digits=30)
+SEAL_KEY = "description_sha256"
 MAX_NAMED_KEYS = 8  # longer lists of missing/unexpected keys are cut, with the count
 
 
 def _has_checkpoint_description(path: Path) -> bool:
     """Checkpoint directories written before output markers existed: a ``model.json`` of this format."""
     try:
-        return json.loads((path / "model.json").read_text(encoding="utf-8")).get("format") == FORMAT
+        return load_json(path / "model.json", DESCRIPTION_LIMITS).get("format") == FORMAT
     except (OSError, ValueError, AttributeError):
         return False
 
@@ -94,7 +104,7 @@ def save_checkpoint(path: str | Path, model: BaseModel | TAPM, description: dict
     does), so the checkpoint is published whole or not at all.
     """
     weights_path, json_path = checkpoint_paths(path)
-    state = model.state_dict()
+    state = host_state_dict(model)
     problems = _non_finite(state)
     if problems:
         raise BadInput(f"{weights_path}: refusing to save non-finite weights ({'; '.join(problems)})")
@@ -108,10 +118,24 @@ def save_checkpoint(path: str | Path, model: BaseModel | TAPM, description: dict
     }
     # The identity fields are derived from the model and always win over the caller's.
     document = {"format": FORMAT, **description, **identity}
+    document.pop(SEAL_KEY, None)
+    document[SEAL_KEY] = description_seal(document)
     weights_path.parent.mkdir(parents=True, exist_ok=True)
     torch.save(state, weights_path)
     json_path.write_text(json.dumps(document, indent=2) + "\n", encoding="utf-8")
     return weights_path
+
+
+def host_state_dict(model: nn.Module) -> dict[str, torch.Tensor]:
+    """``model.state_dict()`` with every tensor on the CPU (the same tensors where they are there already),
+    keeping the dict's type and its ``_metadata``, which ``torch.save`` writes too: the bytes saved do not
+    depend on the device the model is on."""
+    state = model.state_dict()
+    host = type(state)((key, tensor.cpu()) for key, tensor in state.items())
+    metadata = getattr(state, "_metadata", None)
+    if metadata is not None:
+        host._metadata = metadata
+    return host
 
 
 def read_description(path: str | Path, kind: str) -> dict:
@@ -123,12 +147,8 @@ def read_description(path: str | Path, kind: str) -> dict:
     size_bytes = json_path.stat().st_size
     if size_bytes > MAX_DESCRIPTION_BYTES:
         raise BadInput(f"{json_path}: {size_bytes} bytes, a checkpoint description is at most {MAX_DESCRIPTION_BYTES}")
-    try:
-        document = json.loads(json_path.read_bytes().decode("utf-8-sig"))
-    except UnicodeDecodeError as exc:
-        raise BadInput(f"{json_path}: not UTF-8 text ({exc})") from exc
-    except json.JSONDecodeError as exc:
-        raise BadInput(f"{json_path}: not valid JSON ({exc})") from exc
+    document = parse_json(read_bounded(json_path, MAX_DESCRIPTION_BYTES, "checkpoint description"), str(json_path),
+                          DESCRIPTION_LIMITS)
     if not isinstance(document, dict):
         raise BadInput(f"{json_path}: expected a JSON object, found {type(document).__name__}")
     if document.get("format") != FORMAT:
@@ -138,8 +158,8 @@ def read_description(path: str | Path, kind: str) -> dict:
     return document
 
 
-def load_base_model(path: str | Path) -> BaseModel:
-    """The BM described at ``path``, verified against its fingerprint, in eval mode."""
+def load_base_model(path: str | Path, device: str | torch.device = "cpu") -> BaseModel:
+    """The BM described at ``path``, verified against its fingerprint, in eval mode, on ``device``."""
     document = read_description(path, KIND_BASE_MODEL)
     config = _config_from(BaseModelConfig, document, path)
     image_size_px = document.get("image_size_px")
@@ -150,13 +170,15 @@ def load_base_model(path: str | Path) -> BaseModel:
             f"{checkpoint_paths(path)[1]}: image_size_px {image_size_px} disagrees with the architecture's "
             f"{list(config.image_size_px)}"
         )
+    device = resolve_device(device)  # refused before anything is read
     model = BaseModel(config)
     load_weights(model, path, document)
-    return model.eval()
+    return model.to(device).eval()
 
 
-def load_tapm(path: str | Path, bm: BaseModel) -> TAPM:
-    """The TAPM described at ``path``, verified against its fingerprint and the BM it will read; eval mode."""
+def load_tapm(path: str | Path, bm: BaseModel, device: str | torch.device | None = None) -> TAPM:
+    """The TAPM described at ``path``, verified against its fingerprint and the BM it will read; eval mode,
+    on ``device`` (default: the BM's)."""
     document = read_description(path, KIND_TAPM)
     config = _config_from(TAPMConfig, document, path)
     json_path = checkpoint_paths(path)[1]
@@ -177,13 +199,15 @@ def load_tapm(path: str | Path, bm: BaseModel) -> TAPM:
             f"{json_path}: TAPM was trained on the features of another BM (fingerprint "
             f"{expected_bm[:12]}..., this BM has {bm_fingerprint[:12]}...)"
         )
+    device = module_device(bm) if device is None else resolve_device(device)
     model = TAPM(config)
     load_weights(model, path, document)
-    return model.eval()
+    return model.to(device).eval()
 
 
-def load_plm_net(bm_path: str | Path, tapm_path: str | Path) -> PLMNet:
-    bm = load_base_model(bm_path)
+def load_plm_net(bm_path: str | Path, tapm_path: str | Path, device: str | torch.device = "cpu") -> PLMNet:
+    """The BM and TAPM pair as one PLM-Net on ``device``."""
+    bm = load_base_model(bm_path, device)
     return PLMNet(bm, load_tapm(tapm_path, bm)).eval()
 
 
@@ -224,7 +248,42 @@ def load_weights(model: nn.Module, path: str | Path, document: dict | None = Non
             f"{weights_path}: the weights' fingerprint {found[:12]}... differs from the one recorded in "
             f"{json_path.name} ({recorded[:12]}...): the .pt was replaced or altered after it was saved"
         )
+    check_seal(document, json_path)
     model.load_state_dict(state)
+
+
+def description_seal(document: dict) -> str:
+    """sha256 of the description without its seal, in canonical JSON: binds the latency grid, preset,
+    label lead, image size, BM fingerprint and every other field to the weights' fingerprint."""
+    body = {key: value for key, value in document.items() if key != SEAL_KEY}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode("utf-8")).hexdigest()
+
+
+def check_seal(document: dict, json_path: Path) -> None:
+    """Refuse a description edited after it was saved (the last check: the specific ones name more)."""
+    recorded = document.get(SEAL_KEY)
+    if not isinstance(recorded, str):
+        raise BadInput(f"{json_path}: field {SEAL_KEY!r} is missing, so the description (latency grid, preset, "
+                       "label lead, ...) cannot be verified against the weights: it was written before descriptions "
+                       "were sealed, or edited. Retrain it (or, after checking it, seal it with "
+                       "plm_highway.models.checkpoints.reseal)")
+    found = description_seal(document)
+    if found != recorded:
+        raise BadInput(f"{json_path}: the description was changed after it was saved (its sha256 {found[:12]}... "
+                       f"differs from the recorded {SEAL_KEY} {recorded[:12]}...): a checkpoint's latency grid, "
+                       "preset, label lead and other fields stay as training wrote them")
+
+
+def reseal(path: str | Path) -> str:
+    """Seal a description written before seals existed (a maintainer's step, after checking it by hand):
+    the file is rewritten with :data:`SEAL_KEY` added; returns the seal."""
+    json_path = checkpoint_paths(path)[1]
+    document = parse_json(read_bounded(json_path, MAX_DESCRIPTION_BYTES, "checkpoint description"), str(json_path),
+                          DESCRIPTION_LIMITS)
+    document.pop(SEAL_KEY, None)
+    document[SEAL_KEY] = description_seal(document)
+    json_path.write_text(json.dumps(document, indent=2) + "\n", encoding="utf-8")
+    return document[SEAL_KEY]
 
 
 def _state_mismatches(expected: dict[str, torch.Tensor], found: dict[str, torch.Tensor]) -> list[str]:

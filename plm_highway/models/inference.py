@@ -16,6 +16,13 @@ Two calls:
   batch (PLM-Net then evaluates every TAPM head, so that its products have one width whatever the
   batch's latencies).
 
+``device``: where the model and its input tensors live (``"cpu"``, ``"cuda"``, ``"auto"``: see
+:func:`~plm_highway.models.device.resolve_device`; None, the default: wherever the model already is). The
+policy moves the model there; frames and speeds go there per call; steering comes back to the host (a
+float, or a float64 numpy array). The batch-invariant kernels are CPU kernels: on a GPU
+``batch_invariant=True`` runs the same 8-row products through cuBLAS and cuDNN's convolutions, with no
+promise that a sample's result is independent of its batch (nothing here checks it on a GPU).
+
 Inputs are checked: frames uint8 of the model's size, finite speeds, finite latencies >= 0, and
 at most :data:`MAX_BATCH` samples. A non-finite steering output (NaN weights that slipped past the
 checkpoint checks, an input the model cannot handle) raises :class:`NonFiniteSteeringError`
@@ -33,6 +40,7 @@ import torch
 from plm_highway.errors import BadInput
 from plm_highway.models.base_model import BaseModel
 from plm_highway.models.batch_invariant import batch_invariant_ops
+from plm_highway.models.device import module_device, resolve_device
 from plm_highway.models.plm_net import FusedPLMNet, PLMNet
 
 MAX_BATCH = 4096
@@ -48,9 +56,11 @@ class _Policy:
     name = "policy"
     max_latency_s = math.inf  # latencies above this use the last head (PLM-Net); inf: never clamped
 
-    def __init__(self, image_size_px: tuple[int, int], batch_invariant: bool):
+    def __init__(self, image_size_px: tuple[int, int], batch_invariant: bool, device: torch.device):
         self.image_size_px = tuple(image_size_px)
         self.batch_invariant = bool(batch_invariant)
+        self.device = device
+        self._on_host = device.type == "cpu"  # inputs and outputs need no copy
         self.clamped_latency_count = 0
 
     def reset(self) -> None:
@@ -67,7 +77,7 @@ class _Policy:
         frames_t, speeds_t, latencies = self._checked_batch(frames, speeds_mps, latencies_s)
         with torch.inference_mode(), (batch_invariant_ops() if self.batch_invariant else contextlib.nullcontext()):
             steering = self._forward(frames_t, speeds_t, latencies)
-        steering_np = steering.numpy().astype(np.float64)
+        steering_np = (steering if self._on_host else steering.cpu()).numpy().astype(np.float64)
         if not np.all(np.isfinite(steering_np)):
             i = int(np.flatnonzero(~np.isfinite(steering_np))[0])
             raise NonFiniteSteeringError(
@@ -96,8 +106,11 @@ class _Policy:
         if not np.all(np.isfinite(latencies) & (latencies >= 0)):
             bad = latencies[~(np.isfinite(latencies) & (latencies >= 0))][0]
             raise BadInput(f"latency_s: must be a finite number >= 0 s, got {bad}")
-        # Sharing memory with a contiguous frame batch: no copy at batch size 1.
-        return torch.from_numpy(np.ascontiguousarray(frames)), torch.from_numpy(speeds), latencies
+        # Sharing memory with a contiguous frame batch: no copy at batch size 1 on the CPU.
+        frames_t, speeds_t = torch.from_numpy(np.ascontiguousarray(frames)), torch.from_numpy(speeds)
+        if not self._on_host:
+            frames_t, speeds_t = frames_t.to(self.device), speeds_t.to(self.device)
+        return frames_t, speeds_t, latencies
 
 
 def _column(name: str, values, n: int) -> np.ndarray:
@@ -113,9 +126,10 @@ def _column(name: str, values, n: int) -> np.ndarray:
 class BaseModelPolicy(_Policy):
     name = "BM"
 
-    def __init__(self, bm: BaseModel, batch_invariant: bool = False):
-        super().__init__(bm.config.image_size_px, batch_invariant)
-        self.model = bm.eval()
+    def __init__(self, bm: BaseModel, batch_invariant: bool = False, device: str | torch.device | None = None):
+        device = module_device(bm) if device is None else resolve_device(device)
+        super().__init__(bm.config.image_size_px, batch_invariant, device)
+        self.model = bm.to(device).eval()
 
     def _forward(self, frames, speeds_mps, latencies_s):
         return self.model(frames, speeds_mps)
@@ -133,19 +147,21 @@ class PLMNetPolicy(_Policy):
 
     name = "PLM-Net"
 
-    def __init__(self, plm_net: PLMNet, batch_invariant: bool = False, fused: bool = True, tapm_int8: bool = False):
-        super().__init__(plm_net.bm.config.image_size_px, batch_invariant)
+    def __init__(self, plm_net: PLMNet, batch_invariant: bool = False, fused: bool = True, tapm_int8: bool = False,
+                 device: str | torch.device | None = None):
+        device = module_device(plm_net) if device is None else resolve_device(device)
+        super().__init__(plm_net.bm.config.image_size_px, batch_invariant, device)
         if tapm_int8 and not fused:
             raise BadInput("tapm_int8: the int8 TAPM is a form of the fused inference; it needs fused=True")
         if tapm_int8 and batch_invariant:
             raise BadInput("tapm_int8: the int8 TAPM has no batch-invariant form; it needs batch_invariant=False")
-        self.model = plm_net.eval()
+        self.model = plm_net.to(device).eval()
         self.fused = FusedPLMNet(plm_net, tapm_int8=tapm_int8) if fused else None
         self.max_latency_s = plm_net.last_grid_s
 
     def _forward(self, frames, speeds_mps, latencies_s):
         if self.fused is None:
-            output = self.model(frames, speeds_mps, torch.from_numpy(latencies_s))
+            output = self.model(frames, speeds_mps, torch.from_numpy(latencies_s).to(frames.device))
             self.clamped_latency_count += output.n_clamped
             return output.steering
         output = self.fused(frames, speeds_mps, latencies_s, batch_invariant=self.batch_invariant)

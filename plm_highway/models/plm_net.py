@@ -11,11 +11,14 @@ raises ValueError: it is a bug upstream, not a condition to mitigate.
 
 :class:`PLMNet` is the model as specified (every head, the BM's and the TAPM's layers one after
 the other) and what training and analysis use. :class:`FusedPLMNet` is its inference form, equal
-to it up to float rounding (measured: at most a few 1e-8 apart) and cheaper where PLM-Net's cost over
-the BM lies: the BM's first FC layer and the TAPM's image branch read the same features, so they
-run as one matrix product, only the heads that bracket each sample's latency run (Algorithm 1
-reads no others: one or two heads at batch size 1 instead of five), the action and speed branches
-fold into one small product, and at batch size 1 the interpolation runs in Python floats.
+to it up to float rounding (measured: at most ~1.2e-7 apart on steering) and cheaper where PLM-Net's cost over
+the BM lies: at batch size 1 on the CPU the BM's part is the BM's own calls and the TAPM's image
+branch reads only the weight rows of the nonzero image features (z_o follows a ReLU: about 90% zeros
+with the shipped checkpoints); in batches (and on a GPU) the BM's first FC layer and the TAPM's image
+branch, which read the same features, run as one matrix product; only the heads that bracket each
+sample's latency run (Algorithm 1 reads no others: one or two heads at batch size 1 instead of five),
+the action and speed branches fold into one small product, and at batch size 1 the interpolation
+runs in Python floats. Every tensor it builds follows the model's device and dtype.
 ``FusedPLMNet(plm_net, tapm_int8=True)`` is an approximation on top: the TAPM's large layers in
 int8, the BM's part unchanged (see the class).
 """
@@ -29,6 +32,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 from torch import nn
+from torch.nn import functional as F
 
 from plm_highway.errors import BadInput
 from plm_highway.models.base_model import BaseModel
@@ -60,9 +64,9 @@ def interpolate_actions(latency_s, delta_ref_s, a_ref):
     """
     as_numpy = not isinstance(a_ref, torch.Tensor)
     a_ref_t = torch.as_tensor(np.asarray(a_ref, dtype=np.float64) if as_numpy else a_ref)
-    dtype = a_ref_t.dtype
-    delta_ref_t = torch.as_tensor(delta_ref_s, dtype=dtype)
-    latency_t = torch.as_tensor(latency_s, dtype=dtype)
+    dtype, device = a_ref_t.dtype, a_ref_t.device
+    delta_ref_t = torch.as_tensor(delta_ref_s, dtype=dtype, device=device)
+    latency_t = torch.as_tensor(latency_s, dtype=dtype, device=device)
     scalar_input = latency_t.dim() == 0
     latency_t = latency_t.reshape(-1)
     _validate_reference(delta_ref_t, a_ref_t, len(latency_t))
@@ -172,7 +176,14 @@ class FusedPLMNet:
     What it saves over :meth:`PLMNet.forward` (measured in the closed loop's setting, batch size 1,
     where every operation runs with cold caches and costs several times its isolated time):
 
-    - one product for the BM's first FC layer and the TAPM's image branch (both read z_o);
+    - at batch size 1 on the CPU (the closed loop's case, where reading the weights is the cost): the
+      BM's part runs as the BM's own calls (``a_BM`` is the BM's, bit for bit) and the TAPM's image
+      branch as a :class:`SparseInputLinear`, which reads only the weight rows of z_o's nonzero
+      entries (z_o follows a ReLU; with the shipped checkpoints on the simulator's frames about 90% of
+      it is zero, so the paper preset's 21.6 MB image branch reads about 2.4 MB per frame);
+    - in batches, under the batch-invariant kernels and on a GPU (where a product's weights are
+      reused across the batch, or a sparse product would stall on ``nonzero``): one product for the
+      BM's first FC layer and the TAPM's image branch (both read z_o);
     - only the one or two heads that bracket each sample's latency (Algorithm 1 reads no others),
       as four plain products;
     - the TAPM's action and speed branches folded into one (B, 2) x (2, 200) product
@@ -181,10 +192,11 @@ class FusedPLMNet:
     - at batch size 1 the latency check, the segment search and the interpolation in Python floats
       instead of ~25 numpy calls (larger batches use the vectorised :func:`interpolate_batch`).
 
-    Built from a trained, frozen ``plm_net``: the fused first layer, the folded branches and the
-    packed heads are copies taken then (~5 MB for the default preset, ~44 MB for the paper preset),
-    so a ``plm_net`` whose weights change afterwards needs a new ``FusedPLMNet``. Runs under
-    ``torch.inference_mode`` (no gradients).
+    Built from a trained, frozen ``plm_net`` on its device: the fused first layer, the folded branches and
+    the packed heads are copies taken then (~5 MB for the default preset, ~44 MB for the paper preset;
+    the sparse image branch, built at the first one-sample call, another 2.3 / 21.6 MB), so a
+    ``plm_net`` whose weights change (or move to another device) afterwards needs a new ``FusedPLMNet``.
+    Runs under ``torch.inference_mode`` (no gradients); the steering comes back on the model's device.
 
     ``tapm_int8=True`` is an approximation: the TAPM's two large layers (the image branch, FC 500 on
     z_o, and the heads' first layers) run as int8 products (:class:`Int8Linear`) and read a quarter
@@ -192,7 +204,7 @@ class FusedPLMNet:
     fp32 weights per frame). The BM's layers stay fp32 and are the BM's own calls, so ``a_BM``
     (and the steering at latency 0) is bit-identical to the BM's; the heads' outputs move by up to
     ~1e-2 with the shipped checkpoints (``bench models --closed-loop`` reports the closed-loop MAE
-    with and without it).
+    with and without it). PyTorch's quantised kernels run on the CPU only.
     """
 
     def __init__(self, plm_net: PLMNet, tapm_int8: bool = False):
@@ -200,7 +212,14 @@ class FusedPLMNet:
         self.bm, self.tapm = bm, tapm
         self.tapm_int8 = bool(tapm_int8)
         first, image_fc = bm.mlp[0], tapm.image_fc
+        self.device, self.dtype = first.weight.device, first.weight.dtype
+        if self.tapm_int8 and self.device.type != "cpu":
+            raise BadInput(f"tapm_int8: the int8 TAPM runs on the CPU only (PyTorch's quantised kernels); this "
+                           f"PLM-Net is on {self.device}")
         self.bm_width = first.out_features
+        # One sample on the CPU: the BM's own calls and the sparse image branch (see the class docstring).
+        self.sparse_one_sample = self.device.type == "cpu" and not self.tapm_int8
+        self._sparse_image_fc: SparseInputLinear | None = None
         with torch.no_grad():
             if self.tapm_int8:
                 # Apart from the BM's first layer: int8 and fp32 cannot share one product.
@@ -208,7 +227,7 @@ class FusedPLMNet:
             else:
                 # The TAPM reads z_o only: its rows get zero weights for the speed (and acceleration)
                 # features, so one product over the BM's concatenated MLP input yields both layers.
-                padding = torch.zeros(image_fc.out_features, first.in_features - image_fc.in_features)
+                padding = first.weight.new_zeros(image_fc.out_features, first.in_features - image_fc.in_features)
                 self.first_layer = Fp32Linear.of(
                     torch.cat([first.weight, torch.cat([image_fc.weight, padding], dim=1)]),
                     torch.cat([first.bias, image_fc.bias]),
@@ -222,15 +241,17 @@ class FusedPLMNet:
             self.trunk_order = torch.cat([
                 torch.arange(n_action, n_action + n_image), torch.arange(n_action),
                 torch.arange(n_action + n_image, tapm.heads_in.in_features),
-            ])
+            ]).to(self.device)
             self._heads_in_weight = tapm.heads_in.weight[:, self.trunk_order].contiguous()
-        self.delta_ref_s = plm_net.delta_ref_s.numpy().copy()  # float32
+        # PLMNet.delta_ref_s's float32 values, on the host (built from the config: the buffer may be on a GPU).
+        self.delta_ref_s = np.array((0.0, *tapm.config.delta_grid_s), dtype=np.float32)
         self._interior_grid_s = self.delta_ref_s[1:-1]
         self._grid_s = self.delta_ref_s.tolist()  # the float32 values as Python floats, exactly
         self.last_grid_s = plm_net.last_grid_s
         self.n_heads = tapm.config.n_heads
         # Per contiguous head range (at most n (n + 1) / 2 of them, built when first needed).
         self._sub_grids: dict[tuple[int, int], np.ndarray] = {}
+        self._device_sub_grids: dict[tuple[int, int], torch.Tensor] = {}
         self._packed_heads: dict[tuple[int, int], tuple] = {}
 
     def __call__(self, frames: torch.Tensor, speed_mps: torch.Tensor, latency_s,
@@ -266,7 +287,8 @@ class FusedPLMNet:
             n_clamped = int(clamped.sum())
             any_latency = latency_np.any()
         z_o, z_v = self.bm.encode(frames, speed_mps)
-        if self.tapm_int8:
+        sparse = one_sample and self.sparse_one_sample
+        if self.tapm_int8 or sparse:  # the BM's own calls: a_BM is the BM's, bit for bit
             a_bm = self.bm.steering_from_features(z_o, z_v)
         else:
             first_layer = self.first_layer.apply(self.bm.mlp_input(z_o, z_v), batch_invariant)
@@ -284,19 +306,39 @@ class FusedPLMNet:
             # i.e. heads lo - 1 (none for lo = 0: the BM) and lo.
             lo_np = np.searchsorted(self._interior_grid_s, np.minimum(latency_np, np.float32(self.last_grid_s)))
             first_head, stop_head = max(int(lo_np.min()) - 1, 0), int(lo_np.max()) + 1
-        image_features = self.image_fc(z_o) if self.tapm_int8 else first_layer[:, self.bm_width :]
+        if self.tapm_int8:
+            image_features = self.image_fc(z_o)
+        elif sparse:
+            image_features = self.sparse_image_fc()(z_o)
+        else:
+            image_features = first_layer[:, self.bm_width :]
         branches = self.branches.apply(torch.stack((a_bm, speed_mps.to(a_bm.dtype)), dim=1), batch_invariant)
         heads = self._heads(torch.cat([image_features, branches], dim=1).relu_(), first_head, stop_head,
                             batch_invariant)
         if one_sample:
-            steering = torch.tensor([self._interpolate_one(latency, lo, float(a_bm), heads.tolist()[0])])
+            value = self._interpolate_one(latency, lo, float(a_bm), heads.tolist()[0])
+            steering = torch.tensor([value], dtype=a_bm.dtype, device=a_bm.device)
             return PLMNetSteering(steering, clamped, n_clamped)
-        a_ref = np.concatenate([a_bm.numpy()[:, None], heads.numpy()], axis=1)
         # The sub-grid [0, heads' latencies] puts every sample in the same segment as the full grid
         # (all latencies lie above delta_ref[first_head + 1] when first_head > 0, and at most at
         # delta_ref[stop_head]), so the interpolation is the reference's, value for value.
+        if a_bm.device.type != "cpu":  # on the device, where the actions are (the same IEEE operations)
+            a_ref = torch.cat([a_bm[:, None], heads], dim=1)
+            latency = torch.from_numpy(latency_np).to(a_bm.device)
+            steering = interpolate_batch(latency, self._device_sub_grid(first_head, stop_head), a_ref)
+            return PLMNetSteering(steering, clamped, n_clamped)
+        a_ref = np.concatenate([a_bm.numpy()[:, None], heads.numpy()], axis=1)
         steering = interpolate_batch(latency_np, self._sub_grid(first_head, stop_head), a_ref)
         return PLMNetSteering(torch.from_numpy(steering), clamped, n_clamped)
+
+    def sparse_image_fc(self) -> SparseInputLinear:
+        """The TAPM's image branch as a :class:`SparseInputLinear` (built at the first call: 2.3 MB of
+        weights for the default preset, 21.6 MB for the paper preset)."""
+        if self._sparse_image_fc is None:
+            image_fc = self.tapm.image_fc
+            with torch.no_grad():
+                self._sparse_image_fc = SparseInputLinear.of(image_fc.weight, image_fc.bias)
+        return self._sparse_image_fc
 
     def _interpolate_one(self, latency: float, lo: int, a_bm: float, heads: list[float]) -> float:
         """:func:`interpolate_batch` for one sample in segment ``lo``, in float64 (the result is then
@@ -338,6 +380,12 @@ class FusedPLMNet:
             )
         return self._sub_grids[key]
 
+    def _device_sub_grid(self, first_head: int, stop_head: int) -> torch.Tensor:
+        key = (first_head, stop_head)
+        if key not in self._device_sub_grids:
+            self._device_sub_grids[key] = torch.from_numpy(self._sub_grid(first_head, stop_head)).to(self.device)
+        return self._device_sub_grids[key]
+
 
 def fold_scalar_branches(bm: BaseModel, tapm: TAPM) -> tuple[torch.Tensor, torch.Tensor]:
     """The TAPM's action and speed branches as one map of (a_BM, speed m/s): weight (2, 200), bias (200,).
@@ -350,11 +398,12 @@ def fold_scalar_branches(bm: BaseModel, tapm: TAPM) -> tuple[torch.Tensor, torch
     action_fc, speed_fc, embedding = tapm.action_fc, tapm.speed_fc, bm.speed_embedding
     n_action, n_speed = action_fc.out_features, speed_fc.out_features
     speed_weight = speed_fc.weight.double()
-    weight = torch.zeros(2, n_action + n_speed, dtype=torch.float64)
+    weight = torch.zeros(2, n_action + n_speed, dtype=torch.float64, device=speed_weight.device)
     weight[0, :n_action] = action_fc.weight.double()[:, 0]
     weight[1, n_action:] = speed_weight @ embedding.weight.double()[:, 0] / bm.config.speed_scale_mps
     bias = torch.cat([action_fc.bias.double(), speed_weight @ embedding.bias.double() + speed_fc.bias.double()])
-    return weight.float(), bias.float()
+    dtype = action_fc.weight.dtype  # the model's (float32 unless it was converted)
+    return weight.to(dtype), bias.to(dtype)
 
 
 class Fp32Linear(NamedTuple):
@@ -376,6 +425,47 @@ class Fp32Linear(NamedTuple):
 
     def apply(self, x: torch.Tensor, batch_invariant: bool) -> torch.Tensor:
         return torch.nn.functional.linear(x, self.weight, self.bias) if batch_invariant else self(x)
+
+
+# Nonzero inputs per partial sum of SparseInputLinear: the partial sums are then added in a second
+# pass, which keeps the rounding error near a dense product's (one running sum over 1,000-6,000
+# terms drifted 5-7x further from the exact value than MKL's dense product, measured at 10% and 50% nonzero).
+SPARSE_CHUNK = 32
+
+
+class SparseInputLinear(NamedTuple):
+    """A linear layer on one sample whose input is mostly zero (features after a ReLU): it reads only the
+    weight rows of the nonzero inputs, where a dense product reads every weight.
+
+    ``F.embedding_bag`` with per-sample weights does the gather and the weighted sum in one pass over
+    those rows (the weight is stored (in, out), a contiguous row per input feature): the nonzero inputs
+    in bags of :data:`SPARSE_CHUNK`, each bag's weighted sum a partial sum, the partial sums then added.
+    Equal to the dense product up to float rounding (another summation order: within a few 1e-7 of the
+    exact sum at the paper preset's 10,816 inputs, as MKL's dense product is). At batch size 1 the cost
+    is reading the weights, so it costs about the nonzero fraction of the dense product's time.
+    """
+
+    weight_in_out: torch.Tensor  # (in, out), contiguous: one row per input feature
+    bias: torch.Tensor  # (out,)
+    offsets: torch.Tensor  # (ceil(in / SPARSE_CHUNK),): the bags' starts, sliced per call
+
+    @classmethod
+    def of(cls, weight: torch.Tensor, bias: torch.Tensor) -> SparseInputLinear:
+        """From ``nn.Linear``'s layout, weight (out, in)."""
+        weight = weight.detach()
+        offsets = torch.arange(0, weight.shape[1], SPARSE_CHUNK, device=weight.device)
+        return cls(weight.t().contiguous(), bias.detach().contiguous(), offsets)
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        """x (1, in) -> (1, out)."""
+        row = x.view(-1)
+        nonzero = row.nonzero().view(-1)
+        n_bags = -(-len(nonzero) // SPARSE_CHUNK)
+        if n_bags == 0:  # every input zero: the bias alone, as the dense product gives
+            return self.bias.unsqueeze(0).clone()
+        partial = F.embedding_bag(nonzero, self.weight_in_out, self.offsets[:n_bags], mode="sum",
+                                  per_sample_weights=row.index_select(0, nonzero))
+        return torch.add(self.bias, partial.sum(0, keepdim=True))
 
 
 class Int8Linear:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import torch
+
 from plm_highway.models.checkpoints import checkpoint_paths, load_plm_net
 from plm_highway.models.plm_net import PLMNet
 
@@ -23,7 +25,7 @@ def shipped_checkpoint_paths(preset: str = "default") -> tuple[Path, Path]:
     return directory / f"bm_{preset}.pt", directory / f"tapm_{preset}.pt"
 
 
-def load_shipped_plm_net(preset: str = "default") -> PLMNet:
+def load_shipped_plm_net(preset: str = "default", device: str | torch.device = "cpu") -> PLMNet:
     bm_path, tapm_path = shipped_checkpoint_paths(preset)
     missing = [
         path.name for pair in (bm_path, tapm_path) for path in checkpoint_paths(pair) if not path.is_file()
@@ -34,4 +36,4 @@ def load_shipped_plm_net(preset: str = "default") -> PLMNet:
             f"(missing {', '.join(missing)}); train them with 'plm-highway train bm' and "
             f"'plm-highway train tapm', then copy model.pt/model.json there as bm_{preset}.* and tapm_{preset}.*"
         )
-    return load_plm_net(bm_path, tapm_path)
+    return load_plm_net(bm_path, tapm_path, device)

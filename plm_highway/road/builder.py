@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from highway_env.road.lane import CircularLane, LineType, StraightLane
 from highway_env.road.road import RoadNetwork
 
-from plm_highway.road.track import Segment, TrackSpec, advance_pose
+from plm_highway.road.spec import Segment, TrackSpec, advance_pose
 
 MAX_ARC_PIECE_RAD = math.radians(170.0)
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from plm_highway.errors import BadInput
-from plm_highway.road.track import TrackSpec, advance_pose
+from plm_highway.road.spec import TrackSpec, advance_pose
 
 SEGMENT_KINDS = ("straight", "left", "right")
 

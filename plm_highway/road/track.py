@@ -15,7 +15,9 @@ the field, and the accepted range):
 
 ==========================  =====================================================================
 file                        at most ``MAX_TRACK_FILE_BYTES`` (1 MiB) of UTF-8 JSON, no byte-order
-                            mark, brackets nested at most ``MAX_NESTING_DEPTH`` (16) deep
+                            mark, brackets nested at most ``MAX_NESTING_DEPTH`` (16) deep, at
+                            most ``MAX_JSON_VALUES`` (20,000) values, integers of at most 20
+                            digits, no key twice in one object (plm_highway.io.bounded)
 ``name``                    a string of 1 to ``MAX_NAME_CHARS`` (100) characters
 ``lanes``                   an integer from 1 to 6
 ``lane_width_m``            from 2 to 8 m
@@ -36,16 +38,17 @@ a track that spans too large an area (e.g. a closed circle of 1.5 km radius) is 
 
 from __future__ import annotations
 
-import json
 import math
-import re
-from dataclasses import dataclass
+from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from plm_highway.errors import BadInput
+from plm_highway.io.bounded import JsonLimits, parse_json
+from plm_highway.road.geometry import sample_reference
+from plm_highway.road.spec import Segment, TrackSpec, end_pose
 
 TRACK_KEYS = {"name", "lanes", "lane_width_m", "segments", "closed"}
 SEGMENT_KEYS = {
@@ -62,43 +65,13 @@ MAX_SEGMENT_LENGTH_M = 10_000.0
 MAX_RADIUS_M = 50_000.0
 MAX_TRACK_LENGTH_M = 20_000.0
 OVERLAP_SAMPLE_SPACING_M = 1.0
+# Every value of a track file counts (1,000 segments of 4 fields and the top level fit well within).
+MAX_JSON_VALUES = 20_000
+TRACK_JSON_LIMITS = JsonLimits(max_bytes=MAX_TRACK_FILE_BYTES, max_depth=MAX_NESTING_DEPTH,
+                               max_nodes=MAX_JSON_VALUES, max_int_digits=20)
 # A closed track must come back to its start within these tolerances.
 CLOSE_POSITION_TOL_M = 0.5
 CLOSE_HEADING_TOL_RAD = math.radians(1.0)
-
-
-@dataclass(frozen=True)
-class Segment:
-    kind: str  # "straight" | "arc"
-    length_m: float  # along the reference line
-    radius_m: float = math.inf
-    angle_rad: float = 0.0
-    direction: str = "straight"  # "straight" | "left" | "right"
-
-    @property
-    def curvature_1pm(self) -> float:
-        """Signed curvature of the reference line; positive turns left."""
-        if self.kind == "straight":
-            return 0.0
-        return (1.0 if self.direction == "left" else -1.0) / self.radius_m
-
-
-@dataclass(frozen=True)
-class TrackSpec:
-    name: str
-    lanes: int
-    lane_width_m: float
-    segments: tuple[Segment, ...]
-    closed: bool
-    source: str = "<dict>"
-
-    @property
-    def road_half_width_m(self) -> float:
-        return self.lanes * self.lane_width_m / 2.0
-
-    @property
-    def length_m(self) -> float:
-        return sum(seg.length_m for seg in self.segments)
 
 
 def load_track(name_or_path: str | Path) -> TrackSpec:
@@ -118,37 +91,31 @@ def load_track(name_or_path: str | Path) -> TrackSpec:
         if size > MAX_TRACK_FILE_BYTES:
             raise BadInput(f"{source}: {size:,} bytes is larger than a track file may be "
                              f"({MAX_TRACK_FILE_BYTES:,} bytes)")
-        data = path.read_bytes()
+        with open(path, "rb") as handle:
+            data = handle.read(MAX_TRACK_FILE_BYTES + 1)  # the file may have grown since stat
+        if len(data) > MAX_TRACK_FILE_BYTES:
+            raise BadInput(f"{source}: more bytes than a track file may hold ({MAX_TRACK_FILE_BYTES:,} bytes)")
     return parse_track(_json_of(data, source), source=source)
 
 
+def resolve_track(track: TrackSpec | Mapping | str | Path, source: str = "track") -> TrackSpec:
+    """The one boundary a track crosses: a :class:`TrackSpec` as it is, a mapping validated by
+    :func:`parse_track` (``source`` names it in errors), a shipped name or a file path loaded by
+    :func:`load_track`. Everything past it takes the ``TrackSpec``."""
+    if isinstance(track, TrackSpec):
+        return track
+    if isinstance(track, Mapping):
+        return parse_track(dict(track), source=source)
+    if not isinstance(track, (str, Path)):
+        raise BadInput(f"{source} = {track!r:.60}: must be a shipped track's name, a path to a track JSON file or a "
+                       "track dict")
+    return load_track(track)
+
+
 def _json_of(data: bytes, source: str):
-    if data.startswith(b"\xef\xbb\xbf"):
-        raise BadInput(f"{source}: starts with a UTF-8 byte-order mark; save it as UTF-8 without BOM")
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise BadInput(f"{source}: not a UTF-8 text file (byte 0x{data[exc.start]:02x} at offset {exc.start}); "
-                         "a track is a JSON text file") from None
-    depth = _nesting_depth(text)
-    if depth > MAX_NESTING_DEPTH:
-        raise BadInput(f"{source}: brackets nested {depth} deep; a track needs at most {MAX_NESTING_DEPTH}")
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise BadInput(f"{source}: not valid JSON ({exc})") from None
-
-
-def _nesting_depth(text: str) -> int:
-    """Deepest bracket nesting outside JSON strings (checked before the parser recurses into it)."""
-    depth = deepest = 0
-    for char in re.sub(r'"(?:[^"\\]|\\.)*"', "", text):
-        if char in "[{":
-            depth += 1
-            deepest = max(deepest, depth)
-        elif char in "]}":
-            depth -= 1
-    return deepest
+    """The track's JSON, read by the kit's bounded loader (linear time; depth, values, integer length and
+    duplicate keys checked, each refusal naming the file and the field)."""
+    return parse_json(data, source, TRACK_JSON_LIMITS, bom="refuse")
 
 
 def parse_track(spec: dict, source: str = "<dict>") -> TrackSpec:
@@ -243,8 +210,6 @@ def _check_no_overlap(track: TrackSpec) -> None:
     half a circle of the tightest allowed radius) yet closer than the road is wide."""
     from scipy.spatial import cKDTree
 
-    from plm_highway.road.geometry import sample_reference
-
     ref = sample_reference(track, spacing_m=OVERLAP_SAMPLE_SPACING_M)
     road_width_m = 2.0 * track.road_half_width_m
     min_separation_m = math.pi * (track.road_half_width_m + track.lane_width_m)
@@ -274,24 +239,3 @@ def _check_closes(track: TrackSpec) -> None:
             f"{track.source}: field 'closed' is true but the last segment ends {gap_m:.2f} m and "
             f"{math.degrees(heading_gap_rad):.1f} deg away from the start"
         )
-
-
-def advance_pose(pose: tuple[float, float, float], segment: Segment) -> tuple[float, float, float]:
-    """Pose (x, y, heading) of the reference line at the end of ``segment`` started at ``pose``."""
-    x_m, y_m, heading_rad = pose
-    if segment.kind == "straight":
-        return (x_m + segment.length_m * math.cos(heading_rad),
-                y_m + segment.length_m * math.sin(heading_rad), heading_rad)
-    sign = 1.0 if segment.direction == "left" else -1.0
-    centre_x = x_m - sign * segment.radius_m * math.sin(heading_rad)
-    centre_y = y_m + sign * segment.radius_m * math.cos(heading_rad)
-    new_heading = heading_rad + sign * segment.angle_rad
-    return (centre_x + sign * segment.radius_m * math.sin(new_heading),
-            centre_y - sign * segment.radius_m * math.cos(new_heading), new_heading)
-
-
-def end_pose(track: TrackSpec) -> tuple[float, float, float]:
-    pose = (0.0, 0.0, 0.0)
-    for segment in track.segments:
-        pose = advance_pose(pose, segment)
-    return pose

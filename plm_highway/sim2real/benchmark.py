@@ -236,9 +236,8 @@ def run_benchmarks(names: list[str], *, seeds: int = 3, duration_s: float = 600.
     :data:`CASE_SETS`. Returns the exit code (0)."""
     from tqdm import tqdm
 
-    from plm_highway.bench import BENCH_RESULT
     from plm_highway.errors import BadInput
-    from plm_highway.io import check_target, write_json
+    from plm_highway.io import BENCH_RESULT, check_target, write_json
 
     unknown = sorted(set(names) - {"timing", "match", *CASE_SETS})
     if unknown or not names:

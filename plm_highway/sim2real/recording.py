@@ -563,7 +563,7 @@ def read_sim_log(
     path: str | os.PathLike,
     *,
     steer_column: str = "steering",
-    # Defaults: the per-step logs `plm-highway evaluate` writes (evaluation.closed_loop.LOG_COLUMNS).
+    # Defaults: the per-step logs `plm-highway evaluate` writes (rollout.closed_loop.LOG_COLUMNS).
     t_column: str = "t_s",
     speed_column: str = "speed_mps",
     x_column: str = "x_m",

@@ -30,13 +30,17 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from plm_highway.errors import BadInput
-from plm_highway.evaluation.policies import POLICY_NAMES
+from plm_highway.io.bounded import JsonLimits
+from plm_highway.rollout.policies import POLICY_NAMES
+from plm_highway.rollout.seeds import parse_seeds
 
 REFERENCE_LATENCY = "const:0"
 MAX_CELLS = 100_000
 MAX_SEEDS = 10_000
 MAX_STEPS = 10_000_000
 MAX_GRID_FILE_BYTES = 1 << 20
+GRID_LIMITS = JsonLimits(max_bytes=MAX_GRID_FILE_BYTES, max_depth=16, max_nodes=200_000, max_int_digits=20,
+                         max_expanded_chars=4 << 20)
 CONDITION_KEYS = ("camera", "env_config")
 GRID_KEYS = ("conditions", "latencies", "tracks", "seeds", "policies", "max_steps")
 
@@ -144,23 +148,6 @@ def check_grid(grid: SweepGrid) -> None:
         raise BadInput(f"sweep grid: {grid.size():,} cells; at most {MAX_CELLS:,} per sweep")
 
 
-def parse_seeds(value) -> tuple[int, ...]:
-    """A count ``n`` (seeds 0..n-1), a list of seeds, or text ``"5"`` / ``"0,3,7"``."""
-    if isinstance(value, str):
-        text = value.strip()
-        try:
-            value = [int(v) for v in text.split(",")] if "," in text else int(text)
-        except ValueError:
-            raise BadInput(f"sweep grid: seeds {text!r}: give a count (5) or a comma-separated list (0,3,7)") from None
-    if isinstance(value, int) and not isinstance(value, bool):
-        if not 1 <= value <= MAX_SEEDS:
-            raise BadInput(f"sweep grid: seeds {value}: a count must lie in [1, {MAX_SEEDS:,}]")
-        return tuple(range(value))
-    if isinstance(value, Sequence) and len(value) <= MAX_SEEDS:
-        return tuple(value)
-    raise BadInput(f"sweep grid: seeds {value!r}: give a count or a list of at most {MAX_SEEDS:,} seeds")
-
-
 def grid_from_mapping(data: Mapping, source: str = "grid") -> SweepGrid:
     if not isinstance(data, Mapping):
         raise BadInput(f"{source}: expected a mapping with keys among {list(GRID_KEYS)}")
@@ -176,7 +163,7 @@ def grid_from_mapping(data: Mapping, source: str = "grid") -> SweepGrid:
                 raise BadInput(f"{source}: '{name}' must be a list, got {raw!r}")
             values[name] = tuple(str(v) for v in raw)
     if "seeds" in data:
-        values["seeds"] = parse_seeds(data["seeds"])
+        values["seeds"] = tuple(parse_seeds(data["seeds"], limit=MAX_SEEDS, what="sweep grid: seeds"))
     if "conditions" in data:
         values["conditions"] = data["conditions"] if data["conditions"] is not None else {}
     if "max_steps" in data:
@@ -185,23 +172,17 @@ def grid_from_mapping(data: Mapping, source: str = "grid") -> SweepGrid:
 
 
 def load_grid(path: str | Path) -> SweepGrid:
-    """A grid from a YAML (.yaml/.yml) or JSON file."""
-    path = Path(path)
-    if not path.is_file():
-        raise BadInput(f"--grid {str(path)!r}: no such file")
-    if path.stat().st_size > MAX_GRID_FILE_BYTES:
-        raise BadInput(f"--grid {str(path)!r}: larger than {MAX_GRID_FILE_BYTES} bytes; a grid file is small")
-    text = path.read_text(encoding="utf-8")
-    if path.suffix.lower() in (".yaml", ".yml"):
-        import yaml
+    """A grid from a YAML (.yaml/.yml) or JSON file, read within :data:`GRID_LIMITS` (aliases counted
+    after expansion, no key twice, no integer longer than 20 digits)."""
+    from plm_highway.io.bounded import decode_utf8, parse_json, parse_yaml, read_bounded
 
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise BadInput(f"--grid {str(path)!r}: not valid YAML: {exc}") from None
+    path = Path(path)
+    source = f"--grid {str(path)!r}"
+    if not path.is_file():
+        raise BadInput(f"{source}: no such file")
+    data = read_bounded(path, MAX_GRID_FILE_BYTES, "grid file")
+    if path.suffix.lower() in (".yaml", ".yml"):
+        document = parse_yaml(decode_utf8(data, source), source, GRID_LIMITS)
     else:
-        try:
-            data = json.loads(text)
-        except ValueError as exc:
-            raise BadInput(f"--grid {str(path)!r}: not valid JSON: {exc}") from None
-    return grid_from_mapping(data, f"--grid {str(path)!r}")
+        document = parse_json(data, source, GRID_LIMITS)
+    return grid_from_mapping(document, source)

@@ -1,20 +1,21 @@
 """Run a sweep grid into an output directory, resumably.
 
-The directory (``OUT``) holds ``grid.json`` (the last grid run into it), ``cells/KEY.json`` (one
-per finished run, written whole through :mod:`plm_highway.io` as its chunk comes back),
-``results.csv`` (the tidy table of the grid's cells, :mod:`plm_highway.sweep.table`) and
-``figures/``. Run again with the same ``OUT``, a sweep skips the cells whose result is there and
-runs the rest (also after a crash or Ctrl-C: what was written is whole); a grid with more seeds
-or latencies reuses the cells it shares with the earlier one. ``overwrite=True`` starts afresh.
+The directory (``OUT``) holds ``cells/KEY.json`` (one per finished run, written whole through
+:mod:`plm_highway.io` as its chunk comes back) and the set of the last run that finished:
+``grid.json`` (its grid), ``results.csv`` (the tidy table of the grid's cells,
+:mod:`plm_highway.sweep.table`) and ``figures/``. The set is published in one step when the run
+ends, so an interrupted run leaves the previous set whole (or none), never a new grid beside old
+results. Run again with the same ``OUT``, a sweep skips the cells whose result is there and runs
+the rest (also after a crash or Ctrl-C: what was written is whole); a grid with more seeds or
+latencies reuses the cells it shares with the earlier one. ``overwrite=True`` starts afresh.
 
 Cells are run in chunks of at most ``batch_size`` through
-:func:`~plm_highway.evaluation.batched.run_cells` (one batched forward pass per model and step),
-chunks spread over the backend's workers (:mod:`plm_highway.sweep.backends`).
+:func:`~plm_highway.rollout.cells.run_cells` (one batched forward pass per model and step),
+chunks spread over the backend's workers (:mod:`plm_highway.rollout.backends`).
 """
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 from dataclasses import asdict, dataclass
@@ -22,24 +23,32 @@ from pathlib import Path
 
 from plm_highway.errors import BadInput
 from plm_highway.io import (
+    FIGURE,
     JSON_MARKER_KEY,
+    JsonLimits,
     check_target,
     directory_kind,
     file_kind,
     json_text,
-    write_csv,
+    load_json,
+    write_csv_into,
     write_json,
     write_output,
 )
-from plm_highway.sweep.backends import make_backend
+from plm_highway.rollout.backends import make_backend
 from plm_highway.sweep.grid import SweepCell, SweepGrid
 from plm_highway.sweep.table import SWEEP_TABLE, TABLE_COLUMNS, cell_result, save_figures, table_rows
 
-SWEEP_DIR = directory_kind("sweep", "a plm-highway sweep directory")
 SWEEP_CELL = file_kind("sweep-cell", "a sweep cell result JSON file")
 SWEEP_GRID = file_kind("sweep-grid", "a sweep grid JSON file")
 SWEEP_FIGURES = directory_kind("sweep-figures", "a sweep figures directory")
+# The parts of OUT that one finished run replaces together; cells are added as they finish.
+SWEEP_SET = ("grid.json", "results.csv", "figures")
+SWEEP_DIR = directory_kind("sweep", "a plm-highway sweep directory", owned=(
+    ("cells/*.json", SWEEP_CELL), ("grid.json", SWEEP_GRID), ("results.csv", SWEEP_TABLE),
+    ("figures/*.png", FIGURE), ("figures/.plm-highway-output.json", SWEEP_FIGURES)))
 DEFAULT_BATCH_SIZE = 16
+CELL_LIMITS = JsonLimits(max_bytes=64 << 20, max_depth=8, max_nodes=20_000_000)
 
 
 @dataclass(frozen=True)
@@ -50,6 +59,7 @@ class ChunkJob:
     grid: SweepGrid
     checkpoints: str | None
     batch_size: int
+    device: str = "cpu"  # resolved on the worker: ``auto`` is the worker's GPU where it has one
 
 
 def run_chunk(job: ChunkJob) -> list[dict]:
@@ -57,30 +67,39 @@ def run_chunk(job: ChunkJob) -> list[dict]:
     import os
 
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    from plm_highway.evaluation.batched import RunCell, run_cells
-    from plm_highway.evaluation.policies import single_threaded_inference
+    from plm_highway.road.track import resolve_track
+    from plm_highway.rollout.cells import RunCell, run_cells
+    from plm_highway.rollout.policies import single_threaded_inference
 
+    tracks = {track: resolve_track(track) for track in dict.fromkeys(cell.track for cell in job.cells)}
     run_cells_list = []
     for cell in job.cells:
         condition = job.grid.conditions[cell.condition]
-        run_cells_list.append(RunCell(f"{cell.policy} {cell.latency} seed {cell.seed}", cell.policy, cell.track,
+        run_cells_list.append(RunCell(f"{cell.policy} {cell.latency} seed {cell.seed}", cell.policy, tracks[cell.track],
                                       cell.latency, cell.seed, camera=dict(condition.get("camera", {})) or None,
                                       env_config=dict(condition.get("env_config", {})) or None,
                                       max_steps=job.grid.max_steps))
     with single_threaded_inference():
-        logs = run_cells(run_cells_list, job.checkpoints, batch_size=job.batch_size)
+        logs = run_cells(run_cells_list, job.checkpoints, batch_size=job.batch_size, device=job.device)
     return [cell_result(log) for log in logs]
 
 
 def run_sweep(grid: SweepGrid, out, workers: int | None = None, backend: str = "local", address: str | None = None,
               batch_size: int = DEFAULT_BATCH_SIZE, checkpoints=None, overwrite: bool = False,
-              progress: bool = True) -> dict:
-    """Run every cell of ``grid`` not yet in ``out``; write the table and figures. Returns a summary dict."""
+              progress: bool = True, device: str = "cpu") -> dict:
+    """Run every cell of ``grid`` not yet in ``out``; write the table and figures. Returns a summary dict.
+
+    ``device`` (``cpu``, ``cuda``, ``auto``): where each worker runs the models; on a Ray cluster it is resolved
+    by the worker, elsewhere here first (``cuda`` without CUDA is refused before any run)."""
     if not 1 <= batch_size <= 4096:
         raise BadInput(f"--batch-size {batch_size}: must lie in [1, 4096]")
+    if backend != "ray":
+        from plm_highway.models.device import resolve_device
+
+        resolve_device(device)
     out = Path(out)
     if checkpoints is not None:
-        from plm_highway.evaluation.policies import checkpoint_pair
+        from plm_highway.rollout.policies import checkpoint_pair
 
         checkpoint_pair(checkpoints)  # fails now, naming what is missing, rather than in a worker
     runner = make_backend(backend, workers, address)
@@ -93,7 +112,7 @@ def run_sweep(grid: SweepGrid, out, workers: int | None = None, backend: str = "
         n_workers = getattr(runner, "workers", 1)
         chunk_size = max(1, min(batch_size, math.ceil(len(todo) / max(1, n_workers))))
         jobs = [ChunkJob(tuple(todo[i:i + chunk_size]), grid, None if checkpoints is None else str(checkpoints),
-                         batch_size) for i in range(0, len(todo), chunk_size)]
+                         batch_size, str(device)) for i in range(0, len(todo), chunk_size)]
         bar = _progress(len(cells), len(results), progress)
         try:
             for index, chunk_results in runner.map_unordered(run_chunk, jobs):
@@ -106,24 +125,29 @@ def run_sweep(grid: SweepGrid, out, workers: int | None = None, backend: str = "
     finally:
         runner.close()
     rows = table_rows(cells, results)
-    write_csv(out / "results.csv", TABLE_COLUMNS, [[row[c] for c in TABLE_COLUMNS] for row in rows], SWEEP_TABLE,
-              overwrite=True)
-    with write_output(out / "figures", SWEEP_FIGURES, overwrite=True) as staged:
-        figures = save_figures(rows, grid, staged)
+    figures = _publish_set(out, grid, rows)
     return {"out": str(out), "cells": len(cells), "ran": len(todo), "resumed": len(cells) - len(todo),
-            "table": str(out / "results.csv"), "figures": [str(out / "figures" / p.name) for p in figures],
-            "rows": rows}
+            "table": str(out / "results.csv"), "figures": [str(path) for path in figures], "rows": rows}
 
 
 def _open_directory(out: Path, grid: SweepGrid, overwrite: bool) -> None:
     """A new sweep directory, or an earlier one to resume (``overwrite``: replaced by a new one)."""
     if out.is_dir() and SWEEP_DIR.recognises(out) and not overwrite:
-        write_json(out / "grid.json", grid.as_dict(), SWEEP_GRID, overwrite=True)
-        return
+        return  # resumed: its grid, table and figures are replaced together when this run ends
     check_target(out, SWEEP_DIR, overwrite=overwrite)
     with write_output(out, SWEEP_DIR, overwrite=overwrite) as staged:
         (staged / "cells").mkdir()
+
+
+def _publish_set(out: Path, grid: SweepGrid, rows: list[dict]) -> list[Path]:
+    """This run's grid, table and figures, in place of the previous ones, in one step; the cells (and
+    anything else in OUT) stay."""
+    with write_output(out, SWEEP_DIR, update=SWEEP_SET) as staged:
         (staged / "grid.json").write_text(json_text(grid.as_dict(), SWEEP_GRID), encoding="utf-8")
+        write_csv_into(staged / "results.csv", TABLE_COLUMNS, [[row[c] for c in TABLE_COLUMNS] for row in rows])
+        (staged / "figures").mkdir()
+        figures = save_figures(rows, grid, staged / "figures")
+    return [out / "figures" / path.name for path in figures]
 
 
 def _read_cell(out: Path, key: str, cell: SweepCell) -> dict | None:
@@ -132,9 +156,9 @@ def _read_cell(out: Path, key: str, cell: SweepCell) -> dict | None:
     if not path.is_file():
         return None
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        raise BadInput(f"{path}: not a readable sweep cell result; remove it to run the cell again") from None
+        data = load_json(path, CELL_LIMITS, what="sweep cell result")
+    except (OSError, BadInput) as exc:
+        raise BadInput(f"{path}: not a readable sweep cell result ({exc}); remove it to run the cell again") from None
     if not isinstance(data, dict) or data.get(JSON_MARKER_KEY) != SWEEP_CELL.name or data.get("cell") != asdict(cell):
         raise BadInput(f"{path}: not the result of cell {asdict(cell)}; remove it to run the cell again")
     return data

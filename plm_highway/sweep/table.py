@@ -12,13 +12,14 @@ latency profile, mean over the seeds with a 95% t-interval (none for a single se
 
 from __future__ import annotations
 
+import json
 import math
-import re
 from pathlib import Path
 
 import numpy as np
 
-from plm_highway.io import file_kind, pyplot, save_figure_into
+from plm_highway.io import file_kind, pyplot, save_figure_into, unique_file_names
+from plm_highway.metrics.intervals import mean_ci
 from plm_highway.metrics.steering import common_span, steering_mae
 from plm_highway.sweep.grid import SweepCell, SweepGrid
 
@@ -50,23 +51,23 @@ def table_rows(cells: list[SweepCell], results: dict[SweepCell, dict]) -> list[d
     return rows
 
 
-def mean_ci95(values) -> tuple[float, float]:
-    """Mean and the half-width of its 95% t-interval (NaN for fewer than two values)."""
-    from scipy import stats
-
-    values = np.asarray([v for v in values if not math.isnan(v)], dtype=float)
-    if len(values) == 0:
+def mean_and_half_width(values) -> tuple[float, float]:
+    """A figure's point and error bar: the mean over the values that are defined and the half-width of its 95%
+    Student-t interval (:func:`~plm_highway.metrics.intervals.mean_ci`); NaN where undefined (no value, or one)."""
+    defined = [v for v in values if math.isfinite(v)]
+    if not defined:
         return math.nan, math.nan
-    if len(values) < 2:
-        return float(values[0]), math.nan
-    half = stats.t.ppf(0.975, len(values) - 1) * values.std(ddof=1) / math.sqrt(len(values))
-    return float(values.mean()), float(half)
+    estimate = mean_ci(defined)
+    return estimate.mean, math.nan if estimate.half_width is None else estimate.half_width
 
 
 def figure_names(grid: SweepGrid) -> list[tuple[str, str, str]]:
-    """(condition, track, file name) of each figure."""
-    return [(c, t, re.sub(r"[^A-Za-z0-9.+-]+", "-", f"sweep_{c}_{Path(t).stem}") + ".png")
-            for c in grid.conditions for t in grid.tracks]
+    """(condition, track, file name) of each figure: one name per condition and track, even for two
+    tracks with one file name in different folders."""
+    pairs = [(c, t) for c in grid.conditions for t in grid.tracks]
+    names = unique_file_names([f"sweep_{c}_{Path(t).stem}" for c, t in pairs],
+                              [json.dumps([c, t]) for c, t in pairs], ".png")
+    return [(c, t, name) for (c, t), name in zip(pairs, names)]
 
 
 def save_figures(rows: list[dict], grid: SweepGrid, directory: Path) -> list[Path]:
@@ -78,7 +79,7 @@ def save_figures(rows: list[dict], grid: SweepGrid, directory: Path) -> list[Pat
         fig, axes = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
         for policy in grid.policies:
             for ax, metric in zip(axes, ("steering_mae", "lateral_offset_rms_m")):
-                stats = [mean_ci95([r[metric] for r in rows if (r["condition"], r["track"], r["latency"],
+                stats = [mean_and_half_width([r[metric] for r in rows if (r["condition"], r["track"], r["latency"],
                                     r["policy"]) == (condition, track, latency, policy)]) for latency in latencies]
                 means, halves = zip(*stats)
                 ax.errorbar(range(len(latencies)), means, yerr=np.nan_to_num(halves), marker="o", capsize=3,

@@ -143,6 +143,13 @@ class Batch:
     speed_mps: torch.Tensor  # (B,) float32
     targets: torch.Tensor  # (B, K) float32
 
+    def to(self, device: torch.device) -> Batch:
+        """The batch on ``device`` (itself where it is there already). Batches are drawn and augmented on the
+        CPU with the CPU generator, so every device trains on the same samples."""
+        if self.frames.device == device:
+            return self
+        return Batch(self.frames.to(device), self.speed_mps.to(device), self.targets.to(device))
+
 
 def flip_horizontally(
     frames: torch.Tensor, targets: torch.Tensor, flip: torch.Tensor

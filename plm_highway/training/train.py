@@ -8,7 +8,16 @@ the factor N does not matter to Adam).
 Repeatability: one seed drives numpy (balancing, subsetting, split), a torch.Generator (batch
 order, augmentation) and torch's global RNG (weight init, dropout), with deterministic
 algorithms on; the same seed on the same machine and thread count gives bit-identical weights
-(and a byte-identical ``model.pt`` and ``model.json``: nothing time-dependent is recorded).
+(and a byte-identical ``model.pt`` and ``model.json``: nothing time-dependent is recorded). The
+command line trains with :data:`DEFAULT_THREADS` unless told otherwise, never with a count that
+follows the CPU affinity, and records the count (``training.threads``).
+
+Devices (``device``: ``cpu``, ``cuda``, ``auto``): the weights are initialised on the CPU and then moved,
+batches are drawn and augmented on the CPU and then moved, so every device starts from the same weights
+and sees the same samples in the same order. On CUDA, :func:`deterministic` also sets
+``CUBLAS_WORKSPACE_CONFIG=:4096:8`` when it is unset (cuBLAS needs it for repeatable products; it takes
+effect only if no CUDA product ran in the process before) and dropout draws from CUDA's generator (seeded
+by the same seed): a run repeats itself on the same GPU and software, but not the CPU's bits.
 
 Argument bounds (:class:`TrainConfig`, checked before the dataset is read): ``epochs`` in [1, 1000],
 ``batch_size`` in [1, 4096], ``learning_rate`` in [0, 1], ``patience_epochs`` in [1, 1000],
@@ -22,6 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -33,7 +43,7 @@ from tqdm import tqdm
 
 from plm_highway.data.dataset import Dataset, read_dataset
 from plm_highway.errors import BadInput
-from plm_highway.io import check_target, write_output
+from plm_highway.io import check_target, refuse_non_ascii_digits, write_output
 from plm_highway.models.base_model import BaseModel, preset_config
 from plm_highway.models.checkpoints import (
     CHECKPOINT,
@@ -44,6 +54,7 @@ from plm_highway.models.checkpoints import (
     state_fingerprint,
 )
 from plm_highway.models.config_checks import check_int, check_number
+from plm_highway.models.device import describe_device, resolve_device
 from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S, TAPM, TAPMConfig, validate_delta_grid
 from plm_highway.training.labels import save_balance_figure
 from plm_highway.training.samples import (
@@ -61,11 +72,15 @@ from plm_highway.training.samples import (
 )
 
 BALANCE_FIGURE_NAME = "steering_balance.png"
+DEFAULT_THREADS = 2  # torch intra-op threads of `plm-highway train` (the shipped checkpoints' count)
 MAX_EPOCHS = 1000
 MAX_BATCH_SIZE = 4096
 MAX_SEED = 2**63 - 1
 MAX_ROWS = 10**9
 MAX_LABEL_LEAD_S = 2.0  # far beyond any human reaction time; a longer lead labels frames with another road
+# cuBLAS's documented setting for reproducible results (a workspace of 8 buffers of 4 MiB); torch refuses
+# deterministic CUDA products without it or ":16:8".
+CUBLAS_WORKSPACE_CONFIG = ":4096:8"
 
 
 @dataclass(frozen=True)
@@ -114,8 +129,16 @@ class FitResult:
 
 
 @contextlib.contextmanager
-def deterministic(seed: int) -> Iterator[None]:
-    """Seed torch's global RNG and force deterministic algorithms for the block."""
+def deterministic(seed: int, device: torch.device | str = "cpu") -> Iterator[None]:
+    """Seed torch's global RNG (every device's) and force deterministic algorithms for the block.
+
+    On CUDA torch then refuses an operation that has no deterministic form rather than run it (none of
+    the models' training operations is one), and cuBLAS needs ``CUBLAS_WORKSPACE_CONFIG``: set here when
+    unset (it takes effect only where no CUDA product ran in the process before; set it in the environment
+    to be sure).
+    """
+    if torch.device(device).type == "cuda":
+        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", CUBLAS_WORKSPACE_CONFIG)
     previous = torch.are_deterministic_algorithms_enabled()
     previous_fill = torch.utils.deterministic.fill_uninitialized_memory
     torch.use_deterministic_algorithms(True)
@@ -160,8 +183,11 @@ def fit(
     val_rows: LabelledRows,
     config: TrainConfig,
     name: str,
+    device: torch.device | None = None,
 ) -> FitResult:
-    """Adam on the trainable parameters with early stopping; leaves ``model`` at its best epoch."""
+    """Adam on the trainable parameters with early stopping; leaves ``model`` at its best epoch.
+
+    ``device``: where the batches go (the model must be there already; None: the CPU)."""
     optimizer = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=config.learning_rate)
     generator = torch.Generator().manual_seed(config.seed)
     train_history: list[float] = []
@@ -170,10 +196,10 @@ def fit(
     for epoch in range(1, config.epochs + 1):
         description = f"{name} {epoch}/{config.epochs}"
         train_loss = train_epoch(
-            model, loss_fn, optimizer, frames, train_rows, config, generator, description
+            model, loss_fn, optimizer, frames, train_rows, config, generator, description, device
         )
         train_history.append(train_loss)
-        val_history.append(evaluate(model, loss_fn, frames, val_rows, config.batch_size))
+        val_history.append(evaluate(model, loss_fn, frames, val_rows, config.batch_size, device))
         improved = val_history[-1] < best_val_loss
         if improved:
             best_state = {key: value.clone() for key, value in model.state_dict().items()}
@@ -199,9 +225,12 @@ def fit(
 
 
 def train_epoch(
-    model, loss_fn, optimizer, frames, rows, config: TrainConfig, generator, description: str = ""
+    model, loss_fn, optimizer, frames, rows, config: TrainConfig, generator, description: str = "",
+    device: torch.device | None = None,
 ) -> float:
-    """One pass over ``rows`` in random order (Adam steps, augmentation); returns the mean loss."""
+    """One pass over ``rows`` in random order (Adam steps, augmentation) with the batches on ``device`` (None:
+    the CPU); returns the mean loss."""
+    device = torch.device("cpu") if device is None else device
     model.train()
     total_loss, n_samples = 0.0, 0
     batches = iterate_batches(frames, rows, config.batch_size, generator, config.augmentation)
@@ -213,6 +242,7 @@ def train_epoch(
         disable=not config.show_progress,
     )
     for batch in progress:
+        batch = batch.to(device)
         optimizer.zero_grad(set_to_none=True)
         loss = loss_fn(batch)
         loss.backward()
@@ -225,12 +255,15 @@ def train_epoch(
     return total_loss / max(n_samples, 1)
 
 
-def evaluate(model, loss_fn, frames: np.ndarray, rows: LabelledRows, batch_size: int) -> float:
-    """Mean per-sample loss over ``rows`` in eval mode, in row order, without augmentation."""
+def evaluate(model, loss_fn, frames: np.ndarray, rows: LabelledRows, batch_size: int,
+             device: torch.device | None = None) -> float:
+    """Mean per-sample loss over ``rows`` in eval mode, in row order, without augmentation, on ``device``."""
+    device = torch.device("cpu") if device is None else device
     model.eval()
     total_loss, n_samples = 0.0, 0
     with torch.no_grad():
         for batch in iterate_batches(frames, rows, batch_size):
+            batch = batch.to(device)
             total_loss += float(loss_fn(batch)) * len(batch.targets)
             n_samples += len(batch.targets)
     return total_loss / max(n_samples, 1)
@@ -286,8 +319,12 @@ def train_base_model(
     config: TrainConfig = TrainConfig(),
     command: str = "",
     overwrite: bool = False,
+    device: str | torch.device = "cpu",
 ) -> dict:
-    """Train a BM on the dataset at ``data_dir``; writes ``out_dir/model.pt`` + ``model.json``; returns the description."""
+    """Train a BM on the dataset at ``data_dir``; writes ``out_dir/model.pt`` + ``model.json``; returns the description.
+
+    ``device``: ``cpu``, ``cuda`` or ``auto`` (see the module docstring)."""
+    device = resolve_device(device)
     dataset = read_dataset(data_dir)
     model_config = preset_config(preset)
     _check_frame_size(dataset, model_config.image_size_px, f"preset {preset!r}")
@@ -295,13 +332,13 @@ def train_base_model(
     out_dir = Path(out_dir)
     rng = np.random.default_rng(config.seed)
     prepared = prepare_rows(bm_rows(dataset, config.label_lead_s), config, rng, f"dataset {data_dir}")
-    with deterministic(config.seed):
-        bm = BaseModel(model_config)
-        result = fit(bm, bm_loss(bm), dataset.frames, prepared.train, prepared.val, config, "BM")
+    with deterministic(config.seed, device):
+        bm = BaseModel(model_config).to(device)  # initialised on the CPU: the same weights on every device
+        result = fit(bm, bm_loss(bm), dataset.frames, prepared.train, prepared.val, config, "BM", device)
     description = {
         "preset": preset,
         "image_size_px": list(model_config.image_size_px),
-        "training": _training_summary(data_dir, dataset, config, result, prepared.counts, command),
+        "training": _training_summary(data_dir, dataset, config, result, prepared.counts, command, device),
     }
     _write_checkpoint_dir(out_dir, bm, description, prepared, overwrite)
     return description
@@ -315,9 +352,13 @@ def train_tapm(
     delta_grid_s: tuple[float, ...] = DEFAULT_DELTA_GRID_S,
     command: str = "",
     overwrite: bool = False,
+    device: str | torch.device = "cpu",
 ) -> dict:
-    """Train a TAPM on the frozen BM at ``bm_path``; writes ``out_dir/model.pt`` + ``model.json``."""
-    bm = freeze(load_base_model(bm_path))
+    """Train a TAPM on the frozen BM at ``bm_path``; writes ``out_dir/model.pt`` + ``model.json``.
+
+    ``device``: ``cpu``, ``cuda`` or ``auto`` (see the module docstring)."""
+    device = resolve_device(device)
+    bm = freeze(load_base_model(bm_path, device))
     bm_description = read_description(bm_path, KIND_BASE_MODEL)
     check_same_label_lead(bm_path, bm_description, config.label_lead_s)
     dataset = read_dataset(data_dir)
@@ -328,16 +369,17 @@ def train_tapm(
     rows = tapm_rows(dataset, tapm_config.delta_grid_s, config.label_lead_s)
     source = f"dataset {data_dir} (rows with a future label {tapm_config.delta_grid_s[-1]:g} s ahead)"
     prepared = prepare_rows(rows, config, rng, source)
-    with deterministic(config.seed):
-        tapm = TAPM(tapm_config)
-        result = fit(tapm, tapm_loss(tapm, bm), dataset.frames, prepared.train, prepared.val, config, "TAPM")
+    with deterministic(config.seed, device):
+        tapm = TAPM(tapm_config).to(device)  # initialised on the CPU: the same weights on every device
+        result = fit(tapm, tapm_loss(tapm, bm), dataset.frames, prepared.train, prepared.val, config, "TAPM",
+                     device)
     description = {
         "preset": bm_description.get("preset"),
         "image_size_px": list(bm.config.image_size_px),
         "delta_grid_s": list(tapm_config.delta_grid_s),
         "bm_checkpoint": str(Path(bm_path).resolve()),
         "bm_fingerprint": state_fingerprint(bm),
-        "training": _training_summary(data_dir, dataset, config, result, prepared.counts, command),
+        "training": _training_summary(data_dir, dataset, config, result, prepared.counts, command, device),
     }
     _write_checkpoint_dir(Path(out_dir), tapm, description, prepared, overwrite)
     return description
@@ -362,7 +404,8 @@ def _check_frame_size(dataset: Dataset, image_size_px: tuple[int, int], owner: s
 
 
 def _training_summary(
-    data_dir, dataset: Dataset, config: TrainConfig, result: FitResult, counts: dict, command: str
+    data_dir, dataset: Dataset, config: TrainConfig, result: FitResult, counts: dict, command: str,
+    device: torch.device,
 ) -> dict:
     return {
         "command": command,
@@ -378,11 +421,14 @@ def _training_summary(
         # JSON has no infinity: a run whose validation loss never became finite records null.
         "best_val_loss": result.best_val_loss if math.isfinite(result.best_val_loss) else None,
         "threads": torch.get_num_threads(),
+        # CPU and GPU runs of one seed differ in their last bits and then more: say where it ran.
+        "device": describe_device(device),
     }
 
 
 def parse_delta_grid(text: str) -> tuple[float, ...]:
     """``--delta-grid`` "0.15,0.2,..." -> latencies in seconds, checked like the TAPM's grid."""
+    refuse_non_ascii_digits(text, "--delta-grid")
     parts = [part.strip() for part in text.split(",")]
     try:
         grid = [float(part) for part in parts if part]

@@ -1,7 +1,7 @@
 """The PLM-Net papers' steering unit and the steering ratio this project reads it with.
 
 The papers give steering normalised to [-1, 1], 1 = 450 deg of steering wheel, and state no steering
-ratio. Issue 9 converts the paper's 0.1714 to "about 0.11 rad at the front wheels", i.e.
+ratio. The reproduction converts the paper's 0.1714 to "about 0.11 rad at the front wheels", i.e.
 0.1714 * 450 deg / 0.11 rad = 12.2:1; we use 12. The car agrees: the papers drove OSCAR's ``fusion``,
 which its README says is based on OSRF's ``car_demo`` Prius. That car's URDF
 (``prius_description/urdf/prius.urdf``) limits the steering wheel to +-7.85 rad (450 deg) and the

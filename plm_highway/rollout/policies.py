@@ -17,6 +17,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from plm_highway.expert import ExpertPolicy
+from plm_highway.rollout.closed_loop import Policy
+from plm_highway.rollout.conditions import Conditions
 
 POLICY_NAMES = ("expert", "bm", "plm", "ekf")
 LATENCY_SOURCES = {"measured": "observation_age_s", "requested": "latency_s"}  # what PLM-Net is told -> info key
@@ -103,27 +105,69 @@ def checkpoint_pair(checkpoint_dir=None, preset: str = SHIPPED_PRESET) -> tuple[
     )
 
 
+def ekf_plant(conditions) -> dict:
+    """What the EKF lane keeper must know of ``conditions`` (a :class:`~plm_highway.rollout.conditions.Conditions`):
+    the camera, the steering range, the loop period, the actuator's lag and the processing delay (its LQR's
+    plant), and the car of the conditions' vehicle model as a linear single-track car (its estimator's model)."""
+    from plm_highway.camera.pinhole import CameraConfig
+    from plm_highway.estimation.lateral_control import LoopTiming, single_track_equivalent
+    from plm_highway.vehicle.models import checked_params, vehicle_model
+
+    params = checked_params(vehicle_model(conditions.vehicle_model), conditions.vehicle_params)
+    return {"camera": CameraConfig.from_dict(conditions.camera or {}), "max_steering_rad": conditions.max_steering_rad,
+            "timing": LoopTiming(1.0 / conditions.policy_frequency_hz, conditions.steering_time_constant_s,
+                                 conditions.processing_delay_steps),
+            "vehicle": single_track_equivalent(params)}
+
+
 def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, latency_source: str = "measured",
-                seed: int = 0, preset: str = SHIPPED_PRESET):
+                seed: int = 0, preset: str = SHIPPED_PRESET, conditions=None, compensate_delay: bool = True,
+                device="cpu"):
     """The policy named ``name``; model policies load the shipped ``preset`` checkpoints unless given a dir
     and run batch-invariantly (:mod:`plm_highway.models.batch_invariant`).
 
-    ``seed`` seeds the EKF policy's own sensor noise (the others have none).
+    ``seed`` seeds the EKF policy's own sensor noise (the others have none); ``conditions`` (default: the ideal
+    ones) set its plant (:func:`ekf_plant`) and ``compensate_delay`` whether it re-stamps late frames.
+    ``device`` (``cpu``, ``cuda``, ``auto`` or a torch.device; see :func:`plm_highway.models.device.resolve_device`)
+    is where a model policy's model and input tensors live; its steering comes back as Python floats whatever the
+    device. The batch-invariant kernels, and with them the guarantee that batched and one-env runs agree bit for
+    bit, are the CPU's. The expert and the EKF run on the host and ignore it.
     """
     if name == "expert":
         return ExpertPolicy()
     if name == "ekf":
         from plm_highway.estimation.policy import ekf_policy
 
-        return ekf_policy(latency_bias_s=latency_bias_s, seed=seed)
+        plant = {} if conditions is None else ekf_plant(conditions)
+        return ekf_policy(compensate_delay=compensate_delay, latency_bias_s=latency_bias_s, seed=seed, **plant)
     if name not in POLICY_NAMES:
         raise ValueError(f"--policy {name!r}: expected one of {list(POLICY_NAMES)}")
     from plm_highway.models import checkpoints, inference
+    from plm_highway.models.device import resolve_device
 
+    device = resolve_device(device)  # refused (cuda without CUDA) before any checkpoint is read
     bm_path, tapm_path = checkpoint_pair(checkpoint_dir, preset)
     # Batch-invariant kernels: a run's result does not depend on which runs shared its batch (or on
     # running alone), so batched, pooled and one-env runs of one seed give the same numbers.
     if name == "bm":
-        return VisionPolicy(inference.BaseModelPolicy(checkpoints.load_base_model(bm_path), batch_invariant=True))
-    return VisionPolicy(inference.PLMNetPolicy(checkpoints.load_plm_net(bm_path, tapm_path), batch_invariant=True),
-                        latency_bias_s, latency_source)
+        return VisionPolicy(inference.BaseModelPolicy(checkpoints.load_base_model(bm_path, device),
+                                                      batch_invariant=True))
+    return VisionPolicy(inference.PLMNetPolicy(checkpoints.load_plm_net(bm_path, tapm_path, device),
+                                               batch_invariant=True), latency_bias_s, latency_source)
+
+
+def biased(policy: Policy, latency_bias_s: float) -> Policy:
+    """``policy``, told its latency + ``latency_bias_s`` if that is not 0 (a model policy: a wrong latency estimate)."""
+    if not latency_bias_s:
+        return policy
+    if not isinstance(policy, VisionPolicy):
+        raise ValueError(f"a latency bias of {latency_bias_s} s needs a model policy, not a {type(policy).__name__}")
+    return VisionPolicy(policy.model_policy, latency_bias_s, policy.latency_source)
+
+
+def make_policies(checkpoints, conditions: Conditions, device="cpu") -> dict[str, Policy]:
+    """``{"bm": Base Model, "plm": PLM-Net}`` from one checkpoint pair on ``device``, PLM-Net told the latency
+    these conditions say."""
+    return {"bm": make_policy("bm", checkpoints, preset=conditions.checkpoint_preset, device=device),
+            "plm": make_policy("plm", checkpoints, latency_source=conditions.latency_source,
+                               preset=conditions.checkpoint_preset, device=device)}

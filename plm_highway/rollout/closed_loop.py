@@ -15,8 +15,9 @@ from typing import Protocol, runtime_checkable
 import gymnasium
 import numpy as np
 
-import plm_highway  # noqa: F401  (registers the env)
-from plm_highway.latency import LatencyWrapper, parse_profile
+from plm_highway.envs import ENV_ID, register_envs
+from plm_highway.latency import LatencyProfile, LatencyWrapper
+from plm_highway.road.spec import TrackSpec
 
 LOG_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_m", "heading_rad", "speed_mps",
                "lateral_offset_m", "heading_error_rad", "arc_length_m", "segment")
@@ -65,11 +66,37 @@ class RunLog:
         }
 
 
-def make_env(track, latency, camera: dict | None = None, env_config: dict | None = None,
-             injection: str = "time") -> LatencyWrapper:
+@dataclass(frozen=True)
+class RunCell:
+    """One closed-loop run, :func:`drive`'s arguments as data. ``policy`` is a name of
+    :data:`~plm_highway.rollout.policies.POLICY_NAMES` or a policy object.
+
+    A policy object is either a :class:`~plm_highway.rollout.policies.VisionPolicy` (batched runs sharing its
+    model go through it together) or any ``policy(frame, info)`` callable with ``reset()``, called per env: a
+    stateful one (a filter) must be a distinct object in every cell that runs batched.
+    """
+
+    name: str
+    policy: object
+    track: TrackSpec | str = "test"
+    latency: LatencyProfile | str = "const:0"
+    seed: int = 0
+    latency_bias_s: float = 0.0  # PLM-Net told its latency + bias (named policies only)
+    latency_source: str = "measured"  # what a named PLM-Net is told: "measured" age or "requested" latency
+    camera: dict | None = None
+    env_config: dict | None = None
+    max_steps: int | None = None
+    injection: str = "time"  # LatencyWrapper injection, as for drive()
+    image_noise_std: float = 0.0  # Gaussian pixel noise [grey levels], seeded as drive() seeds it
+
+
+def make_env(track: TrackSpec | str, latency: LatencyProfile | str, camera: dict | None = None,
+             env_config: dict | None = None, injection: str = "time") -> LatencyWrapper:
+    """The lane-keeping env on ``track`` behind a latency wrapper. ``latency``: a parsed profile (the wrapper
+    keeps a private copy of it), or a spec, which the wrapper parses with the one parser."""
+    register_envs()
     config = {"track": track, **({"camera": camera} if camera else {}), **(env_config or {})}
-    return LatencyWrapper(gymnasium.make("plm_highway/LaneKeeping-v0", config=config), parse_profile(latency),
-                          injection=injection)
+    return LatencyWrapper(gymnasium.make(ENV_ID, config=config), latency, injection=injection)
 
 
 def add_image_noise(frame: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
@@ -78,9 +105,9 @@ def add_image_noise(frame: np.ndarray, std: float, rng: np.random.Generator) -> 
     return np.clip(np.rint(noisy), 0, 255).astype(frame.dtype)
 
 
-def drive(name: str, policy: Policy, track="test", latency="const:0", seed: int = 0, camera: dict | None = None,
-          env_config: dict | None = None, max_steps: int | None = None, injection: str = "time",
-          image_noise_std: float = 0.0) -> RunLog:
+def drive(name: str, policy: Policy, track: TrackSpec | str = "test", latency: LatencyProfile | str = "const:0",
+          seed: int = 0, camera: dict | None = None, env_config: dict | None = None, max_steps: int | None = None,
+          injection: str = "time", image_noise_std: float = 0.0) -> RunLog:
     """Drive one run until the track ends, the car leaves the road or ``max_steps``; the env is closed after."""
     env = make_env(track, latency, camera, env_config, injection)
     noise_rng = np.random.default_rng([seed, NOISE_STREAM])
@@ -106,3 +133,9 @@ def drive(name: str, policy: Policy, track="test", latency="const:0", seed: int 
     columns = {column: np.asarray(values) for column, values in rows.items()}
     extras = {"latency_clamped_steps": int(policy.clamped_count)} if isinstance(policy, CountsClampedLatency) else {}
     return RunLog(name, columns, bool(terminated), float(info["completed_fraction"]), extras)
+
+
+def drive_cell(cell: RunCell, policy: Policy) -> RunLog:
+    """:func:`drive` the run ``cell`` describes, with ``policy`` (the cell's policy made an object)."""
+    return drive(cell.name, policy, cell.track, cell.latency, cell.seed, cell.camera, cell.env_config, cell.max_steps,
+                 cell.injection, cell.image_noise_std)

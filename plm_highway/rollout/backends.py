@@ -1,8 +1,9 @@
-"""Where a sweep's chunks of cells run: in this process, a local process pool, or a Ray cluster.
+"""Where chunks of runs are driven: in this process, a local process pool, or a Ray cluster.
 
-Every backend has one method, ``map_unordered(function, chunks)``, yielding ``(chunk index,
-function(chunk))`` as chunks finish. Workers only compute and return results; the parent process
-writes every file (so a Ray cluster needs no shared filesystem and a cell is written whole once).
+Every backend has ``map_unordered(function, chunks)``, yielding ``(chunk index, function(chunk))`` as
+chunks finish, and ``close()`` (also as a context manager). Workers only compute and return results; the
+parent process writes every file (so a Ray cluster needs no shared filesystem and a result is written whole
+once). :func:`plm_highway.rollout.cells.run_cells` spreads cells over a backend; sweeps map their own chunks.
 """
 
 from __future__ import annotations
@@ -22,40 +23,67 @@ def default_workers() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
-class InProcess:
+def worker_pool(workers: int) -> ProcessPoolExecutor:
+    """A pool of ``workers`` spawned processes (no torch state is forked)."""
+    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+
+
+class _Backend:
+    def close(self) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class InProcess(_Backend):
     """Chunks one after another in this process (``--workers 0``; tests, benchmarks)."""
 
     def map_unordered(self, function: Callable, chunks: Sequence) -> Iterator[tuple[int, object]]:
         for index, chunk in enumerate(chunks):
             yield index, function(chunk)
 
-    def close(self) -> None:
-        pass
 
+class LocalPool(_Backend):
+    """A pool of ``workers`` processes on this machine (spawned: no torch state is forked).
 
-class LocalPool:
-    """A pool of ``workers`` processes on this machine (spawned: no torch state is forked)."""
+    The processes start at the first map and live until :meth:`close`, so what a worker loaded once (the
+    checkpoints) serves every later map: hold one pool across calls. ``executor``: a pool of ``workers``
+    processes already started (and warmed up) to map on instead; its owner shuts it down, not close.
+    """
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, executor: ProcessPoolExecutor | None = None):
         self.workers = workers
+        self._executor = executor
+        self._owned = executor is None
+
+    @property
+    def executor(self) -> ProcessPoolExecutor:
+        if self._executor is None:
+            self._executor = worker_pool(self.workers)
+        return self._executor
 
     def map_unordered(self, function: Callable, chunks: Sequence) -> Iterator[tuple[int, object]]:
-        with ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = {pool.submit(function, chunk): index for index, chunk in enumerate(chunks)}
-            try:
-                while futures:
-                    done, _ = wait(futures, return_when=FIRST_COMPLETED)
-                    for future in done:
-                        yield futures.pop(future), future.result()
-            finally:
-                for future in futures:  # an error or an interrupt: drop what has not started
-                    future.cancel()
+        futures = {self.executor.submit(function, chunk): index for index, chunk in enumerate(chunks)}
+        try:
+            while futures:
+                done, _ = wait(futures, return_when=FIRST_COMPLETED)
+                for future in done:
+                    yield futures.pop(future), future.result()
+        finally:
+            for future in futures:  # an error or an interrupt: drop what has not started
+                future.cancel()
 
     def close(self) -> None:
-        pass
+        if self._executor is not None and self._owned:
+            self._executor.shutdown(cancel_futures=True)
+        self._executor = None
 
 
-class RayCluster:
+class RayCluster(_Backend):
     """Chunks as Ray tasks (one CPU each) on a cluster at ``address``, or on a local Ray started here.
 
     ``address=None`` starts a private local Ray with ``workers`` CPUs and stops it on close;

@@ -1,12 +1,12 @@
 """Batched closed loop: N runs stepped together, one forward pass of each model per step.
 
-:func:`run_cells` drives a list of :class:`RunCell` (the arguments of
-:func:`~plm_highway.evaluation.closed_loop.drive` as data: policy, track, latency profile, seed,
-...) and returns one :class:`~plm_highway.evaluation.closed_loop.RunLog` per cell, in order.
-Up to ``batch_size`` envs are live at once; at every policy step the frames of all live envs that
-use one model (the Base Model, or PLM-Net with each env's own measured latency) go through that
-model in one ``steer_batch`` call; the expert and other callables are called per env. An env that
-ends drops out of the batch, the others go on.
+:func:`drive_batched` drives a list of :class:`~plm_highway.rollout.closed_loop.RunCell`, each with its policy
+object, and returns one :class:`~plm_highway.rollout.closed_loop.RunLog` per cell, in order; callers go through
+:func:`plm_highway.rollout.cells.run_cells`, which makes the policy objects and chooses this engine, the serial
+loop or a pool of workers. Up to ``batch_size`` envs are live at once; at every policy step the frames of all
+live envs that use one model (the Base Model, or PLM-Net with each env's own measured latency) go through that
+model in one ``steer_batch`` call; the expert and other callables are called per env. An env that ends drops
+out of the batch, the others go on.
 
 Why the project's own envs in a list and not gymnasium's vector API: ``SyncVectorEnv`` steps the
 same envs one after another in one process, like this loop, but every run here ends at its own
@@ -17,13 +17,13 @@ only have to undo. ``plm-highway bench sweep`` drives the same 16 runs both ways
 loaded 2-core machine (load average 7-11) the own loop took 17.0 s and SyncVectorEnv 18.6 s (earlier, at load 17,
 16.8 s and 18.0 s against 32.5 s one env at a time). The forward pass costs 10-20x the env step, so the
 vector API's bookkeeping is small but never a gain. ``AsyncVectorEnv`` puts one env per
-subprocess: on 2 cores the sweep's process pool (:mod:`plm_highway.sweep`) already uses both.
+subprocess: on 2 cores a process pool (:mod:`plm_highway.rollout.backends`) already uses both.
 
 Same results as one env at a time: env stepping, resets, latency realisations and image noise are
-per env and seeded exactly as :func:`drive` does, and the named model policies run batch-invariantly
-(:mod:`plm_highway.models.batch_invariant`: a sample's output does not depend on the rest of its
-batch), so every logged column equals the one-env run's bit for bit, whatever ``batch_size`` or
-``threads`` (``tests/test_batched.py``). A caller's policy object built without
+per env and seeded exactly as :func:`~plm_highway.rollout.closed_loop.drive` does, and the named model
+policies run batch-invariantly (:mod:`plm_highway.models.batch_invariant`: a sample's output does not depend
+on the rest of its batch), so every logged column equals the one-env run's bit for bit, whatever
+``batch_size`` or ``threads`` (``tests/test_batched.py``). A caller's policy object built without
 ``batch_invariant`` runs PyTorch's own kernels: equal up to float rounding (~1e-6 in steering per
 step, amplified by the closed loop to ~1e-4 over 100 steps), or bit-identical with
 ``run_cells(..., batch_invariant=True)``. Expert runs are always bit-identical.
@@ -39,33 +39,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plm_highway.evaluation.closed_loop import LOG_COLUMNS, NOISE_STREAM, RunLog, add_image_noise, make_env
-from plm_highway.evaluation.policies import POLICY_NAMES, SHIPPED_PRESET, VisionPolicy, make_policy
-
-DEFAULT_BATCH_SIZE = 32
-
-
-@dataclass(frozen=True)
-class RunCell:
-    """One closed-loop run. ``policy`` is a name of :data:`POLICY_NAMES` or a policy object.
-
-    A policy object is either a :class:`VisionPolicy` (cells sharing its model are batched
-    together) or any ``policy(frame, info)`` callable with ``reset()``, called per env: a
-    stateful one (a filter) must be a distinct object in every cell.
-    """
-
-    name: str
-    policy: object
-    track: object = "test"
-    latency: str = "const:0"
-    seed: int = 0
-    latency_bias_s: float = 0.0  # PLM-Net told its latency + bias (named policies only)
-    latency_source: str = "measured"  # what a named PLM-Net is told: "measured" age or "requested" latency
-    camera: dict | None = None
-    env_config: dict | None = None
-    max_steps: int | None = None
-    injection: str = "time"  # LatencyWrapper injection, as for drive()
-    image_noise_std: float = 0.0  # Gaussian pixel noise [grey levels], seeded as drive() seeds it
+from plm_highway.rollout.closed_loop import (
+    LOG_COLUMNS,
+    NOISE_STREAM,
+    Policy,
+    RunCell,
+    RunLog,
+    add_image_noise,
+    make_env,
+)
+from plm_highway.rollout.policies import VisionPolicy
 
 
 @dataclass
@@ -114,34 +97,20 @@ class _Run:
         return RunLog(self.cell.name, columns, bool(self.terminated), float(self.info["completed_fraction"]), extras)
 
 
-def run_cells(cells: Sequence[RunCell], checkpoints=None, batch_size: int = DEFAULT_BATCH_SIZE,
-              batch_invariant: bool = False, on_done: Callable[[int, RunLog], None] | None = None,
-              threads: int = 1, preset: str = SHIPPED_PRESET) -> list[RunLog]:
-    """Drive every cell, ``batch_size`` envs at a time; the logs in the order of ``cells``.
+def drive_batched(cells: Sequence[RunCell], policies: Sequence[Policy], batch_size: int, batch_invariant: bool = False,
+                  on_done: Callable[[int, RunLog], None] | None = None, threads: int = 1) -> list[RunLog]:
+    """Drive every cell with its policy (``policies[i]`` for ``cells[i]``), ``batch_size`` envs at a time; the logs
+    in the order of ``cells``.
 
-    Named model policies load the checkpoint pair once (``checkpoints`` and ``preset`` as for
-    :func:`~plm_highway.evaluation.policies.make_policy`). ``on_done(index, log)`` is called as each
-    run ends (progress, or saving results as they come). ``threads`` > 1 splits the cells over that
-    many Python threads, each stepping its own batch and sharing the models: the forward passes
-    (which release the GIL) of one batch run while another batch's envs step, which uses a second
-    core without a process or a second copy of the model. With batch-invariant policies (the
-    named ones) the logs do not depend on ``batch_size`` or ``threads``.
+    ``on_done(index, log)`` is called as each run ends. ``threads`` > 1 splits the cells over that many Python
+    threads, each stepping its own batch and sharing the models: the forward passes (which release the GIL) of
+    one batch run while another batch's envs step, which uses a second core without a process or a second copy
+    of the model. With batch-invariant models the logs do not depend on ``batch_size`` or ``threads``.
     """
-    if not 1 <= batch_size <= 4096:
-        raise ValueError(f"batch_size {batch_size}: must lie in [1, 4096]")
-    if not 1 <= threads <= 64:
-        raise ValueError(f"threads {threads}: must lie in [1, 64]")
-    for i, cell in enumerate(cells):
-        if isinstance(cell.policy, str) and cell.policy not in POLICY_NAMES:
-            raise ValueError(f"cell {i} ({cell.name!r}): policy {cell.policy!r} is not one of {list(POLICY_NAMES)}")
-        if cell.max_steps is not None and cell.max_steps < 1:
-            raise ValueError(f"cell {i} ({cell.name!r}): max_steps {cell.max_steps} must be at least 1")
-    _check_no_shared_callables(cells)
-    models = _named_models(cells, checkpoints, preset)
     logs: list[RunLog | None] = [None] * len(cells)
     parts = [list(range(len(cells)))[k::threads] for k in range(min(threads, len(cells)))]
     if len(parts) <= 1:
-        _drive_part(parts[0] if parts else [], cells, models, batch_size, batch_invariant, logs, on_done)
+        _drive_part(parts[0] if parts else [], cells, policies, batch_size, batch_invariant, logs, on_done)
         return logs
     lock = threading.Lock()
 
@@ -150,15 +119,15 @@ def run_cells(cells: Sequence[RunCell], checkpoints=None, batch_size: int = DEFA
             on_done(index, log)
 
     with ThreadPoolExecutor(len(parts)) as pool:
-        futures = [pool.submit(_drive_part, part, cells, models, batch_size, batch_invariant, logs,
+        futures = [pool.submit(_drive_part, part, cells, policies, batch_size, batch_invariant, logs,
                                None if on_done is None else done) for part in parts]
         for future in futures:
             future.result()
     return logs
 
 
-def _drive_part(indices: list[int], cells: Sequence[RunCell], models: dict, batch_size: int, batch_invariant: bool,
-                logs: list, on_done) -> None:
+def _drive_part(indices: list[int], cells: Sequence[RunCell], policies: Sequence[Policy], batch_size: int,
+                batch_invariant: bool, logs: list, on_done) -> None:
     """The cells ``indices``, ``batch_size`` envs at a time, refilling the batch as runs end."""
     pending = list(indices)
     live: dict[int, _Run] = {}
@@ -166,7 +135,7 @@ def _drive_part(indices: list[int], cells: Sequence[RunCell], models: dict, batc
         while pending or live:
             while pending and len(live) < batch_size:
                 index = pending.pop(0)
-                live[index] = _start(cells[index], models)
+                live[index] = _start(cells[index], policies[index])
             _steer_and_step(list(live.values()), batch_invariant)
             for index in [i for i, run in live.items() if run.done]:
                 logs[index] = live.pop(index).log()
@@ -177,32 +146,7 @@ def _drive_part(indices: list[int], cells: Sequence[RunCell], models: dict, batc
             run.env.close()
 
 
-def _check_no_shared_callables(cells: Sequence[RunCell]) -> None:
-    seen: dict[int, int] = {}
-    for i, cell in enumerate(cells):
-        if isinstance(cell.policy, (str, VisionPolicy)):
-            continue
-        if id(cell.policy) in seen:
-            raise ValueError(f"cells {seen[id(cell.policy)]} and {i}: one policy object in two cells; runs "
-                             "stepped together would share its state. Give each cell its own object")
-        seen[id(cell.policy)] = i
-
-
-def _named_models(cells: Sequence[RunCell], checkpoints, preset: str) -> dict[str, VisionPolicy]:
-    """One policy per model name the cells use (loaded once, shared by the batch)."""
-    models = {}
-    for name in sorted({cell.policy for cell in cells if isinstance(cell.policy, str) and cell.policy != "expert"}):
-        models[name] = make_policy(name, checkpoints, preset=preset)
-    return models
-
-
-def _start(cell: RunCell, models: dict[str, VisionPolicy]) -> _Run:
-    if cell.policy == "expert":
-        policy = make_policy("expert")
-    elif isinstance(cell.policy, str):
-        policy = VisionPolicy(models[cell.policy].model_policy, cell.latency_bias_s, cell.latency_source)
-    else:
-        policy = cell.policy
+def _start(cell: RunCell, policy: Policy) -> _Run:
     env = make_env(cell.track, cell.latency, cell.camera, cell.env_config, cell.injection)
     obs, info = env.reset(seed=cell.seed)
     policy.reset()

@@ -1,9 +1,4 @@
-"""Closed-loop runs of the reproduction's settings: conditions, cells, and the one function that drives them.
-
-A **cell** is one closed-loop run: a role (``reference``, ``baseline``, ``mitigated``), the policy that
-drives it, a latency setting and a seed, on a track under a set of **conditions**. :func:`run_cells`
-drives a list of cells and returns one :class:`RunLog` per cell, in order; it is the only place
-the reproduction drives the simulator, so a batched or parallel runner can replace it whole.
+"""The conditions a closed-loop run is driven under, and what they decide about each run.
 
 Conditions (``--conditions``):
 
@@ -13,8 +8,9 @@ Conditions (``--conditions``):
   its source in :data:`PAPER_CONDITION_ITEMS`, and what is not reproduced is listed there too.
 
 Seeds vary the latency realisation (random profiles), the start (lateral offset and heading
-error, drawn from ``np.random.default_rng([seed, START_STREAM])``) and, under ``paper``, the image
-noise. Seed 0 keeps the centred start, so the seed-0 run is the one earlier reports showed.
+error, drawn from ``np.random.default_rng([seed, START_STREAM])``, :func:`start_perturbation`) and,
+under ``paper``, the image noise. Seed 0 keeps the centred start, so the seed-0 run is the one earlier
+reports showed.
 
 Scoring ends before the camera can see the end of an open road: the runs stop after
 :func:`scored_steps` steps, when the car is still ``sight_m`` (camera range plus its mount offset
@@ -25,22 +21,17 @@ its last second because it saw the road end.
 from __future__ import annotations
 
 import math
-import sys
-from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
-from tqdm import tqdm
 
 from plm_highway.camera.pinhole import PAPER_CAMERA, CameraConfig
 from plm_highway.envs.config import MAX_PROCESSING_DELAY_STEPS, MAX_STEERING_TIME_CONSTANT_S
 from plm_highway.errors import BadInput
-from plm_highway.evaluation.closed_loop import Policy, RunLog, drive
-from plm_highway.road.track import TrackSpec
+from plm_highway.latency.profiles import ConstantProfile, FramesProfile, StepsProfile, parse_profile
+from plm_highway.road.spec import TrackSpec
 from plm_highway.vehicle.models import PARAM_RANGES, checked_params, kinematic_car_with_friction, vehicle_model
 
-ROLES = ("reference", "baseline", "mitigated")
-ROLE_POLICY = {"reference": "bm", "baseline": "bm", "mitigated": "plm"}
 START_STREAM = 11  # the start perturbation draws from np.random.default_rng([seed, START_STREAM])
 RUN_OUT_MARGIN_M = 5.0  # beyond the camera's range: the car's length and one step of travel
 
@@ -84,7 +75,7 @@ class Conditions:
 # next iteration of its 30 Hz ROS loop, and the message synchroniser can hold it one more (notes: 30 Hz loop,
 # synchroniser); the upper end of "one to two frames" is taken.
 PAPER_PROCESSING_DELAY_STEPS = 2
-# The original car's wheels followed the command through a PID-driven steering (issue 9); modelled as a
+# The original car's wheels followed the command through a PID-driven steering; modelled as a
 # first-order actuator. 0.1 s is an assumption (no measured value in the papers or the notes).
 PAPER_STEERING_TIME_CONSTANT_S = 0.1
 # The paper's car could steer far more than this env's default 0.2 rad: its steering data (Table 1) reach -1.0 in
@@ -198,10 +189,31 @@ def top_speed_mps(conditions: Conditions) -> float:
 
 def baseline_latency(spec: str, conditions: Conditions) -> str:
     """The latency the BM baseline of setting ``spec`` runs at: ``spec``, except under the legacy FIFO, where the
-    original's BM saw a constant latency (:func:`~plm_highway.evaluation.protocol.legacy_baseline_spec`)."""
-    from plm_highway.evaluation.protocol import legacy_baseline_spec
-
+    original's BM saw a constant latency (:func:`legacy_baseline_spec`)."""
     return legacy_baseline_spec(spec) if conditions.injection == "legacy-fifo" else spec
+
+
+def legacy_baseline_spec(spec: str) -> str:
+    """The constant latency the BM baseline of setting ``spec`` runs at under the legacy FIFO.
+
+    In the original code's time-variant run (``run_neural_..._synced_rand.py``) the random delta was drawn,
+    published and printed, but the BM's input buffer was cut to the *configured* constant delta: the BM
+    never saw a varying latency. Which constant the configuration held is not in the published code; the
+    paper's time-variant BM MAE (0.3336) equals its 0.25-s BM MAE (0.3347) to 0.3%, which is what a BM run
+    at the middle of 9..21 frames (15: 0.25 s in the paper's 60-fps reading) gives. The middle of the
+    profile's range is taken: ``(low + high) / 2`` for ``steps:``, the middle frame count for ``frames:``;
+    a constant setting is its own.
+    """
+    profile = parse_profile(spec)
+    if isinstance(profile, ConstantProfile):
+        return spec
+    if isinstance(profile, StepsProfile):
+        return f"const:{(profile.low_s + profile.high_s) / 2:g}"
+    if isinstance(profile, FramesProfile):
+        return f"const:{(profile.low_frames + profile.high_frames) // 2 / profile.rate_hz:g}"
+    raise BadInput(f"setting {spec!r}: the legacy FIFO runs the BM baseline at a constant latency, defined for "
+                   "'steps:' and 'frames:' profiles (the original's); use --injection time for this profile")
+
 
 # (item, value here, source) for the report and README: what ``--conditions paper`` sets, and what it does not
 PAPER_CONDITION_ITEMS = (
@@ -223,9 +235,9 @@ PAPER_CONDITION_ITEMS = (
     ("camera", "800x800 px, 80 deg, 1.83 m high, pitch 2.3 deg down; rows 380-520 resized to 160x160",
      "original code (notes: crop rows 380-520, 160x160); pitch: 'small', set so the strip's top row is the horizon"),
     ("processing delay", f"{PAPER_PROCESSING_DELAY_STEPS} loop steps ({PAPER_PROCESSING_DELAY_STEPS / 30:.3f} s) "
-     "between an action and the actuator", "original ROS loop and synchroniser: one to two frames (issue 9)"),
+     "between an action and the actuator", "original ROS loop and synchroniser: one to two frames"),
     ("steering actuator", f"first order, time constant {PAPER_STEERING_TIME_CONSTANT_S:g} s",
-     "original PID-driven steering (issue 9); the time constant is assumed"),
+     "original PID-driven steering; the time constant is assumed"),
     ("steering range", f"+-{PAPER_MAX_STEERING_RAD:g} rad at the front wheels (this env's default: 0.2)",
      "paper Table 1: steering down to -1.0 x 450 deg of steering wheel; the papers' car (OSRF car_demo's Prius, "
      "12.16:1) steers its tyres to 0.6458 rad; 0.4 rad assumed"),
@@ -279,33 +291,6 @@ PAPER_CONDITIONS_NOT_REPRODUCED = (
 )
 
 
-# ---------------------------------------------------------------------------------------------
-# cells
-# ---------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Cell:
-    """One closed-loop run: who drives (``role`` and ``policy``), with which latency, under which seed."""
-
-    role: str  # reference, baseline or mitigated
-    policy: str  # a key of the policies mapping given to run_cells: "bm", "plm", ...
-    latency: str  # latency spec driven ("const:0" for the reference)
-    seed: int
-    label: str = ""  # progress-bar text
-    setting: str = ""  # the setting this run belongs to, if not its latency (the legacy FIFO's constant BM baseline)
-    latency_bias_s: float = 0.0  # PLM-Net told its latency + this (the sweep's wrong estimates)
-
-    @property
-    def key(self) -> tuple[str, str, int]:
-        """(role, setting, seed): how a run is found among a track's runs."""
-        return self.role, self.setting or self.latency, self.seed
-
-    @property
-    def name(self) -> str:
-        return self.role
-
-
 def start_perturbation(seed: int, conditions: Conditions) -> tuple[float, float]:
     """(lateral offset [m], heading error [rad]) at the start: centred for seed 0, else drawn from the seed."""
     if seed == 0:
@@ -337,74 +322,7 @@ def scored_steps(track_spec: TrackSpec, conditions: Conditions, max_steps: int |
     return steps if max_steps is None else min(steps, max_steps)
 
 
-def check_env(track_spec: TrackSpec, latency: str, conditions: Conditions) -> None:
-    """Build (and close) the env a cell would use: the latency must fit the buffer, the rates the env."""
-    from plm_highway.evaluation.closed_loop import make_env
-
-    make_env(track_spec, latency, conditions.camera, conditions.env_config(), conditions.injection).close()
-
-
-# ---------------------------------------------------------------------------------------------
-# driving
-# ---------------------------------------------------------------------------------------------
-
-
-DriveFn = Callable[..., RunLog]
-
-
-def run_cells(cells: Sequence[Cell], track_spec: TrackSpec, conditions: Conditions, policies: Mapping[str, Policy],
-              max_steps: int | None = None, progress: tqdm | None = None, drive_fn: DriveFn | None = None
-              ) -> list[RunLog]:
-    """Drive every cell (sequentially, one policy step at a time) and return their logs in order.
-
-    Every cell on one track and one set of conditions runs for the same number of steps
-    (:func:`scored_steps`), so step k of every log is the same instant of the track.
-    """
-    drive_fn = drive_fn or drive
-    steps = scored_steps(track_spec, conditions, max_steps)
-    logs = []
-    for cell in cells:
-        if progress is not None:
-            progress.set_postfix_str(cell.label or f"{cell.role} {cell.latency} seed {cell.seed}", refresh=True)
-        logs.append(drive_fn(cell.name, biased(policies[cell.policy], cell.latency_bias_s), track_spec, cell.latency,
-                             cell.seed, **drive_options(cell, conditions, steps)))
-        if progress is not None:
-            progress.update(1)
-    return logs
-
-
-def biased(policy: Policy, latency_bias_s: float) -> Policy:
-    """``policy``, told its latency + ``latency_bias_s`` if that is not 0 (a model policy; see :class:`Cell`)."""
-    if not latency_bias_s:
-        return policy
-    from plm_highway.evaluation.policies import VisionPolicy
-
-    if not isinstance(policy, VisionPolicy):
-        raise ValueError(f"a latency bias of {latency_bias_s} s needs a model policy, not a {type(policy).__name__}")
-    return VisionPolicy(policy.model_policy, latency_bias_s, policy.latency_source)
-
-
-def drive_options(cell: Cell, conditions: Conditions, steps: int | None) -> dict:
-    """The keyword arguments of :func:`drive` (and fields of the batched runner's ``RunCell``) that
-    ``conditions`` set for ``cell``: one place, so serial and batched runs are set up alike."""
-    offset_m, heading_rad = start_perturbation(cell.seed, conditions)
-    return {"camera": conditions.camera or None, "env_config": conditions.env_config(offset_m, heading_rad),
-            "max_steps": steps, "injection": conditions.injection, "image_noise_std": conditions.image_noise_std}
-
-
-def progress_bar(total: int, enabled: bool, desc: str = "reproduce") -> tqdm:
-    return tqdm(total=total, desc=desc, unit="run", disable=not enabled, file=sys.stderr)
-
-
-def make_policies(checkpoints, conditions: Conditions) -> dict[str, Policy]:
-    """``{"bm": Base Model, "plm": PLM-Net}`` from one checkpoint pair, PLM-Net told the latency these conditions say."""
-    from plm_highway.evaluation.policies import make_policy
-
-    return {"bm": make_policy("bm", checkpoints, preset=conditions.checkpoint_preset),
-            "plm": make_policy("plm", checkpoints, latency_source=conditions.latency_source,
-                               preset=conditions.checkpoint_preset)}
-
-
-__all__ = ["CONDITIONS", "CONDITION_NAMES", "INJECTION_LATENCY_SOURCE", "SPEED_LOGICS", "Cell", "Conditions", "ROLES",
-           "baseline_latency", "drive_options", "run_cells", "scored_steps", "sight_m", "start_perturbation",
-           "top_speed_mps", "with_injection", "with_pipeline", "with_speed_logic"]
+__all__ = ["CONDITIONS", "CONDITION_NAMES", "INJECTION_LATENCY_SOURCE", "PAPER_CONDITION_ITEMS",
+           "PAPER_CONDITIONS_NOT_REPRODUCED", "SPEED_LOGICS", "Conditions", "baseline_latency", "legacy_baseline_spec",
+           "scored_steps", "sight_m", "start_perturbation", "top_speed_mps", "with_friction_limit", "with_injection",
+           "with_pipeline", "with_speed_logic"]

@@ -1,0 +1,142 @@
+"""What each generated block shows, and from which committed result file (paths relative to the project root).
+
+A renderer takes the project root and returns Markdown. It reads committed files only, never runs anything, so
+``plm-highway docs render --check`` is fast and its answer depends on the repository alone.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+from plm_highway.errors import BadInput
+from plm_highway.publish.blocks import MissingResult
+
+POPULATION = Path("figures/population/population.json")
+TABLE3 = Path("figures/estimation/table3.json")
+COMPARISON = Path("figures/estimation/compare/compare.json")
+# The bench models target is judged on the median of these three runs with the shipped weights.
+BENCH_MODELS_SHIPPED = tuple(Path(f"figures/bench/models-cpu-{n}.json") for n in (1, 2, 3))
+BENCH_MODELS_RANDOM = (Path("figures/bench/models-cpu-random.json"),)
+BENCH_MODELS_CLOSED_LOOP = Path("figures/bench/models-cpu-closed-loop.json")
+
+
+def _json(root: Path, relative: Path) -> dict:
+    path = root / relative
+    if not path.exists():
+        raise MissingResult(relative)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise BadInput(f"{relative}: the committed result file a generated block needs is unreadable ({exc})") from None
+
+
+def population_headline(root: Path) -> str:
+    """The population study's result in both metrics, with the number of pairs (README's results box)."""
+    from plm_highway.population.report import headline
+
+    lines = headline(_json(root, POPULATION))
+    return "\n".join(f"> {line}" for line in lines) + f"\n>\n> From [{POPULATION.parent}/report.md]({POPULATION.parent}/report.md)."
+
+
+def estimation_table3(root: Path) -> str:
+    """Seed paper 004's Table 3 in simulation beside the paper's RMSE (``plm-highway estimate table3``)."""
+    from plm_highway.estimation.table3 import readme_table
+
+    return readme_table(_json(root, TABLE3))
+
+
+def plm_vs_ekf_table(root: Path) -> str:
+    """PLM-Net, the Base Model and the EKF lane keeper per setting (``plm-highway estimate compare``)."""
+    from plm_highway.evaluation.plm_vs_ekf_report import readme_table
+
+    return readme_table(_json(root, COMPARISON))
+
+
+def plm_vs_ekf_who_wins(root: Path) -> str:
+    """Who wins where, setting by setting, from the same comparison (Lesson 5 prints these lines too)."""
+    from plm_highway.evaluation.plm_vs_ekf_report import who_wins_lines
+
+    return "\n".join(who_wins_lines(_json(root, COMPARISON)))
+
+
+def _bench_models_runs(files: tuple[Path, ...]) -> Callable[[Path], str]:
+    def render(root: Path) -> str:
+        from plm_highway.bench.models import format_runs
+
+        return "\n".join(["```text", *format_runs([_json(root, path) for path in files]), "```"])
+
+    render.__doc__ = f"``plm-highway bench models`` runs side by side: {', '.join(str(p) for p in files)}."
+    return render
+
+
+def bench_models_closed_loop(root: Path) -> str:
+    """PLM-Net's closed-loop steering MAE with the exact, int8 and reference forms (``bench models --closed-loop``)."""
+    from plm_highway.bench.models import format_closed_loop_table
+
+    return "\n".join(format_closed_loop_table(_json(root, BENCH_MODELS_CLOSED_LOOP)))
+
+
+CALIBRATIONS = {
+    "the shipped paper conditions": Path("figures/bm-calibration.json"),
+    "tires saturating at 0.9 g (`--friction-coefficient 0.9`)": Path("figures/bm-calibration-friction.json"),
+    "the original's speed logic (`--speed-logic original-braking`)": Path("figures/bm-calibration-original-braking.json"),
+    "latencies read as loop frames (`--reading loop-frames`)": Path("figures/bm-calibration-loop-frames.json"),
+}
+CALIBRATION_LEVERS = Path("figures/bm-calibration-levers.csv")
+
+
+def bm_calibration(root: Path) -> str:
+    """The BM's steering MAE over the paper's at each latency, per committed ``plm-highway calibrate`` run."""
+    lines = ["| variant | 0.15 s | 0.20 s | 0.25 s | 0.30 s | penalised at 0.25 / 0.30 s | rule 2 |",
+             "|---|---|---|---|---|---|---|"]
+    for label, relative in CALIBRATIONS.items():
+        result = _json(root, relative)
+        ratios = result["rules"]["paper"]["ours_over_paper"]
+        penalised = result["rules"]["paper_penalised"]["ours_over_paper"]
+        rows = list(result["per_latency"].values())
+        cells = [f"{ratio:.2f}x ({sum(row['left_road'])} of {len(row['left_road'])})"
+                 for ratio, row in zip(ratios.values(), rows)]
+        late = list(penalised.values())[-2:]
+        verdict = "met" if result["rules"]["paper"]["met"] else "missed"
+        lines.append(f"| {label} | {' | '.join(cells)} | {late[0]:.2f} / {late[1]:.2f}x | {verdict} |")
+    shipped = _json(root, CALIBRATIONS["the shipped paper conditions"])
+    rise = shipped["rules"]["rise"]
+    lines += ["", f"Rule 1 on the shipped paper conditions, {rise['rule']}: **{'met' if rise['met'] else 'missed'}** "
+              f"({rise['factor']:.0f}x)."]
+    return "\n".join(lines)
+
+
+def bm_calibration_levers(root: Path) -> str:
+    """The levers tried on the BM calibration, as recorded when each was measured (``CALIBRATION_LEVERS``)."""
+    import csv
+    import io
+
+    path = root / CALIBRATION_LEVERS
+    if not path.exists():
+        raise MissingResult(CALIBRATION_LEVERS)
+    try:
+        rows = list(csv.DictReader(io.StringIO(path.read_text(encoding="utf-8"))))
+    except (OSError, ValueError) as exc:
+        raise BadInput(f"{CALIBRATION_LEVERS}: the committed result file a generated block needs is unreadable "
+                       f"({exc})") from None
+    columns = ["lever", "variant", "at_0.15_s", "at_0.20_s", "at_0.25_s", "at_0.30_s", "outcome"]
+    if not rows or list(rows[0]) != columns:
+        raise BadInput(f"{CALIBRATION_LEVERS}: expected the columns {columns}")
+    lines = ["| lever | variant | 0.15 s | 0.20 s | 0.25 s | 0.30 s | outcome |", "|---|---|---|---|---|---|---|"]
+    lines += ["| " + " | ".join(row[c] for c in columns) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+RENDERERS: dict[str, Callable[[Path], str]] = {
+    "population-headline": population_headline,
+    "estimation-table3": estimation_table3,
+    "plm-vs-ekf-table": plm_vs_ekf_table,
+    "plm-vs-ekf-who-wins": plm_vs_ekf_who_wins,
+    "bench-models-shipped": _bench_models_runs(BENCH_MODELS_SHIPPED),
+    "bench-models-random": _bench_models_runs(BENCH_MODELS_RANDOM),
+    "bench-models-closed-loop": bench_models_closed_loop,
+    "bm-calibration": bm_calibration,
+    "bm-calibration-levers": bm_calibration_levers,
+}
