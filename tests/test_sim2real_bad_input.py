@@ -14,8 +14,10 @@ import pytest
 from plm_highway.cli import main
 from plm_highway.sim2real import recording as recording_module
 from plm_highway.sim2real.diagnose import diagnose, runner_up_text, steering_frequency_hz, to_json
+from plm_highway.sim2real.fitting import fit_candidate
+from plm_highway.sim2real.problem import make_problem
 from plm_highway.sim2real.recording import read_recording, write_recording
-from plm_highway.sim2real.selection import Selection, fit_candidate, make_problem
+from plm_highway.sim2real.selection import Selection
 from plm_highway.sim2real.synth import make_recording
 
 

@@ -209,3 +209,14 @@ def test_real_recording_beats_the_earlier_quick_analysis():
     assert 0.2 < lag < 0.5
     assert any("runs" in w and "late against the derivative of the recorded heading" in w for w in result["warnings"])
     assert math.isfinite(fit["noise_sigma"])
+    # The library leaves structure, so residual discovery runs; what it names is plausible and said in
+    # the summary, and when it names nothing the summary says so and the library's verdict stands.
+    discovery = result["discovery"]
+    assert discovery is not None and len(discovery["tried"]) >= 6, discovery
+    assert all(f["plausible"] for f in discovery["found"])
+    if discovery["found"]:
+        assert result["verdict"] == "discovered"
+        assert "Discovered outside the library" in result["summary"]
+    else:
+        assert result["verdict"] == result["library_verdict"]
+        assert "no term outside the library improves held-out data" in result["summary"]

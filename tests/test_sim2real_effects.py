@@ -10,23 +10,20 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import signal as sps
 
-from plm_highway.sim2real.effects import (
-    EFFECTS,
-    GAIN,
-    OFFSET,
+from plm_highway.sim2real.chain import (
+    CarParams,
+    Drive,
     EffectParams,
-    FitContext,
     _delayed,
     _jittered,
     _lagged,
     _servo,
-    coordinates_of,
-    grid_statistics,
-    params_from,
-    profile_linear,
+    chain_grid,
     simulate,
     simulate_yaw_rate,
 )
+from plm_highway.sim2real.effects import EFFECTS, FitContext, coordinates_of, params_from
+from plm_highway.sim2real.grid import GridChannel, LinearDirection, grid_statistics, profile_linear
 from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE, KinematicBicycleParams, kinematic_bicycle_rates
 
 DT = 0.02
@@ -94,11 +91,12 @@ def test_closed_form_gain_and_offset_match_a_direct_fit(tire):
     y = truth + 0.003 * rng.standard_normal(len(truth))
     weight = np.ones((1, len(y)))
     weight[0, :100] = 0.0
-    point = EffectParams(delay_s=0.1, time_constant_s=0.05, cf_per_kg=cf if tire else None,
-                         cr_per_kg=cr if tire else None).slots()[None, :]
-    gram = grid_statistics(steer, speed, DT, point, a, b, k2, 0.5, np.ones(1), 0, y, weight, [GAIN, OFFSET],
-                           [1e-3, 1e-4])
-    sse, solved = profile_linear(gram[:, 0], np.array([0.2, -0.2]), np.array([5.0, 0.2]), point[:, [GAIN, OFFSET]])
+    point = chain_grid([EffectParams(delay_s=0.1, time_constant_s=0.05, cf_per_kg=cf if tire else None,
+                                     cr_per_kg=cr if tire else None).chain()])
+    gram = grid_statistics(Drive(steer, speed, DT), CarParams(a, b, k2, 0.5), point, GridChannel(y, np.ones(1), 0),
+                           weight, [LinearDirection("gain", 1e-3), LinearDirection("offset_rad", 1e-4)])
+    sse, solved = profile_linear(gram[:, 0], np.array([0.2, -0.2]), np.array([5.0, 0.2]),
+                                 np.column_stack([point["gain"], point["offset_rad"]]))
     gain, offset = solved[0]
     assert gain == pytest.approx(0.9, abs=0.01)
     assert offset == pytest.approx(0.004, abs=2e-4)

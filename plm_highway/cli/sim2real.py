@@ -60,6 +60,9 @@ def configure_diagnose(parser) -> None:
     parser.add_argument("--steer-scale", type=finite_nonzero, default=defaults["steer_scale"], metavar="SCALE",
                         help="with --steer-column: multiply the command by this to get radians "
                              "(0.2 for this project's env logs, whose steering is normalised)")
+    parser.add_argument("--discovery", choices=["auto", "always", "never"], default=defaults["discovery"],
+                        help="residual discovery of terms outside the library: auto (when the library leaves "
+                             "structure or over 2%% of the error above the noise), always, never")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
     add_overwrite(parser)
 
@@ -69,8 +72,8 @@ def run_diagnose(args) -> int:
 
     return diagnose_file(args.recording, json_path=args.json_path, report_dir=args.report_dir, sidecar=args.sidecar,
                          anchor_s=args.anchor_s, block_s=args.block_s, split=args.split, signal=args.signal,
-                         steer_column=args.steer_column, steer_scale=args.steer_scale, quiet=args.quiet,
-                         overwrite=args.overwrite)
+                         steer_column=args.steer_column, steer_scale=args.steer_scale, discovery=args.discovery,
+                         quiet=args.quiet, overwrite=args.overwrite)
 
 
 def configure_make_recording(parser) -> None:

@@ -3,6 +3,8 @@ the fitted term explains, and what is left.
 
 The steps, top to bottom (:func:`diagnose`):
 
+0. Check the recording against itself (:mod:`plm_highway.sim2real.consistency`); a recording that
+   contradicts itself is ``inconsistent`` and nothing is fitted.
 1. Check there is enough to judge: the scored samples (moving faster than the recording's speed
    floor, outside gaps and glitches) and the steering's excitation. Too little is an error with
    the numbers; little is a verdict marked low-confidence.
@@ -28,6 +30,12 @@ The steps, top to bottom (:func:`diagnose`):
    unexplained        the simulator departs, and nothing in the library helps
    unexcited          the car barely turns: the recording cannot show steering-path physics
    inconclusive       nothing helps, but too little data (or no measured noise) to call it a match
+   discovered         the library's best chain leaves structure and residual discovery names a
+                      plausible term outside the library that improves held-out data
+                      (:mod:`plm_highway.sim2real.discovery`)
+   inconsistent       the recording contradicts itself (speed against positions, yaw rate against
+                      heading, steering against the turns, time scale against both): no physics is
+                      fitted; the channel and the likely cause (units, sign, scale) are named
    ================== ===========================================================================
 """
 
@@ -43,7 +51,13 @@ from scipy.interpolate import CubicSpline
 from scipy.ndimage import correlate1d
 
 from plm_highway.io import json_safe
-from plm_highway.sim2real.effects import EFFECT_NAMES, EFFECTS, EffectParams, separating_text
+from plm_highway.sim2real.chain import EffectParams
+from plm_highway.sim2real.consistency import Consistency, check_consistency
+from plm_highway.sim2real.discovery import Discovery, discover, removed_words, should_run
+from plm_highway.sim2real.effects import EFFECT_NAMES, SPECS, separating_text
+from plm_highway.sim2real.folds import MIN_BLOCKS, check_block_s, default_block_s
+from plm_highway.sim2real.plausibility import library_doubts
+from plm_highway.sim2real.problem import CandidateFit, FitProblem, make_problem
 from plm_highway.sim2real.recording import Recording
 from plm_highway.sim2real.replay import (
     ANCHOR_S,
@@ -56,19 +70,11 @@ from plm_highway.sim2real.replay import (
     replay_pose,
     yaw_rate_lag_behind_heading,
 )
-from plm_highway.sim2real.selection import (
-    MIN_BLOCKS,
-    CandidateFit,
-    FitProblem,
-    Selection,
-    check_block_s,
-    default_block_s,
-    fit_candidates,
-    make_problem,
-    select,
-)
+from plm_highway.sim2real.selection import Selection, fit_candidates, select
 
-VERDICTS = ("match", "mismatch", "partly explained", "unexplained", "unexcited", "inconclusive")
+VERDICTS = ("match", "mismatch", "partly explained", "unexplained", "unexcited", "inconclusive", "inconsistent",
+            "discovered")
+DISCOVERY_MODES = ("auto", "always", "never")
 
 WINDOW_RMS_S = 1.0
 WINDOW_NOISE_FACTOR = 2.0
@@ -110,18 +116,21 @@ SIGNAL_CHANGE = 0.05
 
 @dataclass
 class Diagnosis:
+    """A recording's diagnosis. An ``inconsistent`` recording stops at its consistency checks: it
+    has no signal, selection, replay or fit (those fields stay None)."""
+
     recording: Recording
-    signal: FitSignal
+    signal: FitSignal | None
     noise_sigma: float
-    selection: Selection
+    selection: Selection | None
     block_s: float
     anchor_s: float
-    heldout: np.ndarray
-    before: np.ndarray  # the primary channel as the plain model predicts it
-    after: np.ndarray  # ... as the chosen model predicts it (held-out samples: out of fold)
-    best: np.ndarray  # ... as the best-scoring candidate predicts it (== after on a mismatch)
-    pose_before: PoseReplay
-    pose_after: PoseReplay
+    heldout: np.ndarray | None
+    before: np.ndarray | None  # the primary channel as the plain model predicts it
+    after: np.ndarray | None  # ... as the chosen model predicts it (held-out samples: out of fold)
+    best: np.ndarray | None  # ... as the best-scoring candidate predicts it (== after on a mismatch)
+    pose_before: PoseReplay | None
+    pose_after: PoseReplay | None
     windows: list[list[float]]
     conditions: dict
     fit: dict
@@ -134,6 +143,9 @@ class Diagnosis:
     residual: dict = field(default_factory=dict)
     channels: list[FitSignal] = field(default_factory=list)
     problem: FitProblem | None = None
+    consistency: Consistency | None = None
+    library_verdict: str | None = None  # the verdict of the library alone (differs on "discovered")
+    discovery: Discovery | None = None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -419,7 +431,7 @@ def where_text(conditions: dict, windows: list[list[float]], duration_s: float, 
 
 
 def effect_sentence(name: str, params: dict, ci: dict) -> str:
-    return EFFECTS[name].sentence(params, ci)
+    return SPECS[name].sentence(params, ci)
 
 
 def tie_text(winner: tuple[str, ...], runner_up: tuple[str, ...]) -> str:
@@ -559,6 +571,42 @@ def summary_text(d: Diagnosis) -> str:
     return "\n".join(lines)
 
 
+def discovery_text(disc: Discovery, signal: FitSignal) -> str:
+    """Residual discovery in words: what entered (and what it gains held out), what is doubtful, what not."""
+    unit = signal.unit
+    lines = []
+    for f in disc.named:
+        lines.append(f"Discovered outside the library: {f.sentence}. Held out on {f.validation}, it removes "
+                     f"{100 * f.removed_fraction:.0f}% of the {signal.label} error above the noise left by "
+                     f"{disc.base.name if f is disc.found[0] else 'the model before it'}: RMSE "
+                     f"{math.sqrt(f.mse_before):.4f} -> {math.sqrt(f.mse_after):.4f} {unit} (t = {f.t_statistic:.1f}).")
+    for f in disc.doubtful:
+        lines.append(f"Doubtful, not named: {f.sentence} ({'; '.join(f.doubts)}); held out it "
+                     f"{removed_words(f.removed_fraction, would=True)} of the {signal.label} error above the noise.")
+    if not disc.named:
+        tried = sorted(disc.tried, key=lambda t: t.score_ratio)
+        best = f"; the best, {tried[0].name.replace('_', ' ')}: {tried[0].why}" if tried else ""
+        lines.append(f"Residual discovery: no {'plausible ' if disc.doubtful else ''}term outside the library "
+                     f"improves held-out data clearly ({len(tried)} tried{best}).")
+    if disc.not_tried:
+        lines.append("Not tried: " + "; ".join(f"{k.replace('_', ' ')} ({v})" for k, v in disc.not_tried.items())
+                     + ".")
+    return "\n".join(lines)
+
+
+def discovery_json(disc: Discovery) -> dict:
+    def found(f):
+        return {"name": f.name, "sentence": f.sentence, "params": f.estimates, "ci": f.ci95,
+                "validation": f.validation, "rmse_before": math.sqrt(f.mse_before), "rmse_after": math.sqrt(f.mse_after),
+                "removed_fraction": f.removed_fraction, "t_statistic": f.t_statistic, "plausible": f.plausible,
+                "doubts": f.doubts}
+    return {"base": disc.base.name, "found": [found(f) for f in disc.named],
+            "doubtful": [found(f) for f in disc.doubtful],
+            "tried": [{"name": t.name, "score_ratio": t.score_ratio, "entered": t.entered, "why": t.why}
+                      for t in disc.tried],
+            "not_tried": disc.not_tried, "noise_sigma": disc.noise_sigma}
+
+
 def _correlates(residual: dict) -> str:
     named = [c for c in residual["correlations"] if c["significant"]][:3]
     if not named:
@@ -661,9 +709,13 @@ def _check_enough(data: dict, recording: Recording, problem_blocks: int) -> None
 def diagnose(recording: Recording, *, block_s: float | None = None, anchor_s: float = ANCHOR_S,
              split: str = "blocks", signal_name: str = "auto",
              candidates: list[tuple[str, ...]] | None = None,
-             rng: np.random.Generator | None = None) -> Diagnosis:
+             rng: np.random.Generator | None = None, discovery: str = "auto") -> Diagnosis:
     """Run the whole diagnosis on a recording (see the module docstring). ``rng`` drives the
-    bootstraps (default: a fixed seed, so a diagnosis is reproducible)."""
+    bootstraps (default: a fixed seed, so a diagnosis is reproducible). ``discovery``: ``auto`` runs
+    residual discovery when the library leaves structure (``partly explained``, ``unexplained``),
+    ``always`` after any fit, ``never`` not at all."""
+    if discovery not in DISCOVERY_MODES:
+        raise ValueError(f"unknown discovery mode {discovery!r}; known: {', '.join(DISCOVERY_MODES)}")
     rng = np.random.default_rng(0) if rng is None else rng
     if not recording.is_uniform:
         raise ValueError(f"{recording.name}: not uniformly sampled; read it with read_recording or "
@@ -675,6 +727,12 @@ def diagnose(recording: Recording, *, block_s: float | None = None, anchor_s: fl
         block_s = default_block_s(recording.duration_s, recording.dt_s)
     else:
         check_block_s(block_s, recording.duration_s)
+    # 0. The recording against itself: units, signs and time scale that contradict are not physics.
+    consistency = check_consistency(recording)
+    if not consistency.consistent:
+        return Diagnosis(recording, None, math.nan, None, block_s, anchor_s, None, None, None, None, None, None, [],
+                         {}, {}, consistency.summary(recording.name), verdict="inconsistent",
+                         consistency=consistency)
     problem = make_problem(recording, signal_name, block_s, split)
     signal = problem.signal
     data = scored_data(recording, signal)
@@ -751,11 +809,21 @@ def diagnose(recording: Recording, *, block_s: float | None = None, anchor_s: fl
                   pose_before, pose_after, windows, conditions, fit, summary="", checks=checks, notes=notes,
                   verdict=verdict, confidence="low" if data["low_confidence_reasons"] else "normal", data=data,
                   residual=left if selection.winner.effects else left_plain, channels=problem.channels,
-                  problem=problem)
+                  problem=problem, consistency=consistency, library_verdict=verdict)
     d.summary = summary_text(d)
     caveats = [n for n in notes if "yaw_rate runs" in n]
     if caveats and verdict not in ("unexcited",):
         d.summary += "\nCaveat: " + "; ".join(caveats) + "."
+    doubts = library_doubts(selection.winner, consistency) if verdict in ("mismatch", "partly explained") else []
+    if doubts:
+        d.notes.append("doubtful: " + "; ".join(doubts))
+        d.summary += "\nDoubtful: " + "; ".join(doubts) + "."
+    if (discovery == "always" and verdict not in ("unexcited",)
+            or discovery == "auto" and should_run(verdict, fit["explained_fraction"])):
+        d.discovery = discover(problem, selection, noise, rng, consistency)
+        if d.discovery.named:
+            d.verdict = "discovered"
+        d.summary += "\n" + discovery_text(d.discovery, signal)
     return d
 
 
@@ -817,19 +885,28 @@ def _candidate_json(c: CandidateFit) -> dict:
 
 def to_json(d: Diagnosis) -> dict:
     """The diagnosis as the documented JSON (effect names and parameter keys are fixed; no NaN)."""
+    rec = d.recording
+    recording = {"name": rec.name, "duration_s": rec.duration_s, "sample_hz": 1.0 / rec.dt_s,
+                 "vehicle": rec.vehicle.sidecar() | {"source": rec.vehicle.source},
+                 "yaw_inertia_assumed": not rec.vehicle.inertia_known}
+    if d.verdict == "inconsistent":
+        return json_safe({"verdict": d.verdict, "confidence": d.confidence, "effects": [],
+                          "consistency": d.consistency.to_json(), "summary": d.summary, "recording": recording,
+                          "warnings": list(rec.warnings) + list(d.notes), "effect_names": list(EFFECT_NAMES)})
     sel = d.selection
     winner = sel.winner
-    named = d.verdict in ("mismatch", "partly explained")
+    named = (d.library_verdict or d.verdict) in ("mismatch", "partly explained")
     effects = [{"name": e, "params": winner.estimates[e], "ci": winner.ci95[e]} for e in winner.effects] if named \
         else []
     runner = _candidate_json(sel.runner_up)
     runner["margin"] = sel.margin
     runner["margin_ci95"] = list(sel.margin_ci)
-    rec = d.recording
     return json_safe({
         "verdict": d.verdict,
+        "library_verdict": d.library_verdict or d.verdict,
         "confidence": d.confidence,
         "effects": effects,
+        "discovery": discovery_json(d.discovery) if d.discovery is not None else None,
         "runner_up": runner,
         "fit": d.fit,
         "residual": d.residual,
@@ -839,10 +916,9 @@ def to_json(d: Diagnosis) -> dict:
         "reason": sel.reason,
         "summary": d.summary,
         "candidates": [_candidate_json(c) for c in sel.ranking],
-        "recording": {"name": rec.name, "duration_s": rec.duration_s, "sample_hz": 1.0 / rec.dt_s,
-                      "vehicle": rec.vehicle.sidecar() | {"source": rec.vehicle.source},
-                      "yaw_inertia_assumed": not rec.vehicle.inertia_known},
+        "recording": recording,
         "checks": d.checks,
+        "consistency": d.consistency.to_json() if d.consistency is not None else None,
         "warnings": list(rec.warnings) + list(d.notes),
         "effect_names": list(EFFECT_NAMES),
     })

@@ -1,17 +1,16 @@
-"""The library of physics a kinematic-bicycle simulator leaves out: one registry, one model chain.
+"""The library of physics a kinematic-bicycle simulator leaves out: one registry.
 
-The simulator (highway-env's kinematic bicycle) turns the commanded front-wheel angle into a yaw
-rate instantly: ``r = v sin(beta) / lr`` with ``beta = atan(lr / L tan(delta))``. Each candidate
-effect inserts one physical term into a fixed chain,
+Each candidate effect inserts one physical term into the model chain (:mod:`.chain`),
 
     command -> calibration (gain, offset) -> transport delay -> servo (first-order lag, rate limit)
             -> vehicle (kinematic | linear tires | saturating tires; road bank) -> sensors (late gyro)
 
 and every effect is one entry of :data:`EFFECTS`: its parameters (units, bounds, the values tried
-before polishing), the slots of the chain it sets, the public parameter names it reports, its
-fingerprint, how ``make-recording`` conceals it, and its sentence in a summary. ``selection``,
-``diagnose`` and ``synth`` read only this table; adding an effect that the chain can already
-express touches one entry (a new kind of physics also adds its term to :func:`simulate_chain`).
+before polishing), the chain parameters (:class:`~plm_highway.sim2real.chain.EffectParams` fields)
+it sets, the public parameter names it reports, its fingerprint, how ``make-recording`` conceals
+it, and its sentence in a summary. ``selection``, ``diagnose`` and ``synth`` read only this table;
+adding an effect that the chain can already express touches one entry (a new kind of physics also
+adds its term to :func:`~plm_highway.sim2real.chain.simulate_chain`).
 
 =================== ============================================= ============================================
 effect              term                                          parameters (public names)
@@ -30,163 +29,24 @@ delay_jitter        delta(t) <- delta(t - delay - jitter(t))      ``delay_s``, `
 =================== ============================================= ============================================
 
 All parameters at their neutral values give the simulator's model exactly: the plain model is one
-point of every candidate's family. The numerical kernels are compiled with numba and release the
-GIL, so a grid of candidate parameter sets runs on all cores in threads.
+point of every candidate's family.
 """
 
 from __future__ import annotations
 
 import math
-import os
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from collections import ChainMap
 
-import numba
 import numpy as np
 
-from plm_highway.vehicle.single_track import (
-    single_track_steady_state,
-    single_track_tustin_map,
-    understeer_gradient,
-)
-from plm_highway.vehicle.tires import GRAVITY_MPS2, saturating_single_track_replay
+from plm_highway.sim2real.chain import EffectParams
+from plm_highway.sim2real.effect_spec import Effect, FitContext, Parameter, pm
+from plm_highway.sim2real.terms import TERMS
+from plm_highway.vehicle.single_track import understeer_gradient
+from plm_highway.vehicle.tires import GRAVITY_MPS2
 
-# ----------------------------------------------------------------------------------------------
-# The model chain's parameters ("slots"): every effect sets some of them.
-
-GAIN, OFFSET, DELAY, TAU, RATE, CF, CR, MU, BANK, SENSOR, JITTER = range(11)
-N_SLOTS = 11
-NEUTRAL_SLOTS = np.array([1.0, 0.0, 0.0, 0.0, math.inf, 0.0, 0.0, math.inf, 0.0, 0.0, 0.0])
-
-# Default speed below which the tire models hold the speed (their slip angles divide by it); a
-# recording's own floor comes from its speed distribution and wheelbase (recording.speed_floor_mps).
-TIRE_MIN_SPEED_MPS = 0.5
 # Axle cornering stiffness per unit mass [N/rad/kg]: road cars ~30-80, race cars a few hundred.
 MAX_STIFFNESS_PER_KG = 1000.0
-
-
-@dataclass(frozen=True)
-class EffectParams:
-    """The simulator's model plus every effect; the defaults are the plain simulator.
-
-    ``cf_per_kg``/``cr_per_kg``: axle cornering stiffness per unit mass [N/rad/kg], None means no
-    tire slip (the kinematic bicycle). ``friction_coefficient`` inf: linear tires. ``jitter_s`` is
-    the standard deviation of a jittering delay: the expected response is the delayed command
-    smoothed by a Gaussian of that width, and the error variance grows with it.
-    """
-
-    delay_s: float = 0.0
-    time_constant_s: float = 0.0
-    gain: float = 1.0
-    offset_rad: float = 0.0
-    cf_per_kg: float | None = None
-    cr_per_kg: float | None = None
-    max_rate_radps: float = math.inf
-    friction_coefficient: float = math.inf
-    bank_accel_mps2: float = 0.0
-    sensor_delay_s: float = 0.0
-    jitter_s: float = 0.0
-
-    @property
-    def has_tire_slip(self) -> bool:
-        return self.cf_per_kg is not None
-
-    def slots(self) -> np.ndarray:
-        return np.array([self.gain, self.offset_rad, self.delay_s, self.time_constant_s, self.max_rate_radps,
-                         0.0 if self.cf_per_kg is None else self.cf_per_kg,
-                         0.0 if self.cr_per_kg is None else self.cr_per_kg,
-                         self.friction_coefficient, self.bank_accel_mps2, self.sensor_delay_s, self.jitter_s], float)
-
-    def numba_args(self) -> tuple[float, float, float, float, float, float]:
-        """(delay, tau, gain, offset, cf, cr): the arguments of :func:`simulate_yaw_rate`."""
-        s = self.slots()
-        return s[DELAY], s[TAU], s[GAIN], s[OFFSET], s[CF], s[CR]
-
-
-@dataclass(frozen=True)
-class FitContext:
-    """What a recording tells the library about ranges: its car and how it was driven."""
-
-    a_m: float
-    b_m: float
-    k2_m2: float
-    dt_s: float
-    mass_kg: float | None = None
-    inertia_known: bool = False
-    u_min_mps: float = TIRE_MIN_SPEED_MPS
-    steer_rate_median_radps: float = 0.05  # of the commanded front-wheel angle, moving samples
-    steer_rate_max_radps: float = 0.5  # its 99.5th percentile
-    max_lat_accel_mps2: float = 4.0  # 99.5th percentile of |lateral acceleration|
-
-
-# ----------------------------------------------------------------------------------------------
-# The registry
-
-
-@dataclass(frozen=True)
-class Parameter:
-    """A fitted coordinate of an effect. ``linear``: enters the signal linearly (or nearly), solved in
-    closed form at every grid point; otherwise tried on the effect's grid, then polished."""
-
-    name: str
-    unit: str
-    bounds: tuple[float, float] | Callable[[FitContext], tuple[float, float]]
-    scale: float  # typical size: finite-difference steps and the optimiser's variable scaling
-    linear: bool = False
-    grid: tuple[float, ...] | Callable[[FitContext], np.ndarray] = ()
-
-    def bounds_for(self, ctx: FitContext) -> tuple[float, float]:
-        return self.bounds(ctx) if callable(self.bounds) else self.bounds
-
-    def grid_for(self, ctx: FitContext) -> np.ndarray:
-        return np.asarray(self.grid(ctx) if callable(self.grid) else self.grid, float)
-
-
-@dataclass(frozen=True)
-class Effect:
-    name: str
-    term: str  # the term added to the simulator's model
-    parameters: tuple[Parameter, ...]  # fitted coordinates
-    public_keys: tuple[str, ...]  # reported names (fixed: other tools read them)
-    fingerprint: str
-    concealed: str  # how make-recording conceals it
-    synth_defaults: dict[str, float]  # make-recording's parameters (public names, first = NAME=VALUE)
-    synth_bounds: dict[str, tuple[float, float]]
-    conceal: dict[str, str]  # make-recording parameter -> field of synth.ConcealedEffects it sets
-    set_params: Callable[[dict, FitContext], dict]  # fitted coordinates -> EffectParams fields
-    read_params: Callable[[EffectParams, FitContext], dict]  # EffectParams -> fitted coordinates
-    report: Callable[[EffectParams, FitContext], dict]  # EffectParams -> public names
-    sentence: Callable[[dict, dict], str]  # (public estimates, their 95% intervals) -> words
-    group: str | None = None  # at most one effect of a group in a candidate
-    needs_group: str | None = None  # the group must be present; if not, this effect is added
-    needs_channel: str | None = None  # a recorded channel without which the effect is not tried
-    varies_noise: bool = False  # shapes the error variance (scored by likelihood)
-    refines: str | None = None  # an effect this one contains as a special case (its simpler version)
-    separated_from: dict[str, str] = field(default_factory=dict)  # other effect -> the drive that tells them apart
-    joint_grid: Callable[[FitContext], np.ndarray] | None = None  # (G, p) grid when parameters are coupled
-
-    @property
-    def dof(self) -> int:
-        return len(self.parameters)
-
-    @property
-    def primary_synth_key(self) -> str:
-        return next(iter(self.synth_defaults))
-
-    def grid(self, ctx: FitContext) -> np.ndarray:
-        """Grid points of the nonlinear coordinates, shape (G, number of nonlinear parameters)."""
-        if self.joint_grid is not None:
-            return self.joint_grid(ctx)
-        axes = [p.grid_for(ctx) for p in self.parameters if not p.linear]
-        if not axes:
-            return np.zeros((1, 0))
-        mesh = np.meshgrid(*axes, indexing="ij")
-        return np.column_stack([m.ravel() for m in mesh])
-
-
-def _pm(ci: list[float]) -> float:
-    return 0.5 * (ci[1] - ci[0])
 
 
 def front_stiffness_from(understeer: float, cr: float, a: float, b: float) -> float:
@@ -231,12 +91,12 @@ def _tire_report(p: EffectParams, ctx: FitContext) -> dict:
 
 def _tire_sentence(params: dict, ci: dict) -> str:
     k = params["understeer_gradient_rad_per_mps2"]
-    text = (f"the tires slip: understeer gradient {k:.5f} +- {_pm(ci['understeer_gradient_rad_per_mps2']):.5f} "
+    text = (f"the tires slip: understeer gradient {k:.5f} +- {pm(ci['understeer_gradient_rad_per_mps2']):.5f} "
             f"rad/(m/s^2) ({math.degrees(k) * GRAVITY_MPS2:.2f} deg/g)")
     if "cornering_stiffness_front" in params:
         text += (f", cornering stiffness front {params['cornering_stiffness_front']:,.0f} "
-                 f"+- {_pm(ci['cornering_stiffness_front']):,.0f} N/rad, rear "
-                 f"{params['cornering_stiffness_rear']:,.0f} +- {_pm(ci['cornering_stiffness_rear']):,.0f} N/rad")
+                 f"+- {pm(ci['cornering_stiffness_front']):,.0f} N/rad, rear "
+                 f"{params['cornering_stiffness_rear']:,.0f} +- {pm(ci['cornering_stiffness_rear']):,.0f} N/rad")
     return text
 
 
@@ -283,7 +143,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         set_params=lambda v, ctx: {"delay_s": v["delay_s"]},
         read_params=lambda p, ctx: {"delay_s": p.delay_s},
         report=lambda p, ctx: {"delay_s": p.delay_s},
-        sentence=lambda p, ci: f"the car steers late by {p['delay_s']:.3f} s +- {_pm(ci['delay_s']):.3f} s "
+        sentence=lambda p, ci: f"the car steers late by {p['delay_s']:.3f} s +- {pm(ci['delay_s']):.3f} s "
                                "(transport delay)",
         group="delay",
         separated_from={
@@ -307,7 +167,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         read_params=lambda p, ctx: {"time_constant_s": p.time_constant_s},
         report=lambda p, ctx: {"time_constant_s": p.time_constant_s},
         sentence=lambda p, ci: (f"the steering follows the command like a first-order actuator with time constant "
-                                f"{p['time_constant_s']:.3f} s +- {_pm(ci['time_constant_s']):.3f} s"),
+                                f"{p['time_constant_s']:.3f} s +- {pm(ci['time_constant_s']):.3f} s"),
         separated_from={
             "tire_slip": "steady turns at very different speeds separate them: only tire slip changes the steady "
                          "yaw rate with speed",
@@ -342,7 +202,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         set_params=lambda v, ctx: {"gain": v["gain"]},
         read_params=lambda p, ctx: {"gain": p.gain},
         report=lambda p, ctx: {"gain": p.gain},
-        sentence=lambda p, ci: (f"the wheels turn {p['gain']:.3f} +- {_pm(ci['gain']):.3f} times the commanded "
+        sentence=lambda p, ci: (f"the wheels turn {p['gain']:.3f} +- {pm(ci['gain']):.3f} times the commanded "
                                 "angle (steering gain)"),
         separated_from={"steering_offset": "driving straight separates them: only an offset turns the car with the "
                                            "wheel centred"},
@@ -358,7 +218,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         set_params=lambda v, ctx: {"offset_rad": v["offset_rad"]},
         read_params=lambda p, ctx: {"offset_rad": p.offset_rad},
         report=lambda p, ctx: {"offset_rad": p.offset_rad},
-        sentence=lambda p, ci: (f"the steering is offset by {p['offset_rad']:+.4f} +- {_pm(ci['offset_rad']):.4f} "
+        sentence=lambda p, ci: (f"the steering is offset by {p['offset_rad']:+.4f} +- {pm(ci['offset_rad']):.4f} "
                                 f"rad ({math.degrees(p['offset_rad']):+.2f} deg): commanded straight, the car pulls "
                                 f"{'left' if p['offset_rad'] > 0 else 'right'}"),
         separated_from={"road_bank": "a recorded position separates them: on a bank the car crabs sideways (course "
@@ -403,7 +263,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         read_params=lambda p, ctx: _tire_read(p, ctx) | {"friction_coefficient": p.friction_coefficient},
         report=lambda p, ctx: {"friction_coefficient": p.friction_coefficient} | _tire_report(p, ctx),
         sentence=lambda p, ci: (f"the tires saturate: friction coefficient {p['friction_coefficient']:.3f} +- "
-                                f"{_pm(ci['friction_coefficient']):.3f} (peak lateral acceleration "
+                                f"{pm(ci['friction_coefficient']):.3f} (peak lateral acceleration "
                                 f"{p['friction_coefficient'] * GRAVITY_MPS2:.1f} m/s^2); "
                                 + _tire_sentence(p, ci).replace("the tires slip: ", "linear part: ")),
         group="tires", refines="tire_slip",
@@ -422,7 +282,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         set_params=lambda v, ctx: {"sensor_delay_s": v["sensor_delay_s"]},
         read_params=lambda p, ctx: {"sensor_delay_s": p.sensor_delay_s},
         report=lambda p, ctx: {"delay_s": p.sensor_delay_s},
-        sentence=lambda p, ci: (f"the recorded yaw rate is {p['delay_s']:.3f} s +- {_pm(ci['delay_s']):.3f} s late "
+        sentence=lambda p, ci: (f"the recorded yaw rate is {p['delay_s']:.3f} s +- {pm(ci['delay_s']):.3f} s late "
                                 "while heading and position are not (a late or filtered gyro channel)"),
         needs_channel="yaw_rate",
     ),
@@ -440,7 +300,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         set_params=lambda v, ctx: {"bank_accel_mps2": GRAVITY_MPS2 * math.sin(v["bank_rad"])},
         read_params=lambda p, ctx: {"bank_rad": math.asin(max(-1.0, min(1.0, p.bank_accel_mps2 / GRAVITY_MPS2)))},
         report=lambda p, ctx: {"bank_rad": math.asin(max(-1.0, min(1.0, p.bank_accel_mps2 / GRAVITY_MPS2)))},
-        sentence=lambda p, ci: (f"the road is banked by {p['bank_rad']:+.4f} +- {_pm(ci['bank_rad']):.4f} rad "
+        sentence=lambda p, ci: (f"the road is banked by {p['bank_rad']:+.4f} +- {pm(ci['bank_rad']):.4f} rad "
                                 f"({math.degrees(p['bank_rad']):+.2f} deg; it falls to the "
                                 f"{'left' if p['bank_rad'] > 0 else 'right'}): the car crabs downhill"),
         needs_group="tires",
@@ -459,8 +319,8 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         set_params=lambda v, ctx: {"delay_s": v["delay_s"], "jitter_s": v["jitter_s"]},
         read_params=lambda p, ctx: {"delay_s": p.delay_s, "jitter_s": p.jitter_s},
         report=lambda p, ctx: {"delay_s": p.delay_s, "jitter_s": p.jitter_s},
-        sentence=lambda p, ci: (f"the car steers late by {p['delay_s']:.3f} s +- {_pm(ci['delay_s']):.3f} s, and the "
-                                f"delay jitters by {p['jitter_s']:.3f} s +- {_pm(ci['jitter_s']):.3f} s (std): the "
+        sentence=lambda p, ci: (f"the car steers late by {p['delay_s']:.3f} s +- {pm(ci['delay_s']):.3f} s, and the "
+                                f"delay jitters by {p['jitter_s']:.3f} s +- {pm(ci['jitter_s']):.3f} s (std): the "
                                 "error scatter grows with the steering rate"),
         group="delay", refines="transport_delay",
         varies_noise=True,
@@ -479,14 +339,18 @@ EFFECT_FINGERPRINTS = {name: e.fingerprint for name, e in EFFECTS.items()}
 
 def separating_text(a: str, b: str) -> str:
     """What drive would tell effect ``a`` from ``b`` ('' when the registry does not say)."""
-    return EFFECTS[a].separated_from.get(b) or EFFECTS[b].separated_from.get(a) or ""
+    return SPECS[a].separated_from.get(b) or SPECS[b].separated_from.get(a) or ""
+
+
+# Every entry a candidate may hold: the library's effects and the terms residual discovery tries.
+SPECS = ChainMap(EFFECTS, TERMS)
 
 
 def params_from(effects: tuple[str, ...], values: dict[str, float], ctx: FitContext) -> EffectParams:
     """EffectParams for a candidate from its fitted coordinates (keyed ``effect.parameter``)."""
     kwargs: dict = {}
     for name in effects:
-        e = EFFECTS[name]
+        e = SPECS[name]
         kwargs |= e.set_params({p.name: values[f"{name}.{p.name}"] for p in e.parameters}, ctx)
     return EffectParams(**kwargs)
 
@@ -494,415 +358,13 @@ def params_from(effects: tuple[str, ...], values: dict[str, float], ctx: FitCont
 def coordinates_of(effects: tuple[str, ...], params: EffectParams, ctx: FitContext) -> dict[str, float]:
     out = {}
     for name in effects:
-        for key, value in EFFECTS[name].read_params(params, ctx).items():
+        for key, value in SPECS[name].read_params(params, ctx).items():
             out[f"{name}.{key}"] = float(value)
     return out
 
 
 def effect_report(name: str, params: EffectParams, ctx: FitContext) -> dict[str, float]:
     """An effect's parameters under their fixed public names."""
-    if name not in EFFECTS:
-        raise KeyError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}")
-    return {k: float(v) for k, v in EFFECTS[name].report(params, ctx).items()}
-
-
-# ----------------------------------------------------------------------------------------------
-# Kernels (numba). Arrays are per sample of the recording, uniformly spaced by dt.
-
-
-@numba.njit(cache=True, nogil=True)
-def _delayed(steer, delay_samples, out):
-    """``steer`` delayed by a fractional number of samples (Catmull-Rom, C1 in the delay)."""
-    n = steer.shape[0]
-    for k in range(n):
-        s = k - delay_samples
-        if s <= 0.0:
-            out[k] = steer[0]
-            continue
-        i = math.floor(s)
-        f = s - i
-        p0 = steer[max(i - 1, 0)]
-        p1 = steer[i]
-        p2 = steer[min(i + 1, n - 1)]
-        p3 = steer[min(i + 2, n - 1)]
-        out[k] = p1 + 0.5 * f * (p2 - p0 + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3 + f * (3.0 * (p1 - p2) + p3 - p0)))
-
-
-@numba.njit(cache=True, nogil=True)
-def _jittered(steer, delay_samples, jitter_samples, out):
-    """The expected command under a delay jittering with std ``jitter_samples`` around
-    ``delay_samples``: the delayed command smoothed by a Gaussian (3 standard deviations)."""
-    if jitter_samples < 0.05:
-        _delayed(steer, delay_samples, out)
-        return
-    n = steer.shape[0]
-    half = int(math.ceil(3.0 * jitter_samples))
-    weights = np.empty(2 * half + 1)
-    for m in range(-half, half + 1):
-        weights[m + half] = math.exp(-0.5 * (m / jitter_samples) ** 2)
-    weights /= weights.sum()
-    shifted = np.empty(n)
-    for k in range(n):
-        out[k] = 0.0
-    for m in range(-half, half + 1):
-        _delayed(steer, max(delay_samples + m, 0.0), shifted)
-        w = weights[m + half]
-        for k in range(n):
-            out[k] += w * shifted[k]
-
-
-@numba.njit(cache=True, nogil=True)
-def _lagged(u, dt, tau, out):
-    """First-order actuator, exact for inputs linear between samples; starts settled."""
-    n = u.shape[0]
-    if tau < 1e-9:
-        for k in range(n):
-            out[k] = u[k]
-        return
-    alpha = math.exp(-dt / tau)
-    c = tau / dt * (1.0 - alpha)
-    out[0] = u[0]
-    for k in range(1, n):
-        out[k] = alpha * out[k - 1] + (1.0 - c) * u[k] + (c - alpha) * u[k - 1]
-
-
-@numba.njit(cache=True, nogil=True)
-def _servo(u, dt, tau, max_rate, out):
-    """The steering servo: first-order lag (time constant ``tau``) whose output moves at most
-    ``max_rate`` [rad/s]; without a finite rate it is :func:`_lagged` exactly."""
-    if not math.isfinite(max_rate):
-        _lagged(u, dt, tau, out)
-        return
-    n = u.shape[0]
-    step = max_rate * dt
-    out[0] = u[0]
-    if tau < 1e-9:
-        for k in range(1, n):
-            out[k] = out[k - 1] + min(max(u[k] - out[k - 1], -step), step)
-        return
-    alpha = math.exp(-dt / tau)
-    c = tau / dt * (1.0 - alpha)
-    for k in range(1, n):
-        target = alpha * out[k - 1] + (1.0 - c) * u[k] + (c - alpha) * u[k - 1]
-        out[k] = out[k - 1] + min(max(target - out[k - 1], -step), step)
-
-
-@numba.njit(cache=True, nogil=True)
-def _kinematic(delta, speed, a_m, b_m, r_out, vy_out, slip_out, need):
-    """Yaw rate, lateral velocity and (``need`` >= 2) slip of the kinematic bicycle (the simulator).
-
-    ``r = v sin(beta) / lr`` with ``tan(beta) = lr/L tan(delta)``, written with one tangent and
-    one square root (sin and cos of an arctangent are algebraic).
-    """
-    ratio = b_m / (a_m + b_m)
-    for k in range(delta.shape[0]):
-        ct = ratio * math.tan(delta[k])
-        sin_beta = ct / math.sqrt(1.0 + ct * ct)
-        r_out[k] = speed[k] * sin_beta / b_m
-        vy_out[k] = speed[k] * sin_beta
-        if need >= 2:
-            slip_out[k] = math.atan(ct)
-
-
-@numba.njit(cache=True, nogil=True)
-def tire_maps(speed, dt, cf, cr, a_m, b_m, k2, u_min=TIRE_MIN_SPEED_MPS):
-    """Per-sample affine maps of the linear tire model (see ``single_track_tustin_map``) and the
-    settled start per unit steering: (maps [n-1, 8], start [2])."""
-    n = speed.shape[0]
-    maps = np.empty((n - 1, 8))
-    for k in range(n - 1):
-        m = single_track_tustin_map(speed[k], speed[k + 1], dt, cf, cr, a_m, b_m, k2, u_min)
-        for j in range(8):
-            maps[k, j] = m[j]
-    start = np.empty(2)
-    start[0], start[1] = single_track_steady_state(max(speed[0], u_min), 1.0, cf, cr, a_m, b_m, k2)
-    return maps, start
-
-
-@numba.njit(cache=True, nogil=True)
-def _run_tire_maps(maps, start, delta, speed, u_min, r_out, vy_out, slip_out, need):
-    """Yaw rate, lateral velocity and (``need`` >= 2) slip of the linear tire model driven by ``delta``."""
-    n = delta.shape[0]
-    vy = start[0] * delta[0]
-    r = start[1] * delta[0]
-    r_out[0] = r
-    vy_out[0] = vy
-    for k in range(n - 1):
-        m = maps[k]
-        vy, r = (m[0] * vy + m[1] * r + m[4] * delta[k] + m[6] * delta[k + 1],
-                 m[2] * vy + m[3] * r + m[5] * delta[k] + m[7] * delta[k + 1])
-        r_out[k + 1] = r
-        vy_out[k + 1] = vy
-    if need >= 2:
-        for k in range(n):
-            slip_out[k] = math.atan2(vy_out[k], max(speed[k], u_min))
-
-
-@numba.njit(cache=True, nogil=True)
-def fir_filter(x, taps, lo, out):
-    """out[k] = sum_j taps[j] * x[k + lo + j], indices clamped at the ends."""
-    n = x.shape[0]
-    m = taps.shape[0]
-    if m == 1 and lo == 0:
-        for k in range(n):
-            out[k] = taps[0] * x[k]
-        return
-    for k in range(n):
-        acc = 0.0
-        for j in range(m):
-            i = min(max(k + lo + j, 0), n - 1)
-            acc += taps[j] * x[i]
-        out[k] = acc
-
-
-@numba.njit(cache=True, nogil=True)
-def fir_filter_at(x, taps, lo, index, out):
-    """out[i] = sum_j taps[j] * x[index[i] + lo + j] (indices clamped): a filter read at a few samples."""
-    n = x.shape[0]
-    m = taps.shape[0]
-    for i in range(index.shape[0]):
-        k = index[i]
-        acc = 0.0
-        for j in range(m):
-            acc += taps[j] * x[min(max(k + lo + j, 0), n - 1)]
-        out[i] = acc
-
-
-@numba.njit(cache=True, nogil=True)
-def lateral_fir_at(vy, speed, heading, taps, lo, index, out):
-    """What a lateral velocity taken from positions reads when the car's is ``vy``: the velocities
-    in the filter window, each along the heading it had, projected on the car's lateral axis at the
-    sample, minus the part a plain rotation of ``speed`` gives (the measurement subtracts it too):
-    out[i] = sum_j taps[j] (vy cos(dh) + (sqrt(v^2 - vy^2) - v) sin(dh)) at k + lo + j, dh the turn."""
-    n = vy.shape[0]
-    m = taps.shape[0]
-    for i in range(index.shape[0]):
-        k = index[i]
-        acc = 0.0
-        for j in range(m):
-            s = min(max(k + lo + j, 0), n - 1)
-            dh = heading[s] - heading[k]
-            v = speed[s]
-            along = math.sqrt(max(v * v - vy[s] * vy[s], 0.0))
-            acc += taps[j] * (vy[s] * math.cos(dh) + (along - v) * math.sin(dh))
-        out[i] = acc
-
-
-@numba.njit(cache=True, nogil=True)
-def unit_bank_response(speed, dt, cf, cr, a_m, b_m, k2, u_min, r_out, vy_out):
-    """Yaw rate and lateral velocity of the linear tire model under a unit lateral acceleration."""
-    zero = np.zeros(speed.shape[0])
-    saturating_single_track_replay(zero, speed, dt, cf, cr, a_m, b_m, k2, math.inf, 1.0, u_min, r_out, vy_out)
-
-
-@numba.njit(cache=True, nogil=True)
-def simulate_chain(steer, speed, dt, p, a_m, b_m, k2, u_min, maps, start, bank_r, bank_vy, r, vy, slip, need=2):
-    """The simulator's model plus the effects in slot vector ``p``: yaw rate, lateral velocity and
-    (``need`` >= 2; fits skip it) slip.
-
-    ``maps``/``start`` (linear tires) and ``bank_r``/``bank_vy`` (their unit-bank response) may be
-    precomputed for ``p``'s tires; pass empty arrays to compute them here. The sensor delay is not
-    applied here (it acts on one recorded channel only, see ``replay.Channel``).
-    """
-    n = steer.shape[0]
-    calibrated = p[GAIN] * steer + p[OFFSET]
-    delayed = np.empty(n)
-    _jittered(calibrated, p[DELAY] / dt, p[JITTER] / dt, delayed)
-    delta = np.empty(n)
-    _servo(delayed, dt, p[TAU], p[RATE], delta)
-    if p[CF] <= 0.0:
-        _kinematic(delta, speed, a_m, b_m, r, vy, slip, need)
-        return
-    if math.isfinite(p[MU]):
-        saturating_single_track_replay(delta, speed, dt, p[CF], p[CR], a_m, b_m, k2, p[MU], p[BANK], u_min, r, vy)
-    else:
-        if maps.shape[0] != n - 1:
-            maps, start = tire_maps(speed, dt, p[CF], p[CR], a_m, b_m, k2, u_min)
-        _run_tire_maps(maps, start, delta, speed, u_min, r, vy, slip, 0)
-        if p[BANK] != 0.0:
-            if bank_r.shape[0] != n:
-                bank_r = np.empty(n)
-                bank_vy = np.empty(n)
-                unit_bank_response(speed, dt, p[CF], p[CR], a_m, b_m, k2, u_min, bank_r, bank_vy)
-            for k in range(n):
-                r[k] += p[BANK] * bank_r[k]
-                vy[k] += p[BANK] * bank_vy[k]
-    if need >= 2:
-        for k in range(n):
-            slip[k] = math.atan2(vy[k], max(speed[k], u_min))
-
-
-_EMPTY_MAPS = np.zeros((0, 8))
-_EMPTY = np.zeros(0)
-
-
-def simulate(steer: np.ndarray, speed: np.ndarray, dt: float, params: EffectParams, a_m: float, b_m: float,
-             k2: float, u_min: float = TIRE_MIN_SPEED_MPS, with_slip: bool = True
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(yaw rate [rad/s], lateral velocity [m/s], slip angle [rad]) at each sample for one parameter
-    set (the slip left unset without ``with_slip``)."""
-    steer = np.ascontiguousarray(steer, float)
-    speed = np.ascontiguousarray(speed, float)
-    n = steer.shape[0]
-    r, vy, slip = np.empty(n), np.empty(n), np.empty(n)
-    simulate_chain(steer, speed, float(dt), params.slots(), float(a_m), float(b_m), float(k2), float(u_min),
-                   _EMPTY_MAPS, _EMPTY, _EMPTY, _EMPTY, r, vy, slip, 2 if with_slip else 1)
-    return r, vy, slip
-
-
-def simulate_yaw_rate(steer, speed, dt, delay_s, tau_s, gain, offset_rad, cf, cr, a_m, b_m, k2, with_slip=True):
-    """Yaw rate [rad/s] and slip angle [rad] for the five classic effects (cf = 0: kinematic)."""
-    params = EffectParams(delay_s=delay_s, time_constant_s=tau_s, gain=gain, offset_rad=offset_rad,
-                          cf_per_kg=cf if cf > 0 else None, cr_per_kg=cr if cf > 0 else None)
-    r, _, slip = simulate(steer, speed, dt, params, a_m, b_m, k2)
-    return r, slip
-
-
-# ----------------------------------------------------------------------------------------------
-# A grid of parameter sets, with the linear parameters in closed form
-
-
-@numba.njit(cache=True, nogil=True)
-def _channel(r, dt, sensor_delay_s, taps, lo, out):
-    """A model's yaw rate as a recorded rotation channel sees it: late by the sensor delay, filtered."""
-    if sensor_delay_s > 0.0:
-        late = np.empty(r.shape[0])
-        _delayed(r, sensor_delay_s / dt, late)
-        fir_filter(late, taps, lo, out)
-    else:
-        fir_filter(r, taps, lo, out)
-
-
-@numba.njit(cache=True, nogil=True)
-def _grid_into(steer, speed, dt, points, tire_index, maps_all, start_all, bank_r_all, bank_vy_all, a_m, b_m, k2,
-               u_min, taps, lo, y, weight, linear_slots, linear_steps, first, last, gram):
-    """Rows ``first:last`` of :func:`grid_statistics`; releases the GIL."""
-    n = steer.shape[0]
-    n_lin = linear_slots.shape[0]
-    r = np.empty(n)
-    vy = np.empty(n)
-    slip = np.empty(n)
-    columns = np.empty((n_lin + 1, n))
-    pred = np.empty(n)
-    for g in range(first, last):
-        p = points[g].copy()
-        ti = tire_index[g]
-        if ti >= 0:
-            maps, start, br, bv = maps_all[ti], start_all[ti], bank_r_all[ti], bank_vy_all[ti]
-        else:
-            maps, start, br, bv = _EMPTY_MAPS, _EMPTY, _EMPTY, _EMPTY
-        simulate_chain(steer, speed, dt, p, a_m, b_m, k2, u_min, maps, start, br, bv, r, vy, slip, 0)
-        _channel(r, dt, p[SENSOR], taps, lo, pred)
-        for k in range(n):
-            columns[0, k] = y[k] - pred[k]
-        for j in range(n_lin):
-            q = p.copy()
-            q[linear_slots[j]] += linear_steps[j]
-            simulate_chain(steer, speed, dt, q, a_m, b_m, k2, u_min, maps, start, br, bv, r, vy, slip, 0)
-            other = np.empty(n)
-            _channel(r, dt, q[SENSOR], taps, lo, other)
-            for k in range(n):
-                columns[j + 1, k] = (other[k] - pred[k]) / linear_steps[j]
-        for f in range(weight.shape[0]):
-            for i in range(n_lin + 1):
-                for j in range(i, n_lin + 1):
-                    acc = 0.0
-                    for k in range(n):
-                        w = weight[f, k]
-                        if w != 0.0:
-                            acc += w * columns[i, k] * columns[j, k]
-                    gram[g, f, i, j] = acc
-                    gram[g, f, j, i] = acc
-
-
-def in_threads(fn, n_items: int, *args) -> None:
-    """Run ``fn(*args[0], first, last, *args[1])`` over chunks of ``range(n_items)`` on all cores.
-
-    The kernels release the GIL, so threads run them in parallel without numba's parallel
-    compilation (which costs tens of seconds on a cold cache).
-    """
-    n_threads = max(1, min(os.cpu_count() or 1, n_items))
-    if n_threads == 1:
-        fn(*args[0], 0, n_items, *args[1])
-        return
-    # More chunks than threads: grid points differ in cost (sub-stepped tires at low speed).
-    bounds = np.linspace(0, n_items, min(n_items, 4 * n_threads) + 1).astype(int)
-    with ThreadPoolExecutor(n_threads) as pool:
-        futures = [pool.submit(fn, *args[0], int(bounds[i]), int(bounds[i + 1]), *args[1])
-                   for i in range(len(bounds) - 1)]
-        for f in futures:
-            f.result()
-
-
-@numba.njit(cache=True, nogil=True)
-def _tire_tables_into(speed, dt, cfs, crs, a_m, b_m, k2, u_min, with_bank, first, last, maps_all, start_all,
-                      bank_r_all, bank_vy_all):
-    for i in range(first, last):
-        maps, start = tire_maps(speed, dt, cfs[i], crs[i], a_m, b_m, k2, u_min)
-        maps_all[i] = maps
-        start_all[i] = start
-        if with_bank:
-            unit_bank_response(speed, dt, cfs[i], crs[i], a_m, b_m, k2, u_min, bank_r_all[i], bank_vy_all[i])
-
-
-def tire_tables(speed, dt, cfs, crs, a_m, b_m, k2, u_min=TIRE_MIN_SPEED_MPS, with_bank=False):
-    """Maps, settled starts (and unit-bank responses) for a set of linear-tire candidates."""
-    n = speed.shape[0]
-    n_tire = cfs.shape[0]
-    maps_all = np.empty((n_tire, n - 1, 8))
-    start_all = np.empty((n_tire, 2))
-    bank_r_all = np.empty((n_tire, n if with_bank else 0))
-    bank_vy_all = np.empty((n_tire, n if with_bank else 0))
-    in_threads(_tire_tables_into, n_tire, (speed, dt, cfs, crs, a_m, b_m, k2, u_min, with_bank),
-               (maps_all, start_all, bank_r_all, bank_vy_all))
-    return maps_all, start_all, bank_r_all, bank_vy_all
-
-
-def grid_statistics(steer, speed, dt, points, a_m, b_m, k2, u_min, taps, lo, y, weight, linear_slots, linear_steps):
-    """For each slot vector in ``points`` (G, N_SLOTS) and weight row f: the weighted Gram matrix of
-    [e, s_1, ..., s_L], shape (G, F, L+1, L+1).
-
-    ``e`` is the measured channel minus the model's, ``s_j`` the model channel's sensitivity to
-    linear slot ``linear_slots[j]`` (forward difference of ``linear_steps[j]``: exact for a
-    linear model, the local linearisation otherwise). Each weight row is a fold's train mask, so
-    one simulation serves all folds. Linear tires are precomputed once per distinct tire.
-    """
-    points = np.ascontiguousarray(points, float)
-    linear_tires = (points[:, CF] > 0) & ~np.isfinite(points[:, MU])
-    tire_index = np.full(points.shape[0], -1, np.int64)
-    maps_all = np.zeros((1, 0, 8))
-    start_all = np.zeros((1, 0))
-    bank_r_all = np.zeros((1, 0))
-    bank_vy_all = np.zeros((1, 0))
-    if linear_tires.any():
-        tires, inverse = np.unique(points[linear_tires][:, [CF, CR]], axis=0, return_inverse=True)
-        tire_index[linear_tires] = inverse.ravel()
-        with_bank = bool(np.any(points[:, BANK] != 0) or BANK in set(np.asarray(linear_slots).tolist()))
-        maps_all, start_all, bank_r_all, bank_vy_all = tire_tables(
-            speed, dt, np.ascontiguousarray(tires[:, 0]), np.ascontiguousarray(tires[:, 1]), a_m, b_m, k2, u_min,
-            with_bank)
-    n_lin = len(linear_slots)
-    gram = np.zeros((points.shape[0], weight.shape[0], n_lin + 1, n_lin + 1))
-    in_threads(_grid_into, points.shape[0],
-               (steer, speed, dt, points, tire_index, maps_all, start_all, bank_r_all, bank_vy_all, a_m, b_m, k2,
-                u_min, taps, lo, y, weight, np.asarray(linear_slots, np.int64), np.asarray(linear_steps, float)),
-               (gram,))
-    return gram
-
-
-def profile_linear(gram: np.ndarray, lo: np.ndarray, hi: np.ndarray, base: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares SSE of each grid point with its linear parameters solved (clipped to bounds);
-    ``gram`` is (G, L+1, L+1) for one fold. Returns (sse [G], solved values [G, L])."""
-    n_lin = gram.shape[-1] - 1
-    if n_lin == 0:
-        return np.maximum(gram[:, 0, 0], 0.0), np.zeros((gram.shape[0], 0))
-    a = gram[:, 1:, 1:]
-    rhs = gram[:, 1:, 0]
-    scale = np.sqrt(np.maximum(np.einsum("gii->gi", a), 1e-300))
-    a_n = a / scale[:, :, None] / scale[:, None, :] + 1e-12 * np.eye(n_lin)
-    step = np.linalg.solve(a_n, (rhs / scale)[..., None])[..., 0] / scale
-    values = np.clip(base + step, lo, hi)
-    step = values - base
-    sse = gram[:, 0, 0] - 2 * np.einsum("gi,gi->g", step, rhs) + np.einsum("gi,gij,gj->g", step, a, step)
-    return np.maximum(sse, 0.0), values
+    if name not in SPECS:
+        raise KeyError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}, {', '.join(TERMS)}")
+    return {k: float(v) for k, v in SPECS[name].report(params, ctx).items()}

@@ -20,8 +20,10 @@ Without it the car is the simulator's own (highway-env: 5 m long, reference poin
 lf = lr = 2.5 m). With only ``wheelbase_m`` the reference point is taken in the middle, as in the
 simulator; with the wheelbase and one of ``cg_to_front_m``/``cg_to_rear_m`` the other follows.
 
-Bounds, checked before any work: at most ``MAX_ROWS`` (150,000) data rows, 10 s to 4 h of data, a
-median sampling interval of 1 ms to 0.2 s (1 kHz to 5 Hz), and sidecar values within
+Bounds, checked before any work: a file of at most ``MAX_BYTES`` (512 MiB), ``MAX_COLUMNS`` (2,000)
+columns and lines of ``MAX_LINE_CHARS`` (1,000,000) characters, of which only the recording's own
+columns are stored; at most ``MAX_ROWS`` (150,000) data rows, 10 s to 4 h of data, a median sampling
+interval of 1 ms to 0.2 s (1 kHz to 5 Hz), a sidecar of at most 64 KiB with values within
 ``SIDECAR_RANGES`` (wheelbase 0.05-20 m, mass 0.05-100,000 kg, yaw inertia 0.2-5 x m a b).
 
 Bad input raises ``ValueError`` naming the column and file line (line 1 is the header); data that
@@ -53,6 +55,12 @@ MIN_DURATION_S = 10.0
 # Bounds checked before any work (a diagnosis allocates a few arrays of this length per candidate
 # tire; split longer recordings). 150,000 rows is 50 min at 50 Hz.
 MAX_ROWS = 150_000
+# The file itself: bytes, columns and characters per line, checked before anything is stored (only
+# the recording's own columns are kept; a wide log of 150,000 rows and 2,000 columns fits).
+MAX_BYTES = 512 * 1024**2
+MAX_COLUMNS = 2_000
+MAX_LINE_CHARS = 1_000_000
+MAX_SIDECAR_BYTES = 64 * 1024
 MAX_DURATION_S = 4 * 3600.0
 # Median sampling interval: 1 ms (1 kHz) to 0.2 s (5 Hz; slower sampling aliases the steering).
 MIN_INTERVAL_S = 0.001
@@ -73,6 +81,8 @@ GAP_INTERVALS = 5.0
 # no car makes) is a localisation glitch; samples this close to one are not scored.
 HEADING_JUMP_RAD = 0.2
 MAX_PLAUSIBLE_YAW_RATE_RADPS = 3.0
+# Glitches are rare: a yaw rate that disagrees with this share of the heading's steps is no reference.
+MAX_GLITCH_FRACTION = 0.02
 JUMP_EXCLUDE_S = 1.0
 # The speed floor: below it a sample is not scored (the car barely turns whatever it steers, and
 # the slip models divide by the speed). It scales with the car and with how it was driven:
@@ -209,20 +219,45 @@ class Recording:
 # Reading
 
 
-def _read_columns(path: Path) -> tuple[list[str], dict[str, list[str]]]:
-    """Header and raw text columns; a BOM is accepted, at most ``MAX_ROWS`` data rows are read."""
+def _lines(handle, path: Path):
+    """The file's lines, each at most ``MAX_LINE_CHARS`` long (a longer one is refused before it is split)."""
+    number = 0
+    while True:
+        line = handle.readline(MAX_LINE_CHARS + 1)
+        if not line:
+            return
+        number += 1
+        if len(line) > MAX_LINE_CHARS and not line.endswith("\n"):
+            raise ValueError(f"{path}: line {number} is longer than {MAX_LINE_CHARS:,} characters (the limit)")
+        yield line
+
+
+def _read_columns(path: Path, wanted: set[str] | None = None) -> tuple[list[str], dict[str, list[str]]]:
+    """Header and the raw text of the ``wanted`` columns (all when None); a BOM is accepted.
+
+    Bounded before and while reading: at most ``MAX_BYTES`` bytes, ``MAX_COLUMNS`` columns, lines
+    of ``MAX_LINE_CHARS`` and ``MAX_ROWS`` data rows; columns not wanted are never stored.
+    """
+    size = path.stat().st_size
+    if size > MAX_BYTES:
+        raise ValueError(f"{path}: {size:,} bytes; at most {MAX_BYTES:,} are accepted (the limit; keep only the "
+                         "needed columns or split the recording)")
     line_no = 1
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
-            reader = csv.reader(fh)
+            reader = csv.reader(_lines(fh, path))
             try:
                 header = [h.strip() for h in next(reader)]
             except StopIteration:
                 raise ValueError(f"{path}: the file is empty (expected a CSV header)") from None
+            if len(header) > MAX_COLUMNS:
+                raise ValueError(f"{path}: {len(header):,} columns in the header; at most {MAX_COLUMNS:,} are "
+                                 "accepted (the limit)")
             if len(set(header)) != len(header):
                 dupes = sorted({h for h in header if header.count(h) > 1})
                 raise ValueError(f"{path}: duplicate column(s) {', '.join(dupes)} in the header")
-            columns: dict[str, list[str]] = {h: [] for h in header}
+            keep = [(i, h) for i, h in enumerate(header) if wanted is None or h in wanted]
+            columns: dict[str, list[str]] = {h: [] for _, h in keep}
             rows = 0
             for line_no, row in enumerate(reader, start=2):
                 if not row or all(not c.strip() for c in row):
@@ -232,8 +267,8 @@ def _read_columns(path: Path) -> tuple[list[str], dict[str, list[str]]]:
                 rows += 1
                 if rows > MAX_ROWS:
                     raise ValueError(f"{path}: more than {MAX_ROWS:,} data rows (the limit; split the recording)")
-                for h, value in zip(header, row):
-                    columns[h].append(value)
+                for i, h in keep:
+                    columns[h].append(row[i])
     except UnicodeDecodeError:
         raise ValueError(f"{path}: not a text CSV (bytes that are not UTF-8 near line {line_no + 1})") from None
     except csv.Error as exc:
@@ -258,6 +293,9 @@ def _first_bad(mask: np.ndarray) -> int:
 def read_sidecar(path: Path) -> tuple[VehicleGeometry, list[str]]:
     """The car of a recording from its JSON sidecar, and warnings (e.g. unknown keys)."""
     warnings: list[str] = []
+    if path.stat().st_size > MAX_SIDECAR_BYTES:
+        raise ValueError(f"{path}: {path.stat().st_size:,} bytes; a sidecar has at most {MAX_SIDECAR_BYTES:,} "
+                         "(the limit)")
     try:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
@@ -402,10 +440,13 @@ def _heading_jumps(heading: np.ndarray, yaw_rate: np.ndarray | None, t: np.ndarr
     or faster than ``max_yaw_rate``. Localisation glitches, not vehicle motion."""
     dt = np.diff(t)
     step = np.diff(heading)
+    bad = np.zeros(0, int)
     if yaw_rate is not None:
         bad = np.flatnonzero(np.abs(step - 0.5 * (yaw_rate[1:] + yaw_rate[:-1]) * dt) > HEADING_JUMP_RAD)
         against = "not matched by yaw_rate"
-    else:
+    if yaw_rate is None or len(bad) > MAX_GLITCH_FRACTION * len(step):
+        # Without a gyro, or with one that disagrees with the heading throughout (its units or sign;
+        # the consistency checks name it): glitches are steps no car makes.
         bad = np.flatnonzero(np.abs(step) > max_yaw_rate * dt + HEADING_JUMP_RAD / 4)
         against = f"faster than {max_yaw_rate:.3g} rad/s"
     if len(bad):
@@ -506,11 +547,11 @@ def read_recording(path: str | os.PathLike, sidecar: str | os.PathLike | None = 
         raise FileNotFoundError(f"{sidecar_path}: no such sidecar")
     else:
         vehicle = SIMULATOR_VEHICLE
-    _, raw = _read_columns(path)
+    header, raw = _read_columns(path, set(REQUIRED_COLUMNS + OPTIONAL_COLUMNS))
     missing = [c for c in REQUIRED_COLUMNS if c not in raw]
     if missing:
         raise ValueError(f"{path}: missing column(s) {', '.join(missing)} "
-                         f"(required: {', '.join(REQUIRED_COLUMNS)}; found: {', '.join(raw) or 'none'})")
+                         f"(required: {', '.join(REQUIRED_COLUMNS)}; found: {', '.join(header) or 'none'})")
     line_numbers = np.arange(2, len(raw["t"]) + 2)
     columns = {k: _parse_column(path, k, v, line_numbers) for k, v in raw.items()
                if k in REQUIRED_COLUMNS + OPTIONAL_COLUMNS}
@@ -544,12 +585,12 @@ def read_sim_log(
         raise ValueError(f"steer_scale must be a finite, non-zero number (got {steer_scale!r})")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
-    _, raw = _read_columns(path)
     mapping = {"t": t_column, "steer": steer_column, "speed": speed_column, "x": x_column, "y": y_column,
                "heading": heading_column, "yaw_rate": yaw_rate_column, "lat_accel": lat_accel_column}
+    header, raw = _read_columns(path, {col for col in mapping.values() if col is not None})
     missing = [f"'{col}' (for {ours})" for ours, col in mapping.items() if col is not None and col not in raw]
     if missing:
-        raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; found: {', '.join(raw)}")
+        raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; found: {', '.join(header)}")
     line_numbers = np.arange(2, len(raw[t_column]) + 2)
     columns = {ours: _parse_column(path, col, raw[col], line_numbers) for ours, col in mapping.items() if col}
     columns["steer"] = columns["steer"] * steer_scale

@@ -39,7 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import savgol_coeffs
 
-from plm_highway.sim2real.effects import EffectParams, _delayed, fir_filter, fir_filter_at, lateral_fir_at, simulate
+from plm_highway.sim2real.chain import EffectParams, _delayed, simulate
+from plm_highway.sim2real.filters import fir_filter, fir_filter_at, lateral_fir_at
 from plm_highway.sim2real.recording import Recording
 from plm_highway.vehicle.kinematic import integrate_pose_euler
 
@@ -292,14 +293,16 @@ def channel_prediction(signal: FitSignal, recording: Recording, params: EffectPa
         late = np.empty(len(source))
         _delayed(np.ascontiguousarray(source, float), params.sensor_delay_s / recording.dt_s, late)
         source = late
+    bias = params.gyro_bias_radps if signal.late else 0.0
     if index is None:
-        return filtered(signal, source)
-    if signal.taps.shape[0] == 1 and signal.lo == 0:
-        return source[index] * signal.taps[0]
-    out = np.empty(index.shape[0])
-    fir_filter_at(np.ascontiguousarray(source, float), np.ascontiguousarray(signal.taps, float), int(signal.lo),
-                  index, out)
-    return out
+        out = filtered(signal, source)
+    elif signal.taps.shape[0] == 1 and signal.lo == 0:
+        out = source[index] * signal.taps[0]
+    else:
+        out = np.empty(index.shape[0])
+        fir_filter_at(np.ascontiguousarray(source, float), np.ascontiguousarray(signal.taps, float),
+                      int(signal.lo), index, out)
+    return out + bias if bias != 0.0 else out
 
 
 def heading_noise_to_signal(recording: Recording, signal: FitSignal) -> float:

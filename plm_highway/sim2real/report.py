@@ -6,6 +6,12 @@
 ``candidates.png``  held-out RMSE of every candidate against the noise level
 ``summary.md``      the plain-language summary and the numbers
 
+``discovered_<term>.png``  each term residual discovery found (named or doubtful): its shape against
+                    what the data say on their own (binned estimates with standard errors)
+
+A recording that contradicts itself (verdict ``inconsistent``) gets ``consistency.png`` instead of
+the four figures: each pair of channels that should agree, over the whole run.
+
 Every file is written to a temporary name in the same directory and renamed into place.
 """
 
@@ -17,7 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.io import directory_kind, file_kind, json_text, save_figure_into, write_output, write_outputs
+from plm_highway.sim2real.consistency import channel_rates
 from plm_highway.sim2real.diagnose import Diagnosis, to_json
+from plm_highway.sim2real.discovery import removed_words
+from plm_highway.sim2real.shapes import shape_data
 
 NAMED = ("mismatch", "partly explained")
 
@@ -51,7 +60,7 @@ def _excerpt(d: Diagnosis, length_s: float = 20.0) -> slice:
     width = max(2, min(n, round(length_s / d.recording.dt_s)))
     before = np.nan_to_num(d.signal.values - d.before)
     after = np.nan_to_num(d.signal.values - d.after)
-    gain = before**2 - after**2 if d.verdict in NAMED else before**2
+    gain = before**2 - after**2 if d.library_verdict in NAMED else before**2
     csum = np.concatenate([[0.0], np.cumsum(np.where(d.heldout, gain, 0.0))])
     scores = csum[width:] - csum[:-width]
     start = int(np.argmax(scores)) if scores.size else 0
@@ -68,15 +77,15 @@ def overlay_figure(d: Diagnosis, plt):
     sl = _excerpt(d)
     t = d.recording.t_s[sl]
     ylabel, rec_label = _label(d)
-    after_name = d.selection.winner.name if d.verdict in NAMED else d.selection.best.name
-    after = d.after if d.verdict in NAMED else d.best
+    after_name = d.selection.winner.name if d.library_verdict in NAMED else d.selection.best.name
+    after = d.after if d.library_verdict in NAMED else d.best
     fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
     ax = axes[0]
     ax.plot(t, d.signal.values[sl], color="0.3", lw=1.0, label=rec_label)
     ax.plot(t, d.before[sl], color="tab:red", lw=1.2, label="simulator (plain kinematic bicycle)")
     ax.plot(t, after[sl], color="tab:blue", lw=1.2, ls="--", label=f"simulator + {after_name}")
     ax.set_ylabel(ylabel)
-    what = "the fitted term matters most" if d.verdict in NAMED else "the simulator is worst"
+    what = "the fitted term matters most" if d.library_verdict in NAMED else "the simulator is worst"
     ax.set_title(f"{d.recording.name} ({d.verdict}): held-out excerpt where {what}")
     ax.legend(loc="upper right")
     ax = axes[1]
@@ -88,7 +97,7 @@ def overlay_figure(d: Diagnosis, plt):
     ax = axes[2]
     ax.plot(t, d.pose_before.heading_error_rad[sl], color="tab:red", lw=1.0, label="plain")
     ax.plot(t, d.pose_after.heading_error_rad[sl], color="tab:blue", lw=1.0,
-            label=f"+ {d.selection.winner.name}" if d.verdict in NAMED else "chosen model (plain)")
+            label=f"+ {d.selection.winner.name}" if d.library_verdict in NAMED else "chosen model (plain)")
     ax.set_ylabel(f"heading error [rad]\n(re-anchored every {d.anchor_s:g} s)")
     ax.set_xlabel("time [s]")
     ax.legend(loc="upper right")
@@ -108,7 +117,7 @@ def residuals_figure(d: Diagnosis, plt):
                    else None)
     ax.plot(t[usable], (d.signal.values - d.before)[usable], color="tab:red", lw=0.6, label="plain")
     ax.plot(t[usable], (d.signal.values - d.after)[usable], color="tab:blue", lw=0.6,
-            label=f"+ {d.selection.winner.name}" if d.verdict in NAMED else "chosen model (plain)")
+            label=f"+ {d.selection.winner.name}" if d.library_verdict in NAMED else "chosen model (plain)")
     ax.set_xlabel("time [s]")
     ax.set_ylabel(f"recorded - model [{d.signal.unit}]")
     ax.set_title("Residuals over the whole run")
@@ -170,6 +179,110 @@ def candidates_figure(d: Diagnosis, plt):
     return fig
 
 
+def consistency_figure(d: Diagnosis, plt):
+    """Each relation the consistency checks measure, over time: what one channel says against another."""
+    rec = d.recording
+    rates = channel_rates(rec)
+    checks = {c.name: c for c in d.consistency.checks}
+    t = rec.t_s
+    v = rec.vehicle
+    steered = rec.speed_mps * np.sin(np.arctan(v.cg_to_rear_m / v.wheelbase_m * np.tan(rec.steer_rad))) \
+        / v.cg_to_rear_m
+    panels = [
+        ("speed_vs_position", "speed [m/s]", [(rec.speed_mps, "speed column"),
+                                             (rates.speed_from_position, "|d(x, y)/dt| from the positions")]),
+        ("yaw_rate_vs_heading", "yaw rate [rad/s]", [(rec.yaw_rate_radps, "yaw_rate column"),
+                                                     (rates.heading_rate, "d(heading)/dt")]),
+        ("heading_vs_course", "turn rate [rad/s]", [(rates.heading_rate, "d(heading)/dt"),
+                                                    (rates.course_rate, "d(course)/dt from the positions")]),
+        ("steer_vs_turning", "turn rate [rad/s]", [(rates.heading_rate, "d(heading)/dt"),
+                                                   (steered, "the simulator's yaw rate from the steering")]),
+    ]
+    if rec.lat_accel_mps2 is not None:
+        panels.append(("lat_accel_vs_turning", "lateral accel [m/s^2]",
+                       [(rec.lat_accel_mps2, "lat_accel column"),
+                        (rates.speed_from_position * rates.heading_rate, "|d(x, y)/dt| x d(heading)/dt")]))
+    fig, axes = plt.subplots(len(panels), 1, figsize=(10, 2.3 * len(panels)), sharex=True)
+    for ax, (name, ylabel, series) in zip(axes, panels):
+        check = checks[name]
+        for (values, label), color in zip(series, ("tab:red", "tab:blue")):
+            if values is not None:
+                ax.plot(t, np.where(rates.valid, values, np.nan), color=color, lw=0.8, label=label)
+        ax.set_ylabel(ylabel)
+        ax.set_title(f"{name.replace('_', ' ')}: {check.status} ({check.text})", fontsize=9)
+        ax.legend(loc="upper right")
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("time as recorded [s]")
+    fig.suptitle(f"{rec.name}: the recording against itself")
+    fig.tight_layout()
+    return fig
+
+
+def discovery_figure(d: Diagnosis, found, plt):
+    """A discovered term's shape against the data's own binned estimate (see :mod:`.shapes`)."""
+    data = shape_data(d.problem, found)
+    status = "discovered" if found.plausible else "doubtful"
+    title = f"{d.recording.name}: {found.name.replace('_', ' ')} ({status}; held out it " \
+            f"{removed_words(found.removed_fraction, would=not found.plausible)} of the error left above the noise)"
+    if data["kind"] == "time":
+        fig, (ax, hist) = plt.subplots(1, 2, figsize=(12, 4), gridspec_kw={"width_ratios": [3, 1]})
+        t, delay, error, seen = data["t_s"], data["delay_s"], data["error_s"], data["visible"]
+        width = min(30.0, t[-1] - t[0])
+        density = np.convolve(seen.astype(float), np.ones(max(1, round(width / d.recording.dt_s))), mode="valid")
+        start = t[int(np.argmax(density))] if density.size else t[0]
+        sel = (t >= start) & (t <= start + width)
+        shown = np.where(seen, delay, np.nan)
+        ax.fill_between(t[sel], (shown - 1.96 * error)[sel], (shown + 1.96 * error)[sel], color="tab:blue", alpha=0.2,
+                        lw=0, label="95% band")
+        ax.plot(t[sel], delay[sel], color="0.75", lw=0.8, label="delay track (held where unseen)")
+        ax.plot(t[sel], shown[sel], color="tab:blue", lw=1.2, label="delay track (where the steering shows it)")
+        ax.axhline(data["base_delay_s"], color="tab:red", ls="--", lw=1.0, label="the library's constant delay")
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("delay [s]")
+        ax.legend(loc="upper right")
+        ax.grid(alpha=0.3)
+        hist.hist(delay[seen], bins=30, color="tab:blue", alpha=0.7, orientation="horizontal")
+        hist.set_xlabel("samples")
+        hist.set_ylabel("delay [s]")
+    elif data["kind"] == "place":
+        fig, (ax, plan) = plt.subplots(1, 2, figsize=(13, 4.5), gridspec_kw={"width_ratios": [3, 2]})
+        bank = np.degrees(data["bank_rad"])
+        error = np.degrees(1.96 * data["error_rad"])
+        order = np.arange(bank.size)
+        ax.errorbar(order * data["spacing_m"], bank, yerr=error, fmt="o", ms=3, color="tab:blue", ecolor="0.6",
+                    label="bank at each place (95%)")
+        curve = np.sign(data["curvature"]) * (np.abs(data["curvature"]) > 0.004)
+        ax.fill_between(order * data["spacing_m"], np.where(curve > 0, bank.max(), np.nan), np.where(curve > 0,
+                        bank.min(), np.nan), color="tab:green", alpha=0.15, lw=0, label="the track curves left")
+        ax.set_xlabel("place along the track, in the order first reached [m]")
+        ax.set_ylabel("bank [deg] (positive: falls to the left)")
+        ax.legend(loc="upper right")
+        ax.grid(alpha=0.3)
+        plan.plot(data["x_m"], data["y_m"], color="0.8", lw=0.5)
+        dots = plan.scatter(data["anchors_xy"][:, 0], data["anchors_xy"][:, 1], c=bank, cmap="coolwarm", s=25,
+                            vmin=-max(abs(bank).max(), 1e-3), vmax=max(abs(bank).max(), 1e-3))
+        fig.colorbar(dots, ax=plan, label="bank [deg]")
+        plan.set_aspect("equal")
+        plan.set_xlabel("x [m]")
+        plan.set_ylabel("y [m]")
+    else:
+        fig, ax = plt.subplots(figsize=(9, 4.5))
+        style = "." if found.name == "steering_backlash" else "-"
+        ax.plot(data["curve_x"], data["curve_y"], style, color="tab:blue", lw=1.5, ms=1.5, label="discovered shape")
+        ax.errorbar(data["x"], data["y"], yerr=2 * data["y_error"], fmt="o", color="tab:red", capsize=3,
+                    label="the data, binned (+-2 s.e.)")
+        ax.axhline(0.0, color="0.3", lw=0.8)
+        if found.name == "steering_backlash":  # the play is crossed early: show a few plays' travel
+            ax.set_xlim(0.0, min(float(np.max(data["curve_x"])), 6 * found.estimates["play_rad"]))
+        ax.set_xlabel(data["xlabel"])
+        ax.set_ylabel(data["ylabel"])
+        ax.legend(loc="best")
+        ax.grid(alpha=0.3)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
 DIAGNOSIS_JSON = file_kind("sim2real-diagnosis", "a sim2real diagnosis JSON file")
 
 
@@ -194,9 +307,29 @@ def publish_diagnosis(d: Diagnosis, data: dict, json_path=None, report_dir=None,
 
 def _write_report_files(d: Diagnosis, directory: Path, extra_lines: list[str] | tuple[str, ...] = ()) -> list[str]:
     plt = _pyplot()
+    if d.verdict == "inconsistent":
+        fig = consistency_figure(d, plt)
+        try:
+            _save(fig, directory / "consistency.png")
+        finally:
+            plt.close(fig)
+        lines = [f"# sim2real diagnosis: {d.recording.name}", "", d.summary, "", "## Consistency checks", "",
+                 "| check | channels | status | measured |", "|---|---|---|---|"]
+        lines += [f"| {c.name} | {', '.join(c.channels)} | {c.status} | {c.text} |" for c in d.consistency.checks]
+        (directory / "summary.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+        (directory / "diagnosis.json").write_text(json_text(to_json(d), indent=1), encoding="utf-8")
+        return ["consistency.png", "summary.md", "diagnosis.json"]
     written = []
     for name, make in zip(FIGURES, (overlay_figure, residuals_figure, conditions_figure, candidates_figure)):
         fig = make(d, plt)
+        try:
+            _save(fig, directory / name)
+        finally:
+            plt.close(fig)
+        written.append(name)
+    for found in d.discovery.found if d.discovery is not None else []:
+        name = f"discovered_{found.name}.png"
+        fig = discovery_figure(d, found, plt)
         try:
             _save(fig, directory / name)
         finally:
@@ -223,6 +356,22 @@ def _write_report_files(d: Diagnosis, directory: Path, extra_lines: list[str] | 
                   f"{100 * d.residual['excess_variance_ratio']:.0f}%); Ljung-Box over {white['lags']} lags: "
                   f"p = {white['p_value']:.3g}.", "", "| correlates with | rho | 99% level |", "|---|---|---|"]
         lines += [f"| {c['with']} | {c['rho']:+.3f} | {c['significance']:.3f} |" for c in d.residual["correlations"]]
+        lines.append("")
+    if d.discovery is not None:
+        disc = d.discovery
+        lines += ["## Residual discovery", "", f"After the library's best chain ({disc.base.name}); library verdict "
+                  f"**{d.library_verdict}**.", ""]
+        lines += [f"- {'discovered' if f.plausible else 'doubtful'}: {f.sentence} (held out: {f.validation}; removes "
+                  f"{100 * f.removed_fraction:.0f}% of the error above the noise; t = {f.t_statistic:.1f})"
+                  + (f"; doubts: {'; '.join(f.doubts)}" if f.doubts else "") + f"; figure discovered_{f.name}.png"
+                  for f in disc.found]
+        lines += ["", "| term tried | held-out score change | entered | why |", "|---|---|---|---|"]
+        lines += [f"| {t.name} | {100 * (t.score_ratio - 1):+.1f}% | {'yes' if t.entered else 'no'} | {t.why} |"
+                  for t in disc.tried]
+        lines += [f"| {k} | - | not tried | {v} |" for k, v in disc.not_tried.items()] + [""]
+    if d.consistency is not None:
+        lines += ["## The recording against itself", "", "| check | status | measured |", "|---|---|---|"]
+        lines += [f"| {c.name} | {c.status} | {c.text} |" for c in d.consistency.checks]
         lines.append("")
     if d.recording.warnings or d.notes:
         lines += ["## Warnings", ""] + [f"- {w}" for w in list(d.recording.warnings) + d.notes] + [""]

@@ -34,7 +34,8 @@ import numba
 import numpy as np
 from scipy.signal import lfilter
 
-from plm_highway.sim2real.effects import EFFECTS, _servo
+from plm_highway.sim2real.chain import _servo
+from plm_highway.sim2real.effects import EFFECTS
 from plm_highway.sim2real.recording import (
     SIMULATOR_VEHICLE,
     Recording,

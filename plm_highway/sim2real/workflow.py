@@ -62,6 +62,7 @@ def diagnose_file(
     signal: str = "auto",
     steer_column: str | None = None,
     steer_scale: float = 1.0,
+    discovery: str = "auto",
     quiet: bool = False,
     overwrite: bool = False,
 ) -> int:
@@ -97,7 +98,8 @@ def diagnose_file(
     for warning in recording.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     try:
-        result = diagnose(recording, block_s=block_s, anchor_s=anchor_s, split=split, signal_name=signal)
+        result = diagnose(recording, block_s=block_s, anchor_s=anchor_s, split=split, signal_name=signal,
+                          discovery=discovery)
     except ValueError as exc:  # input problems found late: name the file the user gave, not only its short name
         raise BadInput(f"{recording_path}: {exc}") from None
     for note in result.notes:
