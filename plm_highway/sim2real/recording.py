@@ -35,7 +35,6 @@ speed and the steering command) onto the same type, so a sim run and a recording
 from __future__ import annotations
 
 import csv
-import json
 import math
 import os
 from dataclasses import dataclass, field, replace
@@ -44,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plm_highway.io import JSON_MARKER_KEY, file_kind, json_text, write_outputs
+from plm_highway.io import JSON_MARKER_KEY, JsonLimits, file_kind, json_text, load_json, write_outputs
 from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE, KinematicBicycleParams
 
 REQUIRED_COLUMNS = ("t", "steer", "speed", "x", "y", "heading")
@@ -293,13 +292,9 @@ def _first_bad(mask: np.ndarray) -> int:
 def read_sidecar(path: Path) -> tuple[VehicleGeometry, list[str]]:
     """The car of a recording from its JSON sidecar, and warnings (e.g. unknown keys)."""
     warnings: list[str] = []
-    if path.stat().st_size > MAX_SIDECAR_BYTES:
-        raise ValueError(f"{path}: {path.stat().st_size:,} bytes; a sidecar has at most {MAX_SIDECAR_BYTES:,} "
-                         "(the limit)")
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    # Bounded: size, nesting depth and node count checked, so a hostile sidecar is refused, never recursed into.
+    data = load_json(path, JsonLimits(max_bytes=MAX_SIDECAR_BYTES, max_depth=8, max_nodes=10_000),
+                     what="vehicle sidecar (JSON)")
     if not isinstance(data, dict):
         # Bad input, not a programming error: ValueError is what the CLI reports as "error: ..." (exit 2).
         raise ValueError(f"{path}: expected a JSON object with keys {', '.join(SIDECAR_KEYS)}")
