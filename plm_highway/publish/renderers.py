@@ -40,6 +40,24 @@ def population_headline(root: Path) -> str:
     return "\n".join(f"> {line}" for line in lines) + f"\n>\n> From [{POPULATION.parent}/report.md]({POPULATION.parent}/report.md)."
 
 
+def population_status(root: Path) -> str:
+    """How far the committed population run got, what each pair's training cost, and the remedies' decisions."""
+    document = _json(root, POPULATION)
+    plan = document["plan"]
+    trainings = document["trainings"]
+    minutes = ", ".join(f"pair {pair}: {record['summary']['seconds'] / 60:.0f} min"
+                        for pair, record in sorted(trainings.items(), key=lambda item: int(item[0]))
+                        if record.get("summary", {}).get("seconds") is not None)
+    lines = [f"- Pairs: {document['pairs_planned']} planned, {len(document['pairs_trained'])} trained, "
+             f"{len(document['pairs_failed'])} failed, {len(document['pairs_driven'])} driven "
+             f"({plan['conditions']} conditions, {len(plan['sim_seeds'])} simulator seeds per pair and setting).",
+             f"- Training one pair with recipe `{plan['recipe']['name']}` on {plan['recipe']['threads']} CPU threads: "
+             f"{minutes}."]
+    for name, remedy in sorted(document.get("remedies", {}).items()):
+        lines.append(f"- Remedy `{name}`: **{remedy['decision']}** ({remedy['decision_rule']}).")
+    return "\n".join(lines)
+
+
 def estimation_table3(root: Path) -> str:
     """Seed paper 004's Table 3 in simulation beside the paper's RMSE (``plm-highway estimate table3``)."""
     from plm_highway.estimation.table3 import readme_table
@@ -131,6 +149,7 @@ def bm_calibration_levers(root: Path) -> str:
 
 RENDERERS: dict[str, Callable[[Path], str]] = {
     "population-headline": population_headline,
+    "population-status": population_status,
     "estimation-table3": estimation_table3,
     "plm-vs-ekf-table": plm_vs_ekf_table,
     "plm-vs-ekf-who-wins": plm_vs_ekf_who_wins,
