@@ -100,7 +100,7 @@ def test_a_work_directory_of_another_population_is_refused(finished, tmp_path):
 def test_a_failed_training_is_reported_not_dropped(tmp_path, monkeypatch):
     from plm_highway.population import training
 
-    def broken(recipe, seeds, work):
+    def broken(recipe, seeds, work, device):
         raise RuntimeError("the optimiser diverged")
 
     monkeypatch.setattr(training, "_make_pair", broken)

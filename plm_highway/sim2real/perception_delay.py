@@ -28,7 +28,10 @@ from plm_highway.latency.lane_recording import DEFAULT_ESTIMATOR, LANE_COLUMNS, 
 
 
 def diagnosis_delays(diagnosis) -> dict[str, float]:
-    """The delays a sim2real diagnosis fitted: ``{effect/parameter: seconds}`` of its chosen model."""
+    """The delays a sim2real diagnosis fitted: ``{effect/parameter: seconds}`` of its chosen model; none when no
+    model was fitted (a recording found inconsistent with itself gets no physics)."""
+    if diagnosis.selection is None:
+        return {}
     return {f"{effect}/delay_s": float(parameters["delay_s"])
             for effect, parameters in diagnosis.selection.winner.estimates.items() if "delay_s" in parameters}
 
