@@ -113,13 +113,7 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
                           as_conditions=conditions != "ideal" or injection is not None,
                           latency_source=latency_source or "measured")
         result = compare_runs(logs, track_spec, latency_spec, policy, seed, track_label)
-        if conditions != "ideal":
-            result["conditions"] = conditions
-        if injection is not None:
-            result["injection"] = injection
-        if latency_source is not None:
-            result["latency_source"] = latency_source
-        return result, logs
+        return _with_options(result, conditions, injection, latency_source), logs
     if seeds is not None or conditions != "ideal" or injection is not None:
         seed_list = [seed] if seeds is None else parse_seeds(seeds, seed)
         result, logs = _evaluate_seeds(track_label, track_spec, latency_spec, policy, seed_list, max_steps,
@@ -127,13 +121,7 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
         if seeds is None:  # one run per role: no per-seed summary
             for key in ("seeds", "per_seed", "over_seeds"):
                 result.pop(key, None)
-        if conditions != "ideal":
-            result["conditions"] = conditions
-        if injection is not None:
-            result["injection"] = injection
-        if latency_source is not None:
-            result["latency_source"] = latency_source
-        return result, logs
+        return _with_options(result, conditions, injection, latency_source), logs
     base_policy = "expert" if policy == "expert" else "bm"
     policies = {"reference": make_policy(base_policy, checkpoints, device=device),
                 "baseline": make_policy(base_policy, checkpoints, device=device)}
@@ -144,9 +132,18 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
         logs[name] = drive(name, run_policy, track_spec, "const:0" if name == "reference" else profile, seed,
                            max_steps=max_steps, latency_estimation=chosen.latency_estimation)
     result = compare_runs(logs, track_spec, latency_spec, policy, seed, track_label)
+    return _with_options(result, conditions, injection, latency_source), logs
+
+
+def _with_options(result: dict, conditions: str, injection: str | None, latency_source: str | None) -> dict:
+    """``result`` with the options that changed how its runs were driven (none recorded at their defaults)."""
+    if conditions != "ideal":
+        result["conditions"] = conditions
+    if injection is not None:
+        result["injection"] = injection
     if latency_source is not None:
         result["latency_source"] = latency_source
-    return result, logs
+    return result
 
 
 def _drive_ekf(track_spec: TrackSpec, latency_spec: str, seed: int, max_steps: int | None, chosen: Conditions,
