@@ -41,3 +41,54 @@ def test_the_discovery_benchmark_is_quoted_as_its_report_says():
     docs = _one_line((ROOT / "docs/sim2real.md").read_text(encoding="utf-8"))
     assert (f"{met} of {len(effect_rows)} discovered with the right shape, removing "
             f"{min(removed_pct)}-{max(removed_pct)}% of the held-out error") in docs
+
+
+def _bench_models(name: str) -> dict:
+    return json.loads((ROOT / "figures/bench" / name).read_text(encoding="utf-8"))
+
+
+def _span(values, digits: int = 2) -> str:
+    return f"{min(values):.{digits}f}-{max(values):.{digits}f}"
+
+
+def test_the_performance_prose_quotes_the_committed_model_benchmarks():
+    text = _one_line((ROOT / "docs/performance.md").read_text(encoding="utf-8"))
+    runs = [_bench_models(f"models-cpu-{k}.json") for k in (1, 2, 3)]
+    random = _bench_models("models-cpu-random.json")["presets"]
+    assert (f"(the block below: {random['default']['overhead_ratio']:.3f} and "
+            f"{random['paper']['overhead_ratio']:.3f} there)") in text
+    sparse = {preset: [run["presets"][preset]["overhead_ratio_vs_sparse_bm"] for run in runs]
+              for preset in ("default", "paper")}
+    sparse_cpu = {preset: [run["presets"][preset]["overhead_ratio_vs_sparse_bm_cpu"] for run in runs]
+                  for preset in ("default", "paper")}
+    assert f"PLM-Net over that BM is {_span(sparse['default'])} on the default preset" in text
+    assert (f"and {_span(sparse['paper'])} on the paper preset (CPU time {_span(sparse_cpu['default'])} and "
+            f"{_span(sparse_cpu['paper'])})") in text
+    loads = [run["conditions"]["load_average_1min"] for run in runs]
+    assert f"(load average {min(loads):.0f}-{max(loads):.0f})" in text
+    added = re.search(r"about ([\d.]+) ms on the default preset and ([\d.]+) ms on the paper preset", text)
+    assert added, "the prose states what PLM-Net adds per frame"
+    for preset, quoted in zip(("default", "paper"), map(float, added.groups())):
+        # "about": the median over the three runs of PLM-Net's CPU time minus the BM's, within 10%
+        measured = sorted(run["presets"][preset]["plm_cpu_ms_median"] - run["presets"][preset]["bm_cpu_ms_median"]
+                          for run in runs)[1]
+        assert abs(measured - quoted) <= 0.1 * measured, (preset, measured, quoted)
+
+
+def test_the_performance_verdicts_follow_the_committed_env_and_sweep_benchmarks():
+    text = _one_line((ROOT / "docs/performance.md").read_text(encoding="utf-8"))
+    env = (ROOT / "figures/bench/env.txt").read_text(encoding="utf-8")
+    headline = re.search(r"ours / lane-keeping-v0 \(headline\)\s*:\s*([\d.]+)x\s+with latency wrapper\s+([\d.]+)x", env)
+    ground = re.search(r"ours / limit \(ground-row warp\)\s*:\s*(\d+)%\s+with latency wrapper\s+(\d+)%", env)
+    whole = re.search(r"ours / limit \(whole-frame warp\)\s*:\s*(\d+)%", env)
+    assert "at least 10x `lane-keeping-v0` (met, with and without the latency wrapper)" in text
+    assert all(float(v) >= 10 for v in headline.groups())
+    assert "met against the whole-frame warp, **not met** against the ground-row warp" in text
+    assert int(whole.group(1)) >= 60 and all(int(v) < 60 for v in ground.groups())
+    sweep = (ROOT / "figures/bench/sweep.txt").read_text(encoding="utf-8")
+    speedups = {line[:50].strip(): float(line.split()[-2].rstrip("x")) for line in sweep.splitlines()
+                if line.rstrip().endswith(("e+00", "e-04", "e-05", "e-03")) and "x " in line}
+    warm = [value for side, value in speedups.items() if side.endswith("warm")]
+    assert "**Speed-up target 3x: met** by the warm pool" in text
+    assert len(speedups) == 8 and warm == [max(speedups.values())] and warm[0] >= 3.0
+    assert all(value < 3.0 for side, value in speedups.items() if not side.endswith("warm"))
