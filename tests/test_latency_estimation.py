@@ -157,21 +157,28 @@ def test_a_recorded_stream_without_timestamps_estimates_as_online():
 # -- the report is its results file's ------------------------------------------------------------------------
 
 
-def fabricated_results() -> dict:
-    """A results dict from made-up run records (the shape drive_run writes), no driving."""
+def fabricated_results(never_locked: bool = False, true_worse: bool = False) -> dict:
+    """A results dict from made-up run records (the shape drive_run writes), no driving.
+
+    ``never_locked``: seed 1's estimate never locks (``lock_s`` None, as a run reads back from the cache);
+    ``true_worse``: PLM-Net told the true latency steers worse than the unmitigated BM (no reduction to keep)."""
     suite = LatencySuite(conditions=("ideal",), tracks=("test",), seeds=(0, 1), constants_s=(0.25,),
                          profiles=("frames:9-21:60@30",), mitigation_constants_s=(0.25,),
                          mitigation_profiles=("frames:9-21:60@30",), table3_seeds=())
     records = []
     rng = np.random.default_rng(0)
     for spec in plan(suite):
-        steering = rng.normal(0, 0.1 if spec.role == "baseline" else 0.02, 40).tolist()
+        spread = {"baseline": 0.1, "true": 0.3 if true_worse else 0.02}.get(spec.role, 0.02)
+        steering = rng.normal(0, spread, 40).tolist()
         record = {"spec": spec.__dict__, "summary": {"lateral_offset_rms_m": float(rng.uniform(0.05, 0.3)),
                                                      "left_road": False}, "steering": steering}
         if spec.role in ("estimated", "baseline"):
             lock = {"first_estimable_s": 1.5, "lock_s": float(rng.uniform(1.0, 3.0)), "estimable_fraction": 0.6,
                     "wrong_when_estimable_fraction": 0.01, "within_after_first_fraction": 0.95,
                     "median_error_after_first_s": 0.01, "p90_error_after_first_s": 0.03, "within_fraction": 0.8}
+            if never_locked and spec.seed == 1:
+                lock.update(first_estimable_s=None, lock_s=None, within_after_first_fraction=None,
+                            median_error_after_first_s=None, p90_error_after_first_s=None)
             record["estimate"] = {"frame_s": 0.05, "lock": lock, "quiet": {"quiet_ticks": 10,
                                                                            "estimable_when_quiet_fraction": 0.0,
                                                                            "wrong_when_quiet_fraction": 0.0}}
@@ -200,6 +207,22 @@ def test_the_report_holds_the_numbers_of_its_results():
         assert f"{100 * m['kept_reduction_fraction']:.0f}%" in row
     constant = next(e for e in results["estimation"] if e["role"] == "estimated" and e["setting"] == "const:0.25")
     assert f"{constant['locked_within_budget']} of {len(constant['seeds'])}" in report
+
+
+def test_a_run_that_never_locked_and_a_mitigation_without_reduction_are_reported_not_crashed():
+    from plm_highway.io import json_text
+
+    results = json.loads(json_text(fabricated_results(never_locked=True, true_worse=True)))  # as results.json holds
+    constant = next(e for e in results["estimation"] if e["role"] == "estimated" and e["setting"] == "const:0.25")
+    assert constant["locked"] == 1 and constant["locked_within_budget"] <= 1
+    report = render_markdown(results)
+    for m in results["mitigation"]:
+        assert m["kept_reduction_fraction"] is None  # NaN written as null: nothing to keep
+        target = next(t for t in results["targets"] if t["target"].startswith(f"mitigation {m['setting']}"))
+        assert not target["met"] and target["detail"].startswith("no reduction to keep")
+        row = next(line for line in report.splitlines()
+                   if line.startswith(f"| {m['conditions']} | {m['track']} | ") and f"{m['offset_rms_ratio']:.2f}" in line)
+        assert " | - | " in row
 
 
 def test_the_report_directory_is_rendered_from_its_results_file(tmp_path):

@@ -20,6 +20,11 @@ VARIANT_LABELS = {"dropped": "20% of lane measurements dropped", "jitter": "late
                   "drift": "the car's clock 1% fast", "recording": "a recording without capture timestamps"}
 
 
+def _kept(fraction) -> str:
+    """The share of the true latency's MAE reduction kept with the estimate ("-" where there was none to keep)."""
+    return "-" if fraction is None or not math.isfinite(fraction) else f"{100 * fraction:.0f}%"
+
+
 def _mean(interval, scale: float = 1.0, digits: int = 2, unit: str = "") -> str:
     if not interval:
         return "-"
@@ -158,7 +163,7 @@ def render_markdown(results: dict) -> str:
         lines.append(f"| {m['conditions']} | {m['track']} | {_setting(m['setting'])} | {_mean(m['mae_baseline'], 1, 4)} | "
                      f"{_mean(m['mae_true'], 1, 4)} | {_mean(m['mae_estimated'], 1, 4)} | "
                      f"{_mean(m['reduction_true_pct'], 1, 1, '%')} | {_mean(m['reduction_estimated_pct'], 1, 1, '%')} | "
-                     f"{100 * m['kept_reduction_fraction']:.0f}% | {_mean(m['offset_rms_true_m'], 1, 3)} / "
+                     f"{_kept(m['kept_reduction_fraction'])} | {_mean(m['offset_rms_true_m'], 1, 3)} / "
                      f"{_mean(m['offset_rms_estimated_m'], 1, 3)} | {m['offset_rms_ratio']:.2f} | "
                      f"{m['left_road_true']} / {m['left_road_estimated']} of {n} |")
     if results.get("ekf"):
