@@ -92,3 +92,15 @@ def test_the_performance_verdicts_follow_the_committed_env_and_sweep_benchmarks(
     assert "**Speed-up target 3x: met** by the warm pool" in text
     assert len(speedups) == 8 and warm == [max(speedups.values())] and warm[0] >= 3.0
     assert all(value < 3.0 for side, value in speedups.items() if not side.endswith("warm"))
+
+
+def test_the_reliability_memory_row_quotes_the_committed_memory_benchmark():
+    memory = json.loads((ROOT / "figures/bench/memory.json").read_text(encoding="utf-8"))
+    text = _one_line((ROOT / "docs/reliability.md").read_text(encoding="utf-8"))
+    assert (f"{memory['steps']:,} policy steps ({memory['episodes']} episodes, expert on the {memory['track']} track, "
+            f"`LatencyWrapper({memory['latency']})`") in text
+    assert (f"RSS {memory['rss_after_warmup_mib']:.1f} MiB after a {memory['warmup_steps']:,}-step warm-up, "
+            f"{memory['rss_end_mib']:.1f} MiB at the end ({memory['growth_mib']:+.1f} MiB, slope "
+            f"{memory['slope_mib_per_100k_steps']:+.2f} MiB per 100k steps; flat within the documented "
+            f"{memory['flat_margin_mib']:.0f} MiB margin)") in text
+    assert memory["flat"] and abs(memory["growth_mib"]) <= memory["flat_margin_mib"]
