@@ -49,7 +49,7 @@ def test_evaluate_reproduce_and_diagnose_outputs_are_byte_identical_across_proce
         run_command(cwd, "evaluate", "--policy", "plm", "--latency", "steps:0.0-0.35:1.0", "--seed", "5",
                     "--max-steps", "120", "--out", "eval", "--json", "eval.json")
         run_command(cwd, "reproduce", "--settings", "const:0.1", "--generalise", "--max-steps", "40", "--seed", "5",
-                    "--no-progress", "--out", "rep")
+                    "--workers", "0", "--no-progress", "--out", "rep")
         run_command(cwd, "sim2real", "make-recording", "--effect", "actuator_lag", "--duration-s", "40", "--seed", "5",
                     "--out", "rec/r.csv")
         run_command(cwd, "sim2real", "diagnose", "rec/r.csv", "--quiet", "--json", "diag.json", "--report", "diag")

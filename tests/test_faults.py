@@ -118,7 +118,7 @@ COMMANDS = {
                        "--json", "target.json"], "target.json"),
     "evaluate-out": (["evaluate", "--policy", "expert", "--max-steps", "150", "--latency", "const:0.1",
                       "--out", "target"], "target"),
-    "reproduce": (["reproduce", "--settings", "const:0.1", "--generalise", "--max-steps", "40",
+    "reproduce": (["reproduce", "--settings", "const:0.1", "--generalise", "--max-steps", "40", "--workers", "0",
                    "--out", "target"], "target"),
     "diagnose": (["sim2real", "diagnose", "rec/r.csv", "--quiet", "--report", "target"], "target"),
 }
