@@ -16,7 +16,7 @@ from pathlib import Path
 from plm_highway.errors import BadInput
 
 BLOCK = re.compile(r"(<!-- render: (?P<name>[a-z0-9-]+) -->\n)(?P<body>.*?)(<!-- /render -->)", re.DOTALL)
-MARKDOWN_FILES = ("README.md", "docs/**/*.md")
+MARKDOWN_FILES = ("README.md", "docs/**/*.md", "plm_highway/**/README.md")  # a package README docs/ includes
 
 
 @dataclass(frozen=True)

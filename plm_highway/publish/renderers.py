@@ -20,6 +20,9 @@ COMPARISON = Path("figures/estimation/compare/compare.json")
 BENCH_MODELS_SHIPPED = tuple(Path(f"figures/bench/models-cpu-{n}.json") for n in (1, 2, 3))
 BENCH_MODELS_RANDOM = (Path("figures/bench/models-cpu-random.json"),)
 BENCH_MODELS_CLOSED_LOOP = Path("figures/bench/models-cpu-closed-loop.json")
+# The sim2real page's worked examples: ``plm-highway sim2real diagnose ... --json`` on the recordings its commands make.
+SIM2REAL_EXAMPLES = {"sim2real-worked-example": Path("figures/sim2real/worked-example/rec-diagnosis.json"),
+                     "sim2real-small-car": Path("figures/sim2real/worked-example/small-diagnosis.json")}
 
 
 def _json(root: Path, relative: Path) -> dict:
@@ -147,6 +150,15 @@ def bm_calibration_levers(root: Path) -> str:
     return "\n".join(lines)
 
 
+def _sim2real_example(relative: Path) -> Callable[[Path], str]:
+    def render(root: Path) -> str:
+        diagnosis = _json(root, relative)
+        return "\n".join(["```text", diagnosis["summary"], f"verdict: {diagnosis['verdict']}", "```"])
+
+    render.__doc__ = f"A ``sim2real diagnose`` summary and verdict, as the command printed them: {relative}."
+    return render
+
+
 RENDERERS: dict[str, Callable[[Path], str]] = {
     "population-headline": population_headline,
     "population-status": population_status,
@@ -158,4 +170,5 @@ RENDERERS: dict[str, Callable[[Path], str]] = {
     "bench-models-closed-loop": bench_models_closed_loop,
     "bm-calibration": bm_calibration,
     "bm-calibration-levers": bm_calibration_levers,
+    **{name: _sim2real_example(path) for name, path in SIM2REAL_EXAMPLES.items()},
 }
