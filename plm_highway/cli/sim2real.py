@@ -142,7 +142,7 @@ def run_bench(args) -> int:
 
     return run_benchmarks([c.strip() for c in args.cases.split(",") if c.strip()], seeds=args.seeds,
                           duration_s=args.duration_s, baseline_tree=args.baseline_tree, json_path=args.json_path,
-                          overwrite=args.overwrite)
+                          overwrite=args.overwrite, command=args.command_line)
 
 
 COMMANDS = [

@@ -20,9 +20,13 @@ COMPARISON = Path("figures/estimation/compare/compare.json")
 BENCH_MODELS_SHIPPED = tuple(Path(f"figures/bench/models-cpu-{n}.json") for n in (1, 2, 3))
 BENCH_MODELS_RANDOM = (Path("figures/bench/models-cpu-random.json"),)
 BENCH_MODELS_CLOSED_LOOP = Path("figures/bench/models-cpu-closed-loop.json")
+SIM2REAL_BENCH = Path("figures/bench/sim2real.json")
 # The sim2real page's worked examples: ``plm-highway sim2real diagnose ... --json`` on the recordings its commands make.
 SIM2REAL_EXAMPLES = {"sim2real-worked-example": Path("figures/sim2real/worked-example/rec-diagnosis.json"),
-                     "sim2real-small-car": Path("figures/sim2real/worked-example/small-diagnosis.json")}
+                     "sim2real-small-car": Path("figures/sim2real/worked-example/small-diagnosis.json"),
+                     # the real race car, on the yaw rate and on the heading (the recording is not shipped)
+                     "sim2real-real-car": Path("figures/sim2real/iac_putnam_run4_2/diagnosis.json"),
+                     "sim2real-real-car-heading": Path("figures/sim2real/iac_putnam_run4_2_heading/diagnosis.json")}
 
 
 def _json(root: Path, relative: Path) -> dict:
@@ -159,6 +163,30 @@ def _sim2real_example(relative: Path) -> Callable[[Path], str]:
     return render
 
 
+def sim2real_bench(root: Path) -> str:
+    """The sim2real battery as ``plm-highway bench sim2real`` measured it: recovery per case set, the match rate on
+    the simulator's own model, and the timing of a 10-minute recording."""
+    from plm_highway.sim2real.benchmark import CASE_SETS, markdown_table
+
+    result = _json(root, SIM2REAL_BENCH)
+    lines = [f"`{result['command']}` ({result['seeds']} seeds per case, 120-s recordings at 50 Hz unless the case "
+             f"says otherwise; load average {result['load_average_at_start']:.1f} on {result['cpus']} CPUs):"]
+    for name in CASE_SETS:
+        if name in result:
+            lines += ["", f"*{name}*:", "", markdown_table(result[name]["summary"])]
+    if "match" in result:
+        counts = result["match"]
+        total = sum(counts.values())
+        lines += ["", f"*match*: the simulator's own model plus noise, {total} seeds: "
+                      f"{', '.join(f'{verdict} {count}' for verdict, count in counts.items())}."]
+    if "timing" in result:
+        timing = result["timing"]["this_tree"]
+        lines += ["", f"*timing*: a {(timing['samples'] - 1) / 50:.0f}-s recording at 50 Hz ({timing['samples']:,} samples) "
+                      f"diagnosed in {timing['wall_s']:.1f} s wall, {timing['cpu_s']:.1f} s CPU (verdict "
+                      f"{timing['verdict']}: {' + '.join(timing['named'])})."]
+    return "\n".join(lines)
+
+
 RENDERERS: dict[str, Callable[[Path], str]] = {
     "population-headline": population_headline,
     "population-status": population_status,
@@ -171,4 +199,5 @@ RENDERERS: dict[str, Callable[[Path], str]] = {
     "bm-calibration": bm_calibration,
     "bm-calibration-levers": bm_calibration_levers,
     **{name: _sim2real_example(path) for name, path in SIM2REAL_EXAMPLES.items()},
+    "sim2real-bench": sim2real_bench,
 }

@@ -231,7 +231,7 @@ def outcomes_json(outcomes: list[Outcome]) -> list[dict]:
 
 
 def run_benchmarks(names: list[str], *, seeds: int = 3, duration_s: float = 600.0, baseline_tree: str | None = None,
-                   json_path=None, overwrite: bool = False) -> int:
+                   json_path=None, overwrite: bool = False, command: str = "") -> int:
     """``plm-highway bench sim2real``: print each asked benchmark; ``names`` from timing, match and
     :data:`CASE_SETS`. Returns the exit code (0)."""
     from tqdm import tqdm
@@ -245,7 +245,8 @@ def run_benchmarks(names: list[str], *, seeds: int = 3, duration_s: float = 600.
                        f"{', '.join(CASE_SETS)}")
     if json_path is not None:
         check_target(json_path, BENCH_RESULT, overwrite=overwrite)
-    results: dict = {"load_average_at_start": os.getloadavg()[0], "cpus": os.cpu_count()}
+    results: dict = {"command": command, "seeds": seeds, "load_average_at_start": os.getloadavg()[0],
+                     "cpus": os.cpu_count()}
     for name in names:
         if name == "timing":
             mine = timing(duration_s)
