@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 
 import gymnasium
 import numpy as np
@@ -32,10 +34,31 @@ def offsets(infos) -> np.ndarray:
     return np.array([info["lateral_offset_m"] for info in infos])
 
 
-@pytest.mark.parametrize("track", ["train", "test", "unseen"])
-def test_expert_stays_near_the_lane_centre_on_the_whole_track(track):
-    env = gymnasium.make(ENV_ID, config={"track": track})
-    infos, terminated, truncated = drive(env)
+TRACKS = ("train", "test", "unseen")
+DOCS = Path(__file__).resolve().parents[1] / "docs" / "expert-and-data.md"
+
+
+def documented(pattern: str) -> tuple[float, ...]:
+    """The numbers docs/expert-and-data.md quotes where ``pattern`` matches (whitespace-insensitive)."""
+    match = re.search(pattern, re.sub(r"\s+", " ", DOCS.read_text(encoding="utf-8")))
+    assert match, f"docs/expert-and-data.md no longer says {pattern!r}"
+    return tuple(float(value) for value in match.groups())
+
+
+@pytest.fixture(scope="module")
+def whole_track_runs() -> dict:
+    return {track: drive(gymnasium.make(ENV_ID, config={"track": track})) for track in TRACKS}
+
+
+def test_the_documented_lane_keeping_bound_is_the_measured_one(whole_track_runs):
+    (bound_m,) = documented(r"It stays within ([\d.]+) m of the lane centre on all three tracks")
+    worst_m = max(float(np.max(np.abs(offsets(infos)))) for infos, _, _ in whole_track_runs.values())
+    assert round(worst_m, 2) == bound_m
+
+
+@pytest.mark.parametrize("track", TRACKS)
+def test_expert_stays_near_the_lane_centre_on_the_whole_track(track, whole_track_runs):
+    infos, terminated, truncated = whole_track_runs[track]
     assert truncated and not terminated  # reached the end of the track
     assert infos[-1]["completed_fraction"] == 1.0
     assert np.max(np.abs(offsets(infos))) <= 0.3
@@ -141,3 +164,5 @@ def test_latency_makes_the_expert_zig_zag():
         rms[spec] = float(np.sqrt(np.mean(lateral ** 2)))
     assert rms["const:0.25"] >= 2 * rms["const:0"]
     assert rms["const:0"] < 0.1
+    late_m, on_time_m = documented(r"it weaves \(offset RMS ([\d.]+) m against ([\d.]+) m on the test track\)")
+    assert (round(rms["const:0.25"], 2), round(rms["const:0"], 2)) == (late_m, on_time_m)
