@@ -155,3 +155,16 @@ def test_the_paper_datas_steering_spread_is_the_shipped_manifests():
     text = _one_line((ROOT / "docs/expert-and-data.md").read_text(encoding="utf-8"))
     spread = manifest["presets"]["paper"]["data"]["steering_std_paper_units"]
     assert f"labels' std is {spread:.3f} in the paper's unit of 450 deg of hand wheel" in text
+
+
+def test_the_latency_pages_words_on_the_probe_follow_the_committed_measurement():
+    results = json.loads((ROOT / "figures/latency-estimation/results.json").read_text(encoding="utf-8"))
+    text = _one_line((ROOT / "docs/latency.md").read_text(encoding="utf-8"))
+    probe = {(e["conditions"], e["setting"]): e for e in results["estimation"] if e["variant"] == "probe"}
+    constant = probe[("ideal", results["suite"]["robustness_setting"])]
+    assert "a lock within about two seconds under the ideal conditions, never a wrong claim" in text
+    assert round(constant["lock_s"]["mean"]) == 2 and constant["wrong_when_estimable_fraction"]["mean"] == 0.0
+    assert "claims estimates that are more than a frame off" in text
+    for setting in results["suite"]["probe_settings"]:
+        for conditions in results["suite"]["conditions"]:
+            assert probe[(conditions, setting)]["wrong_when_estimable_fraction"]["mean"] > 0.1

@@ -143,7 +143,10 @@ def test_the_plan_covers_the_suite():
         ("const:0", "reference"), ("const:0.1", "estimated"), ("steps:0.0-0.35:1.0", "estimated"),
         ("const:0.1", "baseline"), ("const:0.1", "true"), ("steps:0.0-0.35:1.0", "baseline"),
         ("steps:0.0-0.35:1.0", "true")}
-    assert {run.variant for run in runs if run.variant} == {"dropped", "jitter", "drift", "recording"}
+    assert {run.variant for run in runs if run.variant} == {"dropped", "jitter", "drift", "recording", "probe"}
+    # the probe under the robustness setting and under each probe setting, per seed
+    assert sorted(run.latency for run in runs if run.variant == "probe" and run.seed == 0) == [
+        "const:0.25", "steps:0.0-0.35:1.0"]
 
 
 @pytest.mark.slow
@@ -152,6 +155,52 @@ def test_a_recorded_stream_without_timestamps_estimates_as_online():
     assert record["recording"]["ticks"] == 60
     assert record["recording"]["agrees_with_online_fraction"] == 1.0
     assert set(record["estimate"]) >= {"lock", "quiet", "frame_s"}
+
+
+# -- the steering probe ----------------------------------------------------------------------------------------
+
+
+def test_the_probe_by_hand():
+    from plm_highway.estimation.latency_stream import probe_rad_at
+
+    assert probe_rad_at(0.0, 0.02, (1.0, 0.6)) == pytest.approx(0.02 * math.sin(1.0) / math.sqrt(2.0))
+    assert probe_rad_at(0.25, 0.02, (1.0,)) == pytest.approx(0.02)  # a quarter period of one tone
+    assert probe_rad_at(1.7, 0.0, (1.0, 0.6)) == 0.0
+    # over the tones' common period (3 s) the mean square is amplitude^2 / 2 (each unit sine's mean square is 1/2)
+    times_s = np.arange(0.0, 3.0, 1e-3)
+    values = np.array([probe_rad_at(t, 0.02, (1.0, 0.6)) for t in times_s])
+    assert float(np.sqrt(np.mean(values ** 2))) == pytest.approx(0.02 / math.sqrt(2.0), rel=1e-3)
+
+
+def test_the_wrapper_adds_the_probe_to_the_command_and_nothing_without_it():
+    from plm_highway.estimation.latency_stream import LatencyEstimation, probe_rad_at
+    from plm_highway.rollout.closed_loop import make_env
+
+    commands = {}
+    for probe_rad in (0.0, 0.02):
+        env = make_env("test", "const:0.1", latency_estimation=LatencyEstimation(probe_rad=probe_rad))
+        _, info = env.reset(seed=0)
+        times_s, seen = [], []
+        for _ in range(5):
+            times_s.append(info["time_s"])
+            _, _, _, _, info = env.step(np.array([0.1], dtype=np.float32))
+            seen.append(info["steering_command"])
+        env.close()
+        commands[probe_rad] = (times_s, seen)
+    times_s, plain = commands[0.0]
+    assert plain == pytest.approx([0.1] * 5)
+    expected = [0.1 + probe_rad_at(t, 0.02, (1.0, 0.6)) / 0.2 for t in times_s]  # the env's 0.2 rad at action 1
+    assert commands[0.02][1] == pytest.approx(expected, abs=1e-6)
+
+
+@pytest.mark.parametrize("field, value", [("probe_rad", -0.01), ("probe_rad", 0.5), ("probe_rad", True),
+                                          ("probe_periods_s", ()), ("probe_periods_s", (0.1,)),
+                                          ("probe_periods_s", [1.0])])
+def test_a_bad_probe_is_refused_by_name(field, value):
+    from plm_highway.estimation.latency_stream import LatencyEstimation
+
+    with pytest.raises(ValueError, match=f"LatencyEstimation.{field}="):
+        LatencyEstimation(**{field: value})
 
 
 # -- the report is its results file's ------------------------------------------------------------------------

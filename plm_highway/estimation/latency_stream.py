@@ -17,6 +17,12 @@ estimate is judged against).
 PLM-Net told the estimate reads ``latency_estimate_s`` (``latency_source="estimated"``); so does the EKF
 policy, which re-stamps each camera measurement by it. The frame the observer measures is the one the
 wrapper delivers (image noise that a run adds afterwards for the policy is not in it).
+
+**A steering probe.** A lag is told only by the car's motion relative to the lane, and a car that keeps its lane
+well hardly moves relative to it. ``LatencyEstimation(probe_rad=...)`` adds a small known excitation to every
+steering command (:func:`probe_rad_at`: two sines, so that no lag in the estimator's range aliases another), which
+the fast sensors and, later, the camera both see. It buys identifiability with lane offset: the report of
+``plm-highway estimate latency`` measures both.
 """
 
 from __future__ import annotations
@@ -130,15 +136,37 @@ class LatencyEstimation:
     drop_fraction: float = 0.0
     clock_rate: float = 1.0
     record: bool = False  # add what the estimator was given to info (STREAM_KEYS), for writing a recording
+    # The steering probe (probe_rad_at), added to every command: its amplitude at the front wheels [rad] (0: none)
+    # and its tones' periods [s]. 1.0 s and 0.6 s: the slower tone is at least the estimator's lag range (1 s), so a
+    # lag one period off does not fit as well; the faster one makes the cost curve steep.
+    probe_rad: float = 0.0
+    probe_periods_s: tuple[float, ...] = (1.0, 0.6)
 
     def __post_init__(self):
         if not (isinstance(self.drop_fraction, (int, float)) and 0.0 <= self.drop_fraction < 1.0):
             raise ValueError(f"LatencyEstimation.drop_fraction={self.drop_fraction!r}: must be in [0, 1)")
         if not (isinstance(self.clock_rate, (int, float)) and 0.5 <= self.clock_rate <= 2.0):
             raise ValueError(f"LatencyEstimation.clock_rate={self.clock_rate!r}: must be in [0.5, 2]")
+        if isinstance(self.probe_rad, bool) or not (isinstance(self.probe_rad, (int, float))
+                                                     and 0.0 <= self.probe_rad <= 0.1):
+            raise ValueError(f"LatencyEstimation.probe_rad={self.probe_rad!r}: must be in [0, 0.1] rad")
+        if not (isinstance(self.probe_periods_s, tuple) and self.probe_periods_s
+                and all(isinstance(p, (int, float)) and not isinstance(p, bool) and 0.2 <= p <= 10.0
+                        for p in self.probe_periods_s)):
+            raise ValueError(f"LatencyEstimation.probe_periods_s={self.probe_periods_s!r}: must be a non-empty tuple "
+                             "of periods in [0.2, 10] s")
 
 
 DROP_STREAM = 13  # lost lane measurements draw from np.random.default_rng([seed, DROP_STREAM])
+
+
+def probe_rad_at(time_s: float, amplitude_rad: float, periods_s: tuple[float, ...]) -> float:
+    """The steering probe at ``time_s`` [rad at the front wheels]: the mean-square-normalised sum of one sine per
+    period (the k-th shifted by k rad, so the tones do not all start in phase); its RMS is ``amplitude_rad`` / sqrt 2."""
+    if amplitude_rad == 0.0:
+        return 0.0
+    tones = sum(math.sin(2.0 * math.pi * time_s / period_s + k) for k, period_s in enumerate(periods_s))
+    return amplitude_rad * tones / math.sqrt(len(periods_s))
 
 
 class LatencyEstimateWrapper(gymnasium.Wrapper):
@@ -168,10 +196,16 @@ class LatencyEstimateWrapper(gymnasium.Wrapper):
         obs, info = self.env.reset(seed=seed, options=options)
         # Rates, camera and track are read at every reset: reset(options=...) may change them.
         self.observer = self._make_observer(seed)
+        self._time_s = float(info["time_s"])
         return obs, self._with_estimate(obs, info)
 
     def step(self, action):
+        if self.estimation.probe_rad > 0:
+            probe_rad = probe_rad_at(self._time_s, self.estimation.probe_rad, self.estimation.probe_periods_s)
+            action = np.asarray(action, dtype=np.float32) + np.float32(
+                probe_rad / float(self.env.unwrapped.config["max_steering_rad"]))
         obs, reward, terminated, truncated, info = self.env.step(action)
+        self._time_s = float(info["time_s"])
         return obs, reward, terminated, truncated, self._with_estimate(obs, info)
 
     def _with_estimate(self, obs, info: dict) -> dict:

@@ -44,11 +44,15 @@ from plm_highway.latency.profiles import LatencyProfile, parse_profile
 from plm_highway.latency.scoring import lock_metrics, quiet_metrics, quiet_ticks, step_metrics
 
 ROLES = ("reference", "baseline", "true", "estimated")
-VARIANTS = ("", "dropped", "jitter", "drift", "recording")
+VARIANTS = ("", "dropped", "jitter", "drift", "recording", "probe")
 DROP_FRACTION = 0.2  # the dropped-frames variant: one lane measurement in five lost
 JITTER_S = 0.01  # the jitter variant: the camera latency +- this, uniform, redrawn every policy step
 JITTER_SIMULATION_HZ = {"ideal": 100, "paper": 90}  # fine enough to resolve the jitter (multiples of the loop)
 CLOCK_RATE = 1.01  # the drift variant: the car's clock 1% fast
+# The probe variant: a two-tone steering excitation of this amplitude at the front wheels (LatencyEstimation.probe_rad)
+# added to PLM-Net's commands; 0.02 rad, a tenth of the default steering range, chosen on the train track against
+# 0.01 rad (slower to lock) and a one-tone probe (a 0.7 s tone aliases lags within the 1 s range).
+PROBE_RAD = 0.02
 LOCK_BUDGET_S = 2.0  # the target: within one frame period within 2 s of driving with steering
 STEP_BUDGET_S = 1.0  # ... and back within one frame period within 1 s of a step
 QUIET_WINDOW_S = 3.0  # quiet: the yaw rate's standard deviation over the last 3 s ...
@@ -72,6 +76,8 @@ class LatencySuite:
     mitigation_profiles: tuple[str, ...] = ("frames:9-21:60@30",)
     robustness_setting: str = "const:0.25"
     robustness_track: str = "test"
+    # The steering probe is also driven under these time-varying settings (besides the robustness setting).
+    probe_settings: tuple[str, ...] = ("steps:0.0-0.35:1.0",)
     # Each run is the scored track's first duration_s seconds (None: the whole scored track). 30 s holds the first
     # straight, two or three curves and, at 0.05-0.35 s, the time the estimator is given to lock (the target asks
     # for 2 s of driving with steering). --whole-track drives each run to the end instead.
@@ -84,7 +90,7 @@ class LatencySuite:
         unknown = [c for c in self.conditions if c not in CONDITIONS]
         if unknown:
             raise BadInput(f"conditions {unknown}: expected from {list(CONDITIONS)}")
-        for spec in (*self.profiles, *self.mitigation_profiles, self.robustness_setting):
+        for spec in (*self.profiles, *self.mitigation_profiles, self.robustness_setting, *self.probe_settings):
             parse_profile(spec)
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise BadInput(f"seeds {self.seeds!r}: need distinct seeds")
@@ -136,6 +142,8 @@ def plan(suite: LatencySuite) -> list[RunSpec]:
             for variant in VARIANTS[1:]:
                 runs.append(RunSpec(conditions, suite.robustness_track, seed, suite.robustness_setting, "estimated",
                                     variant))
+            for setting in suite.probe_settings:
+                runs.append(RunSpec(conditions, suite.robustness_track, seed, setting, "estimated", "probe"))
     return runs
 
 
@@ -180,7 +188,8 @@ def run_conditions(spec: RunSpec):
         return conditions
     estimation = LatencyEstimation(drop_fraction=DROP_FRACTION if spec.variant == "dropped" else 0.0,
                                    clock_rate=CLOCK_RATE if spec.variant == "drift" else 1.0,
-                                   record=spec.variant == "recording")
+                                   record=spec.variant == "recording",
+                                   probe_rad=PROBE_RAD if spec.variant == "probe" else 0.0)
     chosen = with_latency_source(conditions, "estimated", estimation)
     if spec.role != "estimated":  # the Base Model ignores what it is told; the run only carries the estimator
         chosen = replace(chosen, latency_source=conditions.latency_source)
@@ -518,6 +527,7 @@ def summarise(results: Results) -> dict:
         locks_s = [math.inf if value["lock_s"] is None else value["lock_s"] for value in lock]
         entry["locked_within_budget"] = int(sum(1 for lock_s in locks_s if lock_s <= LOCK_BUDGET_S))
         entry["locked"] = int(sum(1 for lock_s in locks_s if math.isfinite(lock_s)))
+        entry["offset_rms_m"] = interval([m["summary"]["lateral_offset_rms_m"] for m in members])
         if any("steps" in m["estimate"] for m in members):
             steps = [m["estimate"]["steps"] for m in members]
             entry["steps"] = {name: interval([value[name] for value in steps])
@@ -559,7 +569,10 @@ def summarise(results: Results) -> dict:
                 mitigation.append(entry)
 
     traces = [{"spec": asdict(spec), **record["trace"]} for spec, record in results.records if "trace" in record]
-    return {"command": results.command, "suite": asdict(results.suite), "estimation": estimation,
+    from plm_highway.estimation.latency_stream import LatencyEstimation
+
+    probe = {"probe_rad": PROBE_RAD, "probe_periods_s": list(LatencyEstimation().probe_periods_s)}
+    return {"command": results.command, "suite": asdict(results.suite), "probe": probe, "estimation": estimation,
             "mitigation": mitigation, "ekf": results.ekf_rows, "synthetic": results.synthetic, "traces": traces,
             "targets": targets(estimation, mitigation, results.ekf_rows, results.synthetic)}
 

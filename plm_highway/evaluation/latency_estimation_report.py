@@ -17,7 +17,8 @@ FIGURES = ("traces.png", "mitigation.png")
 ROLE_LABELS = {"estimated": "PLM-Net told the estimate", "baseline": "Base Model (unmitigated)",
                "reference": "Base Model, no latency", "true": "PLM-Net told the true latency"}
 VARIANT_LABELS = {"dropped": "20% of lane measurements dropped", "jitter": "latency jittering +-10 ms per frame",
-                  "drift": "the car's clock 1% fast", "recording": "a recording without capture timestamps"}
+                  "drift": "the car's clock 1% fast", "recording": "a recording without capture timestamps",
+                  "probe": "a steering probe"}
 
 
 def _kept(fraction) -> str:
@@ -130,7 +131,13 @@ def render_markdown(results: dict) -> str:
                      f"a wrong one (more than a frame off) on {100 * wrong:.1f}%.")
     lines += ["", "## Robustness", "",
               f"Setting `{suite['robustness_setting']}` on the `{suite['robustness_track']}` track, PLM-Net driven by "
-              "the estimate.", "", "| conditions | variant | time to lock | locked within 2 s | estimable | wrong when "
+              "the estimate. *A steering probe*: a known excitation of "
+              f"{1000 * results.get('probe', {}).get('probe_rad', math.nan):.0f} mrad at the front wheels (two tones, "
+              f"{' s and '.join(f'{p:g}' for p in results.get('probe', {}).get('probe_periods_s', ()))} s) added to "
+              "PLM-Net's commands, so that the car moves relative to its lane; also driven under "
+              f"{', '.join(f'`{s}`' for s in suite.get('probe_settings', ()))}; the offset RMS beside it is the price "
+              "(the same runs without the probe and with PLM-Net told the true latency are in the tables above and "
+              "below).", "", "| conditions | variant | time to lock | locked within 2 s | estimable | wrong when "
               "estimable | within a frame after the first estimate | median error after it | more |",
               "|---|---|---|---|---|---|---|---|---|"]
     for e in results["estimation"]:
@@ -147,7 +154,12 @@ def render_markdown(results: dict) -> str:
             agree = min(r["agrees_with_online_fraction"] for r in e["recording"])
             more = (f"read back from the file and estimated offline: the same estimate as online on "
                     f"{100 * agree:.0f}% of the ticks (worst seed)")
-        lines.append(f"| {e['conditions']} | {VARIANT_LABELS[e['variant']]} | {_mean(e['lock_s'], 1.0, 1, ' s')} | "
+        if e["variant"] == "probe":
+            more = "; ".join(part for part in (more, f"offset RMS {_mean(e.get('offset_rms_m'), 1, 3, ' m')}") if part)
+        label = VARIANT_LABELS[e["variant"]]
+        if e["setting"] != suite["robustness_setting"]:
+            label += f", `{e['setting']}`"
+        lines.append(f"| {e['conditions']} | {label} | {_mean(e['lock_s'], 1.0, 1, ' s')} | "
                      f"{e['locked_within_budget']} of {n} | {_pct(e['estimable_fraction'])} | "
                      f"{_pct(e['wrong_when_estimable_fraction'])} | {_pct(e['within_after_first_fraction'])} | "
                      f"{_mean(e['median_error_after_first_s'], 1000.0, 0, ' ms')} | {more} |")
