@@ -168,3 +168,13 @@ def test_the_latency_pages_words_on_the_probe_follow_the_committed_measurement()
     for setting in results["suite"]["probe_settings"]:
         for conditions in results["suite"]["conditions"]:
             assert probe[(conditions, setting)]["wrong_when_estimable_fraction"]["mean"] > 0.1
+
+
+def test_the_latency_page_warns_where_the_committed_measurement_shows_wrong_claims():
+    results = json.loads((ROOT / "figures/latency-estimation/results.json").read_text(encoding="utf-8"))
+    text = _one_line((ROOT / "docs/latency.md").read_text(encoding="utf-8"))
+    wrong = [e["wrong_when_estimable_fraction"]["mean"] for e in results["estimation"]
+             if e["role"] == "estimated" and not e["variant"] and not e["setting"].startswith("const:")
+             and e["estimable_fraction"]["mean"] > 0]
+    assert wrong and max(wrong) > 0.25
+    assert "its *estimable* flag is not to be trusted" in text
