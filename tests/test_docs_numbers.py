@@ -178,3 +178,20 @@ def test_the_latency_page_warns_where_the_committed_measurement_shows_wrong_clai
              and e["estimable_fraction"]["mean"] > 0]
     assert wrong and max(wrong) > 0.25
     assert "its *estimable* flag is not to be trusted" in text
+
+
+def test_the_bm_response_prose_follows_the_committed_sweeps():
+    response = json.loads((ROOT / "figures/bm-response.json").read_text(encoding="utf-8"))
+    text = _one_line((ROOT / "docs/calibration.md").read_text(encoding="utf-8"))
+    assert ("answers offsets like the law within about 2.5 m, saturates beyond 3 m" in text
+            and "answers heading error at about half to nine tenths of the law" in text)
+    offset = response["sweeps"]["offset"]
+    at = dict(zip(offset["offset_m"], offset["bm"]))
+    for offset_m, bm, law in zip(offset["offset_m"], offset["bm"], offset["law"]):
+        if abs(offset_m) <= 2.5:  # like the law: within 10% of it (and 0.05 of the range near zero)
+            assert abs(bm - law) <= 0.1 * abs(law) + 0.05, (offset_m, bm, law)
+        if abs(offset_m) > 3.0:  # saturated: no stronger than at 3 m on that side, while the law grows on
+            assert abs(bm) <= 1.1 * abs(at[3.0 if offset_m > 0 else -3.0]) and abs(law) > 1.2 * abs(bm), offset_m
+    heading = response["sweeps"]["heading"]
+    ratios = [bm / law for bm, law in zip(heading["bm"], heading["law"]) if law != 0]
+    assert 0.4 <= min(ratios) <= 0.6 and 0.85 <= max(ratios) <= 1.0, ratios
