@@ -154,6 +154,7 @@ def test_a_recorded_stream_without_timestamps_estimates_as_online():
     record = drive_run(RunSpec("ideal", "test", 1, "const:0.25", "estimated", "recording"), max_steps=60)
     assert record["recording"]["ticks"] == 60
     assert record["recording"]["agrees_with_online_fraction"] == 1.0
+    assert record["recording"]["max_difference_from_online_s"] < 1e-3
     assert set(record["estimate"]) >= {"lock", "quiet", "frame_s"}
 
 

@@ -53,6 +53,7 @@ CLOCK_RATE = 1.01  # the drift variant: the car's clock 1% fast
 # added to PLM-Net's commands; 0.02 rad, a tenth of the default steering range, chosen on the train track against
 # 0.01 rad (slower to lock) and a one-tone probe (a 0.7 s tone aliases lags within the 1 s range).
 PROBE_RAD = 0.02
+RECORDING_AGREEMENT_S = 1e-3  # the recording variant: an offline estimate this close to the online one is the same
 LOCK_BUDGET_S = 2.0  # the target: within one frame period within 2 s of driving with steering
 STEP_BUDGET_S = 1.0  # ... and back within one frame period within 1 s of a step
 QUIET_WINDOW_S = 3.0  # quiet: the yaw rate's standard deviation over the last 3 s ...
@@ -284,8 +285,12 @@ def recording_round_trip(log, conditions) -> dict:
     online = np.asarray(log.columns["latency_estimate_s"], float)
     true_s = np.asarray(log.columns["observation_age_s"], float)
     frame_s = 1.0 / conditions.policy_frequency_hz
+    difference_s = np.abs(offline["held_s"] - online)
+    # The file holds what the estimator was given to the CSV writer's precision: the offline estimate differs from the
+    # online one by microseconds; "the same" is within a millisecond, thirty times finer than a frame.
     return {"ticks": int(len(online)),
-            "agrees_with_online_fraction": float(np.mean(np.abs(offline["held_s"] - online) <= 1e-6)),
+            "agrees_with_online_fraction": float(np.mean(difference_s <= RECORDING_AGREEMENT_S)),
+            "max_difference_from_online_s": float(np.max(difference_s)),
             "within_fraction": float(np.mean(np.abs(offline["held_s"] - true_s) <= frame_s + 1e-9)),
             "estimable_fraction": float(np.mean(offline["estimable"]))}
 
