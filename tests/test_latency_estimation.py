@@ -207,11 +207,12 @@ def test_a_bad_probe_is_refused_by_name(field, value):
 # -- the report is its results file's ------------------------------------------------------------------------
 
 
-def fabricated_results(never_locked: bool = False, true_worse: bool = False) -> dict:
+def fabricated_results(never_locked: bool = False, true_worse: bool = False, none_locked: bool = False) -> dict:
     """A results dict from made-up run records (the shape drive_run writes), no driving.
 
     ``never_locked``: seed 1's estimate never locks (``lock_s`` None, as a run reads back from the cache);
-    ``true_worse``: PLM-Net told the true latency steers worse than the unmitigated BM (no reduction to keep)."""
+    ``true_worse``: PLM-Net told the true latency steers worse than the unmitigated BM (no reduction to keep);
+    ``none_locked``: no seed's estimate ever locks."""
     suite = LatencySuite(conditions=("ideal",), tracks=("test",), seeds=(0, 1), constants_s=(0.25,),
                          profiles=("frames:9-21:60@30",), mitigation_constants_s=(0.25,),
                          mitigation_profiles=("frames:9-21:60@30",), table3_seeds=())
@@ -226,7 +227,7 @@ def fabricated_results(never_locked: bool = False, true_worse: bool = False) -> 
             lock = {"first_estimable_s": 1.5, "lock_s": float(rng.uniform(1.0, 3.0)), "estimable_fraction": 0.6,
                     "wrong_when_estimable_fraction": 0.01, "within_after_first_fraction": 0.95,
                     "median_error_after_first_s": 0.01, "p90_error_after_first_s": 0.03, "within_fraction": 0.8}
-            if never_locked and spec.seed == 1:
+            if none_locked or (never_locked and spec.seed == 1):
                 lock.update(first_estimable_s=None, lock_s=None, within_after_first_fraction=None,
                             median_error_after_first_s=None, p90_error_after_first_s=None)
             record["estimate"] = {"frame_s": 0.05, "lock": lock, "quiet": {"quiet_ticks": 10,
@@ -273,6 +274,18 @@ def test_a_run_that_never_locked_and_a_mitigation_without_reduction_are_reported
         row = next(line for line in report.splitlines()
                    if line.startswith(f"| {m['conditions']} | {m['track']} | ") and f"{m['offset_rms_ratio']:.2f}" in line)
         assert " | - | " in row
+
+
+def test_a_mitigation_whose_estimate_never_locked_is_not_counted_as_met():
+    from plm_highway.io import json_text
+
+    results = json.loads(json_text(fabricated_results(none_locked=True)))
+    mitigation_targets = [t for t in results["targets"] if t["target"].startswith("mitigation ")]
+    assert mitigation_targets and not any(t["met"] for t in mitigation_targets)
+    assert all(t["detail"].startswith("not testable: the estimate never locked") for t in mitigation_targets)
+    # the same runs with locks are judged on their numbers
+    locked = json.loads(json_text(fabricated_results()))
+    assert any(t["met"] for t in locked["targets"] if t["target"].startswith("mitigation "))
 
 
 def test_the_report_directory_is_rendered_from_its_results_file(tmp_path):

@@ -315,7 +315,7 @@ class Table3Result:
 
 
 def scenario_checks(number: int, metrics: dict) -> dict[str, bool]:
-    """The issue's 'done when' for one scenario, decided on the seeds' means and CIs."""
+    """The target for one scenario, decided on the seeds' means and CIs."""
     rmse = {variant: {state: metrics[variant][state]["rmse"] for state in STATES} for variant in VARIANTS}
     checks = {f"ekf_dc lowest RMSE of {state}": rmse["ekf_dc"][state].mean < min(rmse["camera"][state].mean,
                                                                                     rmse["ekf"][state].mean)

@@ -54,7 +54,7 @@ CLOCK_RATE = 1.01  # the drift variant: the car's clock 1% fast
 # 0.01 rad (slower to lock) and a one-tone probe (a 0.7 s tone aliases lags within the 1 s range).
 PROBE_RAD = 0.02
 RECORDING_AGREEMENT_S = 1e-3  # the recording variant: an offline estimate this close to the online one is the same
-LOCK_BUDGET_S = 2.0  # the issue's target: within one frame period within 2 s of driving with steering
+LOCK_BUDGET_S = 2.0  # the target: within one frame period within 2 s of driving with steering
 STEP_BUDGET_S = 1.0  # ... and back within one frame period within 1 s of a step
 QUIET_WINDOW_S = 3.0  # quiet: the yaw rate's standard deviation over the last 3 s ...
 QUIET_YAW_RATE_RADPS = 0.003  # ... below 0.003 rad/s (0.17 deg/s): offsets change by millimetres
@@ -528,7 +528,7 @@ def summarise(results: Results) -> dict:
         for name in ("first_estimable_s", "lock_s", "estimable_fraction", "wrong_when_estimable_fraction",
                      "within_after_first_fraction", "median_error_after_first_s", "within_fraction"):
             entry[name] = interval([value[name] for value in lock])
-        # A run that never locked has lock_s inf when just driven and None when read back from the cache (JSON).
+        # Records are held as JSON reads them (drive_suite): a run that never locked has lock_s None.
         locks_s = [math.inf if value["lock_s"] is None else value["lock_s"] for value in lock]
         entry["locked_within_budget"] = int(sum(1 for lock_s in locks_s if lock_s <= LOCK_BUDGET_S))
         entry["locked"] = int(sum(1 for lock_s in locks_s if math.isfinite(lock_s)))
@@ -583,7 +583,7 @@ def summarise(results: Results) -> dict:
 
 
 def targets(estimation: list[dict], mitigation: list[dict], ekf_rows: list[dict], synthetic: dict) -> list[dict]:
-    """The issue's targets, each judged on the measured numbers (met or missed, with the figure behind it)."""
+    """The targets, each judged on the measured numbers (met or missed, with the figure behind it)."""
     out = []
     constants = [e for e in estimation if e["role"] == "estimated" and not e["variant"]
                  and e["setting"].startswith("const:")]
@@ -604,14 +604,24 @@ def targets(estimation: list[dict], mitigation: list[dict], ekf_rows: list[dict]
                     "met": recovered >= 1.0 - 1e-9 and within >= 0.9,
                     "detail": f"{100 * recovered:.0f}% of steps recovered within {STEP_BUDGET_S:g} s; "
                               f"{100 * within:.0f}% of the time within one frame"})
+    locked = {(e["conditions"], e["track"], e["setting"]): e["locked"] for e in estimation
+              if e["role"] == "estimated" and not e["variant"]}
     for m in mitigation:
         kept, ratio = m["kept_reduction_fraction"], m["offset_rms_ratio"]
+        kept_known = kept is not None and math.isfinite(kept)
+        if locked.get((m["conditions"], m["track"], m["setting"])) == 0:
+            # PLM-Net was told the estimator's prior all along: nothing in these runs was driven by an estimate.
+            met, detail = False, (f"not testable: the estimate never locked in these runs, so PLM-Net was told the "
+                                  f"estimator's prior throughout (it kept {f'{100 * kept:.0f}%' if kept_known else 'none'}"
+                                  f" of the reduction; offset RMS {ratio:.2f}x)")
+        elif not kept_known:
+            met, detail = False, ("no reduction to keep: PLM-Net told the true latency did not lower the BM's MAE on "
+                                  f"average; offset RMS {ratio:.2f}x")
+        else:
+            met, detail = kept >= 0.9 and ratio <= 1.1, f"keeps {100 * kept:.0f}% of the reduction; offset RMS {ratio:.2f}x"
         out.append({"target": f"mitigation {m['setting']}, {m['conditions']}, {m['track']}: PLM-Net told the estimate "
                               "keeps >= 90% of the steering-MAE reduction and within 10% of the offset RMS",
-                    "met": bool(kept is not None and math.isfinite(kept) and kept >= 0.9 and ratio <= 1.1),
-                    "detail": (f"keeps {100 * kept:.0f}% of the reduction" if kept is not None and math.isfinite(kept)
-                               else "no reduction to keep: PLM-Net told the true latency did not lower the BM's MAE "
-                                    "on average") + f"; offset RMS {ratio:.2f}x"})
+                    "met": bool(met), "detail": detail})
     for delay in sorted({row["delay"] for row in ekf_rows}):
         rows = [row for row in ekf_rows if row["delay"] == delay]
         known = float(np.mean([row["d_rmse_known_m"] for row in rows]))

@@ -87,7 +87,7 @@ STEER_FREQ_BANDS_HZ = (0.0, 0.1, 0.3, 0.6, math.inf)
 CONDITION_QUANTILES = (0.0, 0.2, 0.4, 0.6, 0.8)
 CHANNEL_LAG_MIN_S = 0.06
 
-# Data needed for a verdict with normal confidence (the policy): 30 s scored and half of
+# Data needed for a verdict with normal confidence (the kit's policy): 30 s scored and half of
 # the recording; below MIN_SCORED_S (or fewer than MIN_BLOCKS blocks with data) nothing is judged.
 CONFIDENT_SCORED_S = 30.0
 CONFIDENT_SCORED_FRACTION = 0.5
