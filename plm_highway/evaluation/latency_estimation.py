@@ -671,4 +671,6 @@ def measure(suite: LatencySuite, command: str, cache=None, workers: int = 0, che
     :func:`plm_highway.sim2real.perception_tie_in.tie_in`, which sits beside this room, not under it)."""
     records = drive_suite(suite, cache, workers, checkpoints, progress)
     ekf_rows = ekf_with_estimate(suite.table3_seeds, progress=progress) if suite.table3_seeds else []
-    return Results(suite, command, records, ekf_rows, synthetic_checks()).as_json()
+    results = Results(suite, command, records, ekf_rows, synthetic_checks()).as_json()
+    results["checkpoints"] = "shipped" if checkpoints is None else str(checkpoints)
+    return results

@@ -85,7 +85,11 @@ def render_markdown(results: dict) -> str:
         + "the tolerance is one "
         "frame period of the loop (50 ms at the ideal conditions' 20 Hz, 33 ms at the paper conditions' 30 Hz); the "
         "truth is the age of the frame the car got. Numbers are means over seeds ± the half-width of a 95% "
-        "Student-t interval.",
+        "Student-t interval. PLM-Net and the Base Model are "
+        + (f"the checkpoints in `{results['checkpoints']}`" if results.get("checkpoints", "shipped") != "shipped"
+           else "the shipped checkpoints of each conditions' preset")
+        + ": one trained BM/TAPM pair per preset, so the intervals are over simulator seeds, not over trainings "
+        "(`plm-highway population` judges PLM-Net across pairs).",
         "",
         f"## Targets: {met} of {len(results['targets'])} met",
         "",
