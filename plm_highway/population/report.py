@@ -27,6 +27,9 @@ PAIR_COLUMNS = ("pair", "setting", "seeds", "bm_steering_mae_paper", "plm_steeri
                 "bm_offset_max_m", "plm_offset_max_m", "bm_frechet_m", "plm_frechet_m", "bm_left_road_seeds",
                 "plm_left_road_seeds")
 ROLE_ORDER = {"reference": 0, "baseline": 1, "mitigated": 2}
+# What a rendering of the report replaces (the committed pair records under pairs/ are not among them).
+REPORT_FILES = ("results.csv", "pairs.csv", "population.json", "report.md", "errors.png", "reductions.png",
+                "offset_rms.png", "drift.png")
 
 
 def result_rows(state) -> list[dict]:
@@ -102,8 +105,10 @@ def publish_report(state, options) -> dict:
     numbers = analyse(state.plan, state.trainings, rows)
     numbers["drift"] = drift_numbers(state)
     document = {"plan": state.plan.as_dict(), "command": options.command, "trainings": {
-        str(p): t for p, t in sorted(state.trainings.items())}, **numbers}
-    with write_output(options.out, POPULATION_REPORT, overwrite=options.overwrite) as staged:
+        str(p): t for p, t in sorted(state.trainings.items())},
+        "stages": {str(p): s for p, s in sorted(state.stages.items())}, **numbers}
+    # The report's own files are replaced as a whole; the committed pair records (pairs/) stay.
+    with write_output(options.out, POPULATION_REPORT, update=REPORT_FILES) as staged:
         write_csv_into(staged / "results.csv", RESULT_COLUMNS, [[r.get(c) for c in RESULT_COLUMNS] for r in rows])
         write_csv_into(staged / "pairs.csv", PAIR_COLUMNS,
                        [[s.get(c) for c in PAIR_COLUMNS] for s in numbers["pair_summaries"]])
@@ -116,15 +121,14 @@ def publish_report(state, options) -> dict:
 
 
 def drift_numbers(state) -> dict | None:
-    """:func:`~plm_highway.population.drift.drift_summary` from the work directory's traces and posed gains."""
-    from plm_highway.population.drift import drift_summary, run_bands
-    from plm_highway.population.layout import read_traces
+    """:func:`~plm_highway.population.drift.drift_summary` from every driven run's offset bands and posed gains."""
+    from plm_highway.population.drift import drift_summary
 
-    if state.work is None:
+    if not state.bands:
         return None
     bands: dict[tuple[int, str], list[dict]] = {}
-    for pair, seed in sorted(state.runs):
-        for label, value in run_bands(read_traces(state.work, pair, seed)).items():
+    for (pair, _seed), by_label in sorted(state.bands.items()):
+        for label, value in by_label.items():
             bands.setdefault((pair, label), []).append(value)
     return drift_summary(bands, state.feedback, state.plan.latency_settings)
 
@@ -389,17 +393,45 @@ def render_report(document: dict, figures: list[str]) -> str:
                      f"{s['bm_left_road_seeds']} / {s['plm_left_road_seeds']} |")
     trainings = document.get("trainings", {})
     if trainings:
-        lines += ["", "## Trainings", "", "| pair | data seed | BM / TAPM seed | BM val. loss | TAPM val. loss | "
-                  "minutes |", "|---|---|---|---|---|---|"]
-        seeds_of = {p["pair"]: p for p in plan["pairs"]}
-        for pair_text, t in trainings.items():
-            seeds = seeds_of[int(pair_text)]
-            summary = t.get("summary", {})
-            status = "" if t.get("ok") else " (failed)"
-            lines.append(f"| {pair_name(int(pair_text))}{status} | {seeds['data_seed']} | {seeds['bm_seed']} / "
-                         f"{seeds['tapm_seed']} | {_f(summary.get('bm_best_val_loss'), 4)} | "
-                         f"{_f(summary.get('tapm_best_val_loss'), 4)} | {_f(summary.get('seconds', math.nan) / 60, 1)} |")
+        lines += trainings_section(plan, trainings, document.get("stages", {}))
     return "\n".join(lines) + "\n"
+
+
+TRAINING_STAGES = (("collect", "collect"), ("bm_training", "BM"), ("tapm_training", "TAPM"))
+
+
+def trainings_section(plan: dict, trainings: dict, stages: dict) -> list[str]:
+    """Each pair's seeds, validation losses and where its time went: wall minutes per stage (CPU minutes of the
+    training in brackets) and the 1-minute load average over the training."""
+    lines = ["", "## Trainings", "",
+             "Wall minutes per stage; training total with its CPU minutes in brackets (2 threads at full use give "
+             "twice the wall time); the load is the 1-minute load average from the start to the end of the "
+             "training. Driving is every run of the pair on the stated workers.", "",
+             "| pair | data seed | BM / TAPM seed | BM val. loss | TAPM val. loss | collect | BM | TAPM | training "
+             "(CPU) | load | driving (workers) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    seeds_of = {p["pair"]: p for p in plan["pairs"]}
+    for pair_text, t in trainings.items():
+        seeds = seeds_of[int(pair_text)]
+        summary = t.get("summary", {})
+        status = "" if t.get("ok") else " (failed)"
+        times = summary.get("stages", {})
+        cells = [_minutes(times.get(stage, {}).get("wall_s")) for stage, _ in TRAINING_STAGES]
+        cpu_s = sum(times[stage]["cpu_s"] for stage, _ in TRAINING_STAGES if stage in times) if times else None
+        loads = [times[stage][key] for stage, _ in TRAINING_STAGES if stage in times
+                 for key in ("load_start", "load_end") if times[stage].get(key) is not None]
+        load = f"{min(loads):.1f}-{max(loads):.1f}" if loads else "n/a"
+        driving = stages.get(pair_text, {})
+        drive_s = driving.get("driving", {}).get("wall_s")
+        drive = f"{_minutes(drive_s)} ({driving.get('workers', 'n/a')})" if drive_s is not None else "n/a"
+        lines.append(f"| {pair_name(int(pair_text))}{status} | {seeds['data_seed']} | {seeds['bm_seed']} / "
+                     f"{seeds['tapm_seed']} | {_f(summary.get('bm_best_val_loss'), 4)} | "
+                     f"{_f(summary.get('tapm_best_val_loss'), 4)} | {' | '.join(cells)} | "
+                     f"{_minutes(summary.get('seconds'))} ({_minutes(cpu_s)}) | {load} | {drive} |")
+    return lines
+
+
+def _minutes(seconds) -> str:
+    return "n/a" if seconds is None else f"{seconds / 60:.1f}"
 
 
 def remedy_section(remedies: dict) -> list[str]:

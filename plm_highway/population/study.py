@@ -25,18 +25,36 @@ from pathlib import Path
 from plm_highway.errors import BadInput
 from plm_highway.io import JSON_MARKER_KEY, check_target, directory_kind, file_kind, json_text, write_json, write_output
 from plm_highway.models.checkpoints import CHECKPOINT
-from plm_highway.population.driving import DriveResult, DriveTask, drive_pair_seed
+from plm_highway.population.drift import run_bands
+from plm_highway.population.driving import DriveResult, DriveTask, drive_pair_seed, read_traces
+from plm_highway.population.layout import read_traces as read_work_traces
 from plm_highway.population.layout import remedy_dir, runs_path
+from plm_highway.population.ledger import (
+    LEDGER_DIR,
+    file_sha256,
+    finite_or_nan,
+    new_record,
+    population_key,
+    read_ledger,
+    write_record,
+)
 from plm_highway.population.plan import PopulationPlan, pair_name
+from plm_highway.population.timing import StageTimes
 from plm_highway.population.training import PairTraining, TrainTask, train_pair
 
-POPULATION_WORK = directory_kind("population-work", "a plm-highway population work directory")
 POPULATION_PLAN = file_kind("population-plan", "a population plan JSON file")
 PAIR_TRAINING = file_kind("population-training", "a population pair's training record")
 PAIR_RUNS = file_kind("population-runs", "a population pair's runs under one seed")
 PAIR_FEEDBACK = file_kind("population-feedback", "a population pair's posed feedback gains")
 PAIR_TRACES = file_kind("population-traces", "a population pair's run traces (npz)", None,
                         lambda path: path.suffix == ".npz")
+CHECKPOINT_FILE = file_kind("population-checkpoint-file", "a file of a checkpoint the population wrote", None,
+                            lambda path: CHECKPOINT.recognises(path.parent))
+# Files a run adds after the work directory was made: the kit's own, so --restart removes them with it.
+POPULATION_WORK = directory_kind("population-work", "a plm-highway population work directory", owned=(
+    ("pairs/*/training.json", PAIR_TRAINING), ("pairs/*/feedback.json", PAIR_FEEDBACK),
+    ("pairs/*/model.*", CHECKPOINT_FILE), ("pairs/*/.plm-highway-output.json", CHECKPOINT_FILE),
+    ("pairs/*/steering_balance.png", CHECKPOINT_FILE), ("runs/*.json", PAIR_RUNS), ("runs/*.npz", PAIR_TRACES)))
 
 
 @dataclass(frozen=True)
@@ -67,27 +85,157 @@ class WorkState:
     work: Path | None = None
     remedy_trainings: dict[tuple[str, int], dict] = field(default_factory=dict)  # (remedy, pair) -> record
     remedy_runs: dict[tuple[str, int, int], list[dict]] = field(default_factory=dict)  # (remedy, pair, seed) -> rows
+    bands: dict[tuple[int, int], dict] = field(default_factory=dict)  # (pair, seed) -> {run label: offset bands}
+    stages: dict[int, dict] = field(default_factory=dict)  # pair -> driving/feedback/remedy times
 
 
 def run_population(plan: PopulationPlan, options: RunOptions) -> dict:
-    """Train, drive and report the population ``plan`` (resuming what ``options.work`` already holds)."""
+    """Train, drive and report the population ``plan``, pair by pair.
+
+    Pairs already committed under ``options.out/pairs`` (:mod:`~plm_highway.population.ledger`) are taken as they
+    are; every other pair is trained (or its checkpoints taken from ``options.work``), driven, measured and
+    committed before the next one starts, and the report is rendered again from every committed pair at the end.
+    """
     from plm_highway.population.report import POPULATION_REPORT, publish_report
     from plm_highway.rollout.backends import make_backend
 
-    check_target(options.out, POPULATION_REPORT, overwrite=options.overwrite)
+    check_target(options.out, POPULATION_REPORT, overwrite=True)
+    _check_same_study(options, plan)
+    if options.restart:
+        _restart(options)
+    records = read_ledger(options.out, plan)
     work = open_work(options.work, plan, options.restart)
     state = read_state(work, plan)
-    backend = make_backend(options.backend, options.workers, options.address)
-    try:
-        _train_missing(work, state, backend, options.progress, options.device)
-        _drive_missing(work, state, backend, options)
-        for remedy in plan.remedies:
-            _train_remedy_missing(work, state, remedy, backend, options.progress, options.device)
-            _drive_missing(work, state, backend, options, remedy)
-    finally:
-        backend.close()
-    _measure_feedback_missing(work, state, options.progress)
+    for record in records.values():
+        adopt(state, record)
+    todo = [seeds for seeds in plan.pairs if not record_complete(records.get(seeds.pair), plan)]
+    if todo:
+        backend = make_backend(options.backend, options.workers, options.address)
+        bar = _progress(len(plan.pairs), len(plan.pairs) - len(todo), "population: pairs", "pair", options.progress)
+        try:
+            for seeds in todo:
+                record = records.get(seeds.pair) or new_record(plan, seeds.pair)
+                _finish_pair(work, state, record, backend, options)
+                write_record(options.out, record, POPULATION_REPORT)
+                records[seeds.pair] = record
+                bar.update(1)
+        finally:
+            bar.close()
+            backend.close()
     return publish_report(state, options)
+
+
+def _restart(options: RunOptions) -> None:
+    """Drop the committed pair records of ``options.out`` (the work directory is started afresh by
+    :func:`open_work`): a restart trains and drives every pair again."""
+    from plm_highway.population.report import POPULATION_REPORT
+
+    if (Path(options.out) / LEDGER_DIR).is_dir():
+        with write_output(options.out, POPULATION_REPORT, update=[LEDGER_DIR]):
+            pass
+
+
+def _check_same_study(options: RunOptions, plan: PopulationPlan) -> None:
+    """A report of another population at ``options.out`` is replaced only with ``--overwrite`` (or ``--restart``);
+    one of this population (more pairs or remedies aside) is this run's to render again."""
+    document = Path(options.out) / "population.json"
+    if options.overwrite or options.restart or not document.is_file():
+        return
+    try:
+        earlier = PopulationPlan.from_dict(json.loads(document.read_text(encoding="utf-8"))["plan"])
+    except (OSError, ValueError, KeyError, TypeError, BadInput):
+        earlier = None
+    if earlier is None or population_key(earlier) != population_key(plan):
+        raise BadInput(f"--out {str(options.out)!r} holds the report of another population; pass --overwrite to "
+                       "replace it, or give another --out")
+
+
+def record_complete(record: dict | None, plan: PopulationPlan) -> bool:
+    """Whether a committed pair holds everything ``plan`` asks of it (a failed training is complete: reported)."""
+    if record is None or "training" not in record:
+        return False
+    if not record["training"].get("ok"):
+        return True
+    seeds = set(plan.sim_seeds)
+    if {row["seed"] for row in record.get("runs", [])} != seeds or "feedback" not in record:
+        return False
+    return all({row["seed"] for row in record.get("remedies", {}).get(remedy, {}).get("runs", [])} == seeds
+               for remedy in plan.remedies)
+
+
+def adopt(state: WorkState, record: dict) -> None:
+    """Put a committed pair's results into ``state`` (what the report reads)."""
+    pair = record["pair"]
+    state.trainings[pair] = record["training"]
+    for seed in {row["seed"] for row in record.get("runs", [])}:
+        state.runs[(pair, seed)] = [row for row in record["runs"] if row["seed"] == seed]
+    for seed_text, bands in record.get("bands", {}).items():
+        state.bands[(pair, int(seed_text))] = {label: {key: finite_or_nan(value) for key, value in b.items()}
+                                               for label, b in bands.items()}
+    if "feedback" in record:
+        state.feedback[pair] = record["feedback"]
+    if "stages" in record:
+        state.stages[pair] = record["stages"]
+    for remedy, entry in record.get("remedies", {}).items():
+        state.remedy_trainings[(remedy, pair)] = entry["training"]
+        for seed in {row["seed"] for row in entry.get("runs", [])}:
+            state.remedy_runs[(remedy, pair, seed)] = [row for row in entry["runs"] if row["seed"] == seed]
+
+
+def _finish_pair(work: Path, state: WorkState, record: dict, backend, options: RunOptions) -> None:
+    """Everything ``state.plan`` asks of one pair, written into ``record`` (and ``state``) as it is made."""
+    plan, pair = state.plan, record["pair"]
+    seeds = next(s for s in plan.pairs if s.pair == pair)
+    if pair not in state.trainings or not _has_checkpoints(work, pair, state.trainings[pair]):
+        training = _train(work, state, seeds, backend, options)
+        if "checkpoints" in record and training.get("ok"):
+            _check_same_checkpoints(work, pair, record["checkpoints"])
+    training = state.trainings[pair]
+    record["training"] = training
+    if not training.get("ok"):
+        return
+    record["checkpoints"] = file_sha256(pair_files(work, pair))
+    times = StageTimes()
+    with times.stage("driving"):
+        _drive_missing(work, state, backend, options, pairs=(pair,))
+    with times.stage("feedback"):
+        _measure_feedback_missing(work, state, options.progress, pairs=(pair,))
+    record["runs"] = [row for seed in plan.sim_seeds for row in state.runs[(pair, seed)]]
+    record["bands"] = {str(seed): state.bands[(pair, seed)] for seed in plan.sim_seeds}
+    record["feedback"] = state.feedback[pair]
+    remedies = record.setdefault("remedies", {})
+    for remedy in plan.remedies:
+        with times.stage(f"remedy {remedy}"):
+            _train_remedy_missing(work, state, remedy, backend, options.progress, options.device, pairs=(pair,))
+            remedy_training = state.remedy_trainings[(remedy, pair)]
+            entry = {"training": remedy_training}
+            if remedy_training.get("ok"):
+                _drive_missing(work, state, backend, options, remedy, pairs=(pair,))
+                entry["checkpoints"] = file_sha256(pair_files(work, pair, remedy))
+                entry["runs"] = [row for seed in plan.sim_seeds
+                                 for row in state.remedy_runs[(remedy, pair, seed)]]
+            remedies[remedy] = entry
+    record["stages"] = {**record.get("stages", {}), **times.as_dict(),
+                        "workers": options.workers, "backend": options.backend}
+    state.stages[pair] = record["stages"]
+
+
+def _has_checkpoints(work: Path, pair: int, training: dict) -> bool:
+    if not training.get("ok"):
+        return True  # a failed training has none to look for
+    directory = work / "pairs" / pair_name(pair)
+    return all((directory / model / name).is_file() for model in ("bm", "tapm") for name in ("model.pt", "model.json"))
+
+
+def _check_same_checkpoints(work: Path, pair: int, committed: dict[str, str]) -> None:
+    made = file_sha256(pair_files(work, pair))
+    if made != committed:
+        changed = sorted(name for name in committed if made.get(name) != committed[name])
+        raise BadInput(f"{pair_name(pair)}: retrained to measure what its committed record lacks, its checkpoints "
+                       f"differ from the committed ones ({', '.join(changed)}); this machine does not reproduce "
+                       "that training bit for bit, so its new results would not belong to the committed pair. "
+                       f"Put the pair's checkpoints under {work / 'pairs' / pair_name(pair)} or run where it was "
+                       "trained")
 
 
 def open_work(work: Path, plan: PopulationPlan, restart: bool = False) -> Path:
@@ -144,8 +292,9 @@ def read_state(work: Path, plan: PopulationPlan) -> WorkState:
             state.feedback[seeds.pair] = _read_json(feedback, PAIR_FEEDBACK)["gains"]
         for seed in plan.sim_seeds:
             path = runs_path(work, seeds.pair, seed)
-            if path.is_file():
+            if path.is_file() and path.with_suffix(".npz").is_file():
                 state.runs[(seeds.pair, seed)] = _read_json(path, PAIR_RUNS)["rows"]
+                state.bands[(seeds.pair, seed)] = run_bands(read_work_traces(work, seeds.pair, seed))
         for remedy in plan.remedies:
             record = remedy_dir(work, seeds.pair, remedy) / "training.json"
             if record.is_file():
@@ -166,16 +315,12 @@ def _progress(total: int, done: int, desc: str, unit: str, enabled: bool):
     return tqdm(total=total, initial=done, desc=desc, unit=unit, file=sys.stderr, disable=not enabled)
 
 
-def _train_missing(work: Path, state: WorkState, backend, progress: bool, device: str = "cpu") -> None:
-    plan = state.plan
-    tasks = [TrainTask(plan.recipe, seeds, device) for seeds in plan.pairs if seeds.pair not in state.trainings]
-    bar = _progress(len(plan.pairs), len(plan.pairs) - len(tasks), "population: train", "pair", progress)
-    try:
-        for _, result in backend.map_unordered(train_pair, tasks):
-            state.trainings[result.pair] = _write_training(work, result)
-            bar.update(1)
-    finally:
-        bar.close()
+def _train(work: Path, state: WorkState, seeds, backend, options: RunOptions) -> dict:
+    """Train one pair on ``backend`` (its record in ``state`` and the work directory); returns the record."""
+    task = TrainTask(state.plan.recipe, seeds, options.device)
+    for _, result in backend.map_unordered(train_pair, [task]):
+        state.trainings[result.pair] = _write_training(work, result)
+    return state.trainings[seeds.pair]
 
 
 def _write_training(work: Path, result: PairTraining) -> dict:
@@ -200,11 +345,11 @@ def pair_files(work: Path, pair: int, remedy: str = "") -> dict[str, dict[str, b
 
 
 def _train_remedy_missing(work: Path, state: WorkState, remedy: str, backend, progress: bool,
-                          device: str = "cpu") -> None:
+                          device: str = "cpu", pairs: tuple[int, ...] | None = None) -> None:
     from plm_highway.population.remedies import RemedyTask, train_remedy
 
     plan = state.plan
-    trained = [s for s in plan.pairs if state.trainings.get(s.pair, {}).get("ok")]
+    trained = [s for s in plan.pairs if state.trainings.get(s.pair, {}).get("ok") and (pairs is None or s.pair in pairs)]
     tasks = [RemedyTask(remedy, plan.recipe, seeds, pair_files(work, seeds.pair), device) for seeds in trained
              if (remedy, seeds.pair) not in state.remedy_trainings]
     bar = _progress(len(trained), len(trained) - len(tasks), f"population: {remedy}", "pair", progress)
@@ -225,7 +370,8 @@ def _train_remedy_missing(work: Path, state: WorkState, remedy: str, backend, pr
         bar.close()
 
 
-def _drive_missing(work: Path, state: WorkState, backend, options: RunOptions, remedy: str = "") -> None:
+def _drive_missing(work: Path, state: WorkState, backend, options: RunOptions, remedy: str = "",
+                   pairs: tuple[int, ...] | None = None) -> None:
     plan = state.plan
     if remedy:
         trained = [s.pair for s in plan.pairs if state.remedy_trainings.get((remedy, s.pair), {}).get("ok")]
@@ -235,6 +381,7 @@ def _drive_missing(work: Path, state: WorkState, backend, options: RunOptions, r
         trained = [s.pair for s in plan.pairs if state.trainings.get(s.pair, {}).get("ok")]
         done = set(state.runs)
         runs_per_chunk = 1 + 2 * len(plan.latency_settings) + ("const:0" in plan.settings)
+    trained = [pair for pair in trained if pairs is None or pair in pairs]
     todo = [(pair, seed) for pair in trained for seed in plan.sim_seeds if (pair, seed) not in done]
     total = len(trained) * len(plan.sim_seeds) * runs_per_chunk
     bar = _progress(total, total - len(todo) * runs_per_chunk, f"population: drive{' ' + remedy if remedy else ''}",
@@ -253,6 +400,7 @@ def _drive_missing(work: Path, state: WorkState, backend, options: RunOptions, r
                 state.remedy_runs[(remedy, result.pair, result.seed)] = result.rows
             else:
                 state.runs[(result.pair, result.seed)] = result.rows
+                state.bands[(result.pair, result.seed)] = run_bands(read_traces(result.traces))
             bar.update(len(result.rows))
     finally:
         bar.close()
@@ -266,7 +414,8 @@ def _write_runs(work: Path, result: DriveResult) -> None:
                PAIR_RUNS, overwrite=True)
 
 
-def _measure_feedback_missing(work: Path, state: WorkState, progress: bool) -> None:
+def _measure_feedback_missing(work: Path, state: WorkState, progress: bool,
+                              pairs: tuple[int, ...] | None = None) -> None:
     """Posed feedback gains (:func:`~plm_highway.population.drift.posed_gains`) of every trained pair that has none
     yet: cheap (a few camera frames per pair), so they run here, after the driving."""
     from plm_highway.evaluation.protocol import constant_latency_s
@@ -275,7 +424,8 @@ def _measure_feedback_missing(work: Path, state: WorkState, progress: bool) -> N
 
     plan = state.plan
     latencies_s = [constant_latency_s(s) for s in plan.latency_settings if constant_latency_s(s)]
-    todo = [s.pair for s in plan.pairs if state.trainings.get(s.pair, {}).get("ok") and s.pair not in state.feedback]
+    todo = [s.pair for s in plan.pairs if state.trainings.get(s.pair, {}).get("ok") and s.pair not in state.feedback
+            and (pairs is None or s.pair in pairs)]
     bar = _progress(len(todo), 0, "population: feedback", "pair", progress and bool(todo))
     try:
         for pair in todo:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from plm_highway.population.recipe import PairSeeds, Recipe
+from plm_highway.population.timing import StageTimes
 
 CHECKPOINT_FILES = ("model.pt", "model.json")
 
@@ -63,27 +64,30 @@ def _make_pair(recipe: Recipe, seeds: PairSeeds, work: Path, device: str = "cpu"
     from plm_highway.training.train import TrainConfig, train_base_model, train_tapm
 
     torch.set_num_threads(recipe.threads)
+    times = StageTimes()
     data_dir, bm_dir, tapm_dir = work / "data", work / "bm", work / "tapm"
     config = CollectConfig(episodes=recipe.episodes, episode_seconds=recipe.episode_seconds,
                            conditions=recipe.conditions, seed=seeds.data_seed)
-    frames, steps, manifest = collect(recipe.track, progress=False, config=config)
-    manifest["command"] = recipe.collect_command(seeds.data_seed)
-    write_dataset(data_dir, frames, steps, manifest)
-    del frames
+    with times.stage("collect"):
+        frames, steps, manifest = collect(recipe.track, progress=False, config=config)
+        manifest["command"] = recipe.collect_command(seeds.data_seed)
+        write_dataset(data_dir, frames, steps, manifest)
+        del frames
     descriptions = {}
     for model, step, seed in (("bm", recipe.bm, seeds.bm_seed), ("tapm", recipe.tapm, seeds.tapm_seed)):
         train_config = TrainConfig(epochs=step.epochs, seed=seed, max_samples=step.max_samples,
                                    balance_max_per_bin=step.balance_max_per_bin, show_progress=False)
         command = recipe.train_command(model, seed)
-        if model == "bm":
-            descriptions[model] = train_base_model(data_dir, bm_dir, recipe.preset, train_config, command,
-                                                   device=device)
-        else:
-            descriptions[model] = train_tapm(data_dir, tapm_dir, bm_dir, train_config, recipe.delta_grid_s, command,
-                                             device=device)
+        with times.stage(f"{model}_training"):
+            if model == "bm":
+                descriptions[model] = train_base_model(data_dir, bm_dir, recipe.preset, train_config, command,
+                                                       device=device)
+            else:
+                descriptions[model] = train_tapm(data_dir, tapm_dir, bm_dir, train_config, recipe.delta_grid_s,
+                                                 command, device=device)
     files = {model: {name: (directory / name).read_bytes() for name in CHECKPOINT_FILES}
              for model, directory in (("bm", bm_dir), ("tapm", tapm_dir))}
-    summary = {"data_samples": int(len(steps["t_s"])), "threads": recipe.threads,
+    summary = {"data_samples": int(len(steps["t_s"])), "threads": recipe.threads, "stages": times.as_dict(),
                **{f"{model}_{key}": descriptions[model]["training"][key]
                   for model in ("bm", "tapm") for key in ("best_val_loss", "best_epoch", "epochs_run", "rows_train",
                                                           "rows_val")}}

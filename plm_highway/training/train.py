@@ -167,10 +167,12 @@ def bm_loss(bm: BaseModel) -> Callable[[Batch], torch.Tensor]:
 
 def tapm_loss(tapm: TAPM, frozen_bm: BaseModel) -> Callable[[Batch], torch.Tensor]:
     def loss(batch: Batch) -> torch.Tensor:
-        with torch.no_grad():
+        # Inference mode: the frozen BM's forward pass records nothing for autograd (the same kernels, so the
+        # same numbers); its outputs are cloned into ordinary tensors for the TAPM's graph.
+        with torch.inference_mode():
             z_o, z_v = frozen_bm.encode(batch.frames, batch.speed_mps)
             a_bm = frozen_bm.steering_from_features(z_o, z_v)
-        return F.mse_loss(tapm(a_bm, z_o, z_v), batch.targets)
+        return F.mse_loss(tapm(a_bm.clone(), z_o.clone(), z_v.clone()), batch.targets)
 
     return loss
 
