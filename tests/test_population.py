@@ -110,6 +110,41 @@ def test_a_local_ray_head_trains_and_drives_what_is_missing_and_gives_the_in_pro
 
 
 @pytest.mark.slow
+@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed (pip install ray)")
+def test_a_two_node_ray_cluster_at_an_address_trains_and_drives_what_is_missing(finished, tmp_path):
+    """``--address`` against a cluster of two nodes (a head and a worker node, both on 127.0.0.1, one CPU each):
+    the pair trained and driven there gives the in-process rows. Its two seeds are driven as two one-CPU tasks
+    submitted together, so with one CPU per node both nodes run one."""
+    import shutil
+
+    from ray.cluster_utils import Cluster
+
+    source, plan, _ = finished
+    shutil.copytree(source / "work", tmp_path / "work")
+    shutil.rmtree(tmp_path / "work" / "pairs" / "pair-01")
+    for path in (tmp_path / "work" / "runs").glob("pair-01-*"):
+        path.unlink()
+    try:
+        cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False,
+                                                                "node_ip_address": "127.0.0.1"})
+        cluster.add_node(num_cpus=1, node_ip_address="127.0.0.1")
+        cluster.wait_for_nodes()
+    except Exception as exc:  # reported as a skip, never as a pass
+        pytest.skip(f"a two-node Ray cluster did not start on this machine: {exc}")
+    try:
+        import ray
+
+        ray.init(address=cluster.address, include_dashboard=False, log_to_driver=False)
+        assert len([n for n in ray.nodes() if n["Alive"]]) == 2
+        ray.shutdown()
+        run_population(plan, options(tmp_path, backend="ray", address=cluster.address))
+    finally:
+        cluster.shutdown()
+    assert json.loads((tmp_path / "work" / "pairs" / "pair-01" / "training.json").read_text())["ok"]
+    assert read_results(tmp_path / "out" / "results.csv") == read_results(source / "out" / "results.csv")
+
+
+@pytest.mark.slow
 def test_a_work_directory_of_another_population_is_refused(finished, tmp_path):
     source, plan, _ = finished
     other = tiny_plan(pairs=2, seeds=(0, 2))
@@ -187,3 +222,99 @@ def test_a_remedy_is_tried_on_the_same_pairs_and_compared_pair_by_pair(finished,
                         .read_text())
     assert record["ok"] and record["summary"]["rows_on_policy"] > 0
     assert "## Remedy `onpolicy-tapm`" in (tmp_path / "out" / "report.md").read_text()
+
+
+def _copy_report(source: Path, target: Path) -> None:
+    """The report directory as a fresh clone has it: committed files only, no work directory beside it."""
+    import shutil
+
+    shutil.copytree(source, target)
+
+
+@pytest.mark.slow
+def test_a_committed_study_grows_in_a_fresh_clone_without_training_its_pairs_again(finished, tmp_path):
+    source, plan, _ = finished
+    _copy_report(source / "out", tmp_path / "out")
+    committed = {p.name: p.read_bytes() for p in (tmp_path / "out" / "pairs").iterdir()}
+    assert set(committed) == {"pair-00.json", "pair-01.json"}
+    run_population(tiny_plan(pairs=3, seeds=(0, 1)), options(tmp_path))
+    # only the new pair was trained and driven here; the committed records are untouched
+    assert sorted(p.name for p in (tmp_path / "work" / "pairs").iterdir()) == ["pair-02"]
+    assert {p.name: p.read_bytes() for p in (tmp_path / "out" / "pairs").iterdir() if p.name in committed} == committed
+    grown = read_results(tmp_path / "out" / "results.csv")
+    assert [r for r in grown if r["pair"] in (0, 1)] == read_results(source / "out" / "results.csv")
+    assert {r["pair"] for r in grown} == {0, 1, 2}
+    record = json.loads((tmp_path / "out" / "pairs" / "pair-02.json").read_text())
+    stages = record["training"]["summary"]["stages"]
+    assert set(stages) == {"collect", "bm_training", "tapm_training"}
+    assert all(s["wall_s"] > 0 and s["cpu_s"] > 0 for s in stages.values())
+    assert set(record["checkpoints"]) == {"bm/model.pt", "tapm/model.pt"}
+    assert "## Trainings" in (tmp_path / "out" / "report.md").read_text()
+
+
+@pytest.mark.slow
+def test_a_committed_pair_edited_by_hand_is_refused_by_name(finished, tmp_path):
+    from plm_highway.errors import BadInput
+
+    source, plan, _ = finished
+    _copy_report(source / "out", tmp_path / "out")
+    path = tmp_path / "out" / "pairs" / "pair-01.json"
+    record = json.loads(path.read_text())
+    record["runs"][0]["offset_rms_m"] = 7.5
+    path.write_text(json.dumps(record))
+    with pytest.raises(BadInput, match="pair-01.json: its contents were changed"):
+        run_population(plan, options(tmp_path))
+
+
+@pytest.mark.slow
+def test_a_committed_pair_of_another_population_is_refused_naming_what_differs(finished, tmp_path):
+    from plm_highway.errors import BadInput
+
+    source, _, _ = finished
+    _copy_report(source / "out", tmp_path / "out")
+    other = make_plan(with_overrides(recipe_named(None, "ideal"), **TINY), "ideal", 2,
+                      settings=("const:0", "const:0.2"), sim_seeds=(0, 1), max_steps=TINY_STEPS)
+    with pytest.raises(BadInput, match="pair-00.json: this pair was made for another population \\(settings differ"):
+        run_population(other, options(tmp_path, overwrite=True))
+
+
+@pytest.mark.slow
+def test_a_committed_pair_retrained_for_a_new_remedy_must_reproduce_its_checkpoints(finished, tmp_path):
+    """A fresh clone has no checkpoints: a remedy needs the pair's BM, so the pair is trained again and its files
+    checked against the committed hashes; a pair whose training does not reproduce is refused, not mixed in."""
+    from plm_highway.errors import BadInput
+    from plm_highway.population import ledger
+
+    source, _, _ = finished
+    _copy_report(source / "out", tmp_path / "out")
+    record = json.loads((tmp_path / "out" / "pairs" / "pair-00.json").read_text())
+    record.pop("plm_highway_output"), record.pop("record_sha256")
+    record["checkpoints"]["bm/model.pt"] = "0" * 64
+    from plm_highway.population.report import POPULATION_REPORT
+
+    ledger.write_record(tmp_path / "out", record, POPULATION_REPORT)
+    with_remedy = tiny_plan(pairs=2, seeds=(0, 1), remedies=("onpolicy-tapm",))
+    with pytest.raises(BadInput, match="pair-00: retrained .* differ from the committed ones \\(bm/model.pt\\)"):
+        run_population(with_remedy, options(tmp_path))
+
+
+@pytest.mark.slow
+def test_restart_trains_every_pair_again_with_the_new_recipe(finished, tmp_path):
+    import shutil
+
+    source, plan, _ = finished
+    shutil.copytree(source / "work", tmp_path / "work")
+    _copy_report(source / "out", tmp_path / "out")
+    longer = make_plan(with_overrides(recipe_named(None, "ideal"), **{**TINY, "epochs": 2}), "ideal", 1,
+                       settings=("const:0", "const:0.25"), sim_seeds=(0,), max_steps=TINY_STEPS)
+    from plm_highway.errors import BadInput
+
+    with pytest.raises(BadInput):  # another recipe: refused without --restart
+        run_population(longer, options(tmp_path))
+    run_population(longer, options(tmp_path, restart=True))
+    bm = json.loads((tmp_path / "work" / "pairs" / "pair-00" / "bm" / "model.json").read_text())
+    assert bm["training"]["config"]["epochs"] == 2
+    assert sorted(p.name for p in (tmp_path / "work" / "pairs").iterdir()) == ["pair-00"]
+    assert sorted(p.name for p in (tmp_path / "out" / "pairs").iterdir()) == ["pair-00.json"]
+    assert {r["pair"] for r in read_results(tmp_path / "out" / "results.csv")} == {0}
+    assert json.loads((tmp_path / "work" / "plan.json").read_text())["recipe"]["bm"]["epochs"] == 2

@@ -29,7 +29,7 @@ TRACE_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_
 class DriveTask:
     plan: PopulationPlan
     pair: int
-    seed: int
+    seeds: tuple[int, ...]  # driven as one batched chunk (a pair's seeds split evenly over the workers)
     files: dict  # {"bm"|"tapm": {file name: bytes}}: the pair's checkpoints
     batch_size: int = 16
     device: str = "cpu"  # where the policies' forward passes run
@@ -40,10 +40,10 @@ class DriveTask:
 @dataclass
 class DriveResult:
     pair: int
-    seed: int
-    rows: list[dict]
-    traces: bytes  # np.savez_compressed of every run's TRACE_COLUMNS, keyed "RUN/COLUMN"
+    rows: dict[int, list[dict]]  # per seed
+    traces: dict[int, bytes]  # per seed: np.savez_compressed of every run's TRACE_COLUMNS, keyed "RUN/COLUMN"
     remedy: str = ""
+    cpu_s: float = 0.0  # the worker's CPU time for the chunk
 
 
 def run_label(role: str, setting: str) -> str:
@@ -66,32 +66,53 @@ def plan_runs(plan: PopulationPlan, seed: int, track_name: str, conditions, reme
     return cells
 
 
-def drive_pair_seed(task: DriveTask) -> DriveResult:
-    """Drive every run of ``task.pair`` under ``task.seed`` batched in this process; one row per run."""
+def drive_pair(task: DriveTask) -> DriveResult:
+    """Drive every run of ``task.pair`` under each of ``task.seeds`` batched in this process; one row per run,
+    each judged against the reference of its own seed."""
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    import time
+
     from plm_highway.evaluation.outcomes import run_outcomes
     from plm_highway.evaluation.reproduce import conditions_named
     from plm_highway.road.track import resolve_track
     from plm_highway.rollout.cells import run_cells, runs_under
     from plm_highway.rollout.policies import single_threaded_inference
 
+    cpu0 = time.process_time()
     plan = task.plan
     conditions = conditions_named(plan.conditions)
     track_spec = resolve_track(plan.track)
-    cells = plan_runs(plan, task.seed, track_spec.name, conditions, task.remedy)
+    cells = [cell for seed in task.seeds for cell in plan_runs(plan, seed, track_spec.name, conditions, task.remedy)]
     checkpoints = materialised_checkpoints(task.pair, task.files)
     with single_threaded_inference():
         logs = run_cells(runs_under(cells, track_spec, conditions, None, plan.max_steps), checkpoints,
                          preset=conditions.checkpoint_preset, batch_size=task.batch_size, device=task.device)
-    by_label = {run_label(c.role, c.setting or c.latency): log for c, log in zip(cells, logs)}
-    reference = by_label["reference"]
-    rows = []
-    for cell, log in zip(cells, logs):
-        setting = "const:0" if cell.role == "reference" else (cell.setting or cell.latency)
-        outcomes = run_outcomes(log, reference, track_spec, conditions.max_steering_rad)
-        rows.append({"pair": task.pair, "seed": task.seed, "role": cell.role, "remedy": task.remedy,
-                     "setting": setting, "latency_driven": cell.latency, **outcomes})
-    return DriveResult(task.pair, task.seed, rows, _compressed_traces(by_label), task.remedy)
+    rows, traces = {}, {}
+    for seed in task.seeds:
+        mine = [(c, log) for c, log in zip(cells, logs) if c.seed == seed]
+        by_label = {run_label(c.role, c.setting or c.latency): log for c, log in mine}
+        reference = by_label["reference"]
+        rows[seed] = []
+        for cell, log in mine:
+            setting = "const:0" if cell.role == "reference" else (cell.setting or cell.latency)
+            outcomes = run_outcomes(log, reference, track_spec, conditions.max_steering_rad)
+            rows[seed].append({"pair": task.pair, "seed": seed, "role": cell.role, "remedy": task.remedy,
+                               "setting": setting, "latency_driven": cell.latency, **outcomes})
+        traces[seed] = _compressed_traces(by_label)
+    return DriveResult(task.pair, rows, traces, task.remedy, time.process_time() - cpu0)
+
+
+def split_seeds(seeds, chunks: int) -> list[tuple[int, ...]]:
+    """``seeds`` in at most ``chunks`` contiguous groups whose sizes differ by at most one."""
+    seeds = list(seeds)
+    chunks = max(1, min(chunks, len(seeds)))
+    size, extra = divmod(len(seeds), chunks)
+    out, start = [], 0
+    for k in range(chunks):
+        end = start + size + (k < extra)
+        out.append(tuple(seeds[start:end]))
+        start = end
+    return out
 
 
 def _compressed_traces(by_label: dict) -> bytes:

@@ -61,9 +61,10 @@ def _digest(data) -> str:
 
 
 def file_sha256(files: dict[str, dict[str, bytes]]) -> dict[str, str]:
-    """``{"bm/model.pt": sha256, ...}`` of a pair's checkpoint files."""
+    """``{"bm/model.pt": sha256, "tapm/model.pt": sha256}``: the weights of a pair's checkpoints (their
+    ``model.json`` names the temporary directories it was trained in, so it is not compared)."""
     return {f"{model}/{name}": hashlib.sha256(data).hexdigest()
-            for model, named in sorted(files.items()) for name, data in sorted(named.items())}
+            for model, named in sorted(files.items()) for name, data in sorted(named.items()) if name == "model.pt"}
 
 
 def record_path(out: Path, pair: int) -> Path:
@@ -125,6 +126,7 @@ def _no_duplicate_keys(path: Path):
 
 
 def _differences(earlier: dict, now: dict) -> list[str]:
+    now = json.loads(json_text(now))  # as it reads back from a record (tuples as lists)
     return [name for name in now if earlier.get(name) != now[name]]
 
 

@@ -26,7 +26,7 @@ from plm_highway.errors import BadInput
 from plm_highway.io import JSON_MARKER_KEY, check_target, directory_kind, file_kind, json_text, write_json, write_output
 from plm_highway.models.checkpoints import CHECKPOINT
 from plm_highway.population.drift import run_bands
-from plm_highway.population.driving import DriveResult, DriveTask, drive_pair_seed, read_traces
+from plm_highway.population.driving import DriveTask, drive_pair, read_traces, split_seeds
 from plm_highway.population.layout import read_traces as read_work_traces
 from plm_highway.population.layout import remedy_dir, runs_path
 from plm_highway.population.ledger import (
@@ -87,6 +87,7 @@ class WorkState:
     remedy_runs: dict[tuple[str, int, int], list[dict]] = field(default_factory=dict)  # (remedy, pair, seed) -> rows
     bands: dict[tuple[int, int], dict] = field(default_factory=dict)  # (pair, seed) -> {run label: offset bands}
     stages: dict[int, dict] = field(default_factory=dict)  # pair -> driving/feedback/remedy times
+    drive_cpu_s: dict[int, float] = field(default_factory=dict)  # pair -> the driving workers' CPU seconds
 
 
 def run_population(plan: PopulationPlan, options: RunOptions) -> dict:
@@ -196,6 +197,7 @@ def _finish_pair(work: Path, state: WorkState, record: dict, backend, options: R
         return
     record["checkpoints"] = file_sha256(pair_files(work, pair))
     times = StageTimes()
+    state.drive_cpu_s[pair] = 0.0
     with times.stage("driving"):
         _drive_missing(work, state, backend, options, pairs=(pair,))
     with times.stage("feedback"):
@@ -215,6 +217,8 @@ def _finish_pair(work: Path, state: WorkState, record: dict, backend, options: R
                 entry["runs"] = [row for seed in plan.sim_seeds
                                  for row in state.remedy_runs[(remedy, pair, seed)]]
             remedies[remedy] = entry
+    if "driving" in times.stages:  # the work is the workers' (in-process: this process's, counted once)
+        times.stages["driving"]["cpu_s"] = round(state.drive_cpu_s.get(pair, 0.0), 3)
     record["stages"] = {**record.get("stages", {}), **times.as_dict(),
                         "workers": options.workers, "backend": options.backend}
     state.stages[pair] = record["stages"]
@@ -388,30 +392,34 @@ def _drive_missing(work: Path, state: WorkState, backend, options: RunOptions, r
                     "run", options.progress)
     files = {}
     tasks = []
-    for pair, seed in todo:
-        if pair not in files:
-            files[pair] = pair_files(work, pair, remedy)
-        tasks.append(DriveTask(plan, pair, seed, files[pair], batch_size=options.batch_size, device=options.device,
-                               remedy=remedy))
+    chunks = max(1, options.workers or 1)
+    for pair in dict.fromkeys(pair for pair, _ in todo):
+        files[pair] = pair_files(work, pair, remedy)
+        missing = [seed for p, seed in todo if p == pair]
+        # A pair's runs split evenly over the workers: whole seeds per task, as many tasks as workers.
+        for seeds in split_seeds(missing, chunks):
+            tasks.append(DriveTask(plan, pair, seeds, files[pair], batch_size=options.batch_size,
+                                   device=options.device, remedy=remedy))
     try:
-        for _, result in backend.map_unordered(drive_pair_seed, tasks):
-            _write_runs(work, result)
-            if remedy:
-                state.remedy_runs[(remedy, result.pair, result.seed)] = result.rows
-            else:
-                state.runs[(result.pair, result.seed)] = result.rows
-                state.bands[(result.pair, result.seed)] = run_bands(read_traces(result.traces))
-            bar.update(len(result.rows))
+        for _, result in backend.map_unordered(drive_pair, tasks):
+            state.drive_cpu_s[result.pair] = state.drive_cpu_s.get(result.pair, 0.0) + result.cpu_s
+            for seed, rows in result.rows.items():
+                _write_runs(work, result.pair, seed, rows, result.traces[seed], result.remedy)
+                if remedy:
+                    state.remedy_runs[(remedy, result.pair, seed)] = rows
+                else:
+                    state.runs[(result.pair, seed)] = rows
+                    state.bands[(result.pair, seed)] = run_bands(read_traces(result.traces[seed]))
+                bar.update(len(rows))
     finally:
         bar.close()
 
 
-def _write_runs(work: Path, result: DriveResult) -> None:
-    path = runs_path(work, result.pair, result.seed, result.remedy)
+def _write_runs(work: Path, pair: int, seed: int, rows: list[dict], traces: bytes, remedy: str = "") -> None:
+    path = runs_path(work, pair, seed, remedy)
     with write_output(path.with_suffix(".npz"), PAIR_TRACES, overwrite=True) as staged:
-        staged.write_bytes(result.traces)
-    write_json(path, {"pair": result.pair, "seed": result.seed, "remedy": result.remedy, "rows": result.rows},
-               PAIR_RUNS, overwrite=True)
+        staged.write_bytes(traces)
+    write_json(path, {"pair": pair, "seed": seed, "remedy": remedy, "rows": rows}, PAIR_RUNS, overwrite=True)
 
 
 def _measure_feedback_missing(work: Path, state: WorkState, progress: bool,
