@@ -107,6 +107,20 @@ def checkpoint_pair(checkpoint_dir=None, preset: str = SHIPPED_PRESET) -> tuple[
     )
 
 
+def checkpoint_pair_sha256(checkpoint_dir=None, preset: str = SHIPPED_PRESET) -> dict[str, str]:
+    """What the pair of :func:`checkpoint_pair` holds, by content: ``{"bm.pt": sha256, "bm.json": ..., "tapm.pt": ...,
+    "tapm.json": ...}``; a model retrained into the same directory gives other digests."""
+    from plm_highway.io.digests import file_sha256
+    from plm_highway.models.checkpoints import checkpoint_paths
+
+    digests = {}
+    for role, path in zip(("bm", "tapm"), checkpoint_pair(checkpoint_dir, preset)):
+        weights, description = checkpoint_paths(path)
+        digests[f"{role}.pt"] = file_sha256(weights, f"{role} checkpoint")
+        digests[f"{role}.json"] = file_sha256(description, f"{role} checkpoint description")
+    return digests
+
+
 def ekf_plant(conditions) -> dict:
     """What the EKF lane keeper must know of ``conditions`` (a :class:`~plm_highway.rollout.conditions.Conditions`):
     the camera, the steering range, the loop period, the actuator's lag and the processing delay (its LQR's
