@@ -584,6 +584,10 @@ CASES = [
     c("ds-manifest-duplicate-key", TRAIN, ["manifest.json", "'format'", "more than once"],
       {"ds": Copy("ds", lambda r: (r / "manifest.json").write_text(
           (r / "manifest.json").read_text().replace('"format":', '"format": "x", "format":', 1)))}),
+    c("ds-marker-duplicate-key", "collect --track test --episodes 1 --episode-seconds 1 --out ds --overwrite",
+      ["ds", "marker cannot be trusted", "'kind'", "more than once"],
+      {"ds": Copy("ds", lambda r: (r / ".plm-highway-output.json").write_text(
+          (r / ".plm-highway-output.json").read_text().replace('"kind":', '"kind":"x","kind":', 1)))}),
     c("trace-million-columns", f"{EVAL} --latency trace:trace.csv", ["trace.csv", "row 2", "64 columns"],
       trace_rows("t,latency_s\n" + "0" + "," * 1_000_000 + "\n"), timeout_s=10),
     c("sidecar-nested-30k", DIAG, ["r.json", "nested"],

@@ -60,6 +60,7 @@ from plm_highway.io.manifest import (
     MARKER_NAME,
     ancestors,
     file_record,
+    marker_problem,
     marker_text,
     read_marker,
     record_matches,
@@ -315,6 +316,9 @@ def check_target(path: str | os.PathLike, kind: OutputKind, *, overwrite: bool =
                             "nothing was changed. Write the output to another path")
     if kind.is_dir and not any(target.iterdir()):
         return target  # an empty directory holds nothing to lose (e.g. made with mkdir beforehand)
+    if kind.is_dir and (problem := marker_problem(target)) is not None:
+        raise OutputRefused(f"refusing to replace {text!r}: its marker cannot be trusted ({problem}); nothing was "
+                            "changed. Move the directory away yourself, or choose a new path")
     if not kind.recognises(target):
         raise OutputRefused(f"refusing to replace {text!r}: it is {there}, not {kind.describe} that plm-highway "
                             "wrote; nothing was changed. Choose a new path, or move it away yourself")
