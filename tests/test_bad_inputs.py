@@ -229,6 +229,17 @@ class Make:
 
 
 DS = Copy("ds")
+
+
+def edit_steps(column: str, row: int, value) -> Callable[[Path], None]:
+    def apply(root: Path) -> None:
+        import numpy as np
+
+        with np.load(root / "steps.npz") as npz:
+            steps = {name: npz[name].copy() for name in npz.files}
+        steps[column][row] = value
+        np.savez(root / "steps.npz", **steps)
+    return apply
 CK = Copy("ck")
 REC = Copy("rec")
 COLLECT = "collect --episodes 1 --episode-seconds 1 --out out"
@@ -588,6 +599,14 @@ CASES = [
       ["ds", "marker cannot be trusted", "'kind'", "more than once"],
       {"ds": Copy("ds", lambda r: (r / ".plm-highway-output.json").write_text(
           (r / ".plm-highway-output.json").read_text().replace('"kind":', '"kind":"x","kind":', 1)))}),
+    c("ds-steering-label-40", TRAIN, ["steps.npz", "'steering'", "40", "row 3", "[-1, 1]"],
+      {"ds": Copy("ds", edit_steps("steering", 3, 40.0))}),
+    c("ds-manifest-speed-edited", TRAIN, ["manifest.json", "'speed_mps' = 30", "median"],
+      {"ds": Copy("ds", edit_json("manifest.json", lambda d: d.update(speed_mps=30)))}),
+    c("ds-manifest-camera-size-edited", TRAIN, ["manifest.json", "160x160", "frames.npy"],
+      {"ds": Copy("ds", edit_json("manifest.json", lambda d: d["camera"].update(height_px=160, width_px=160)))}),
+    c("ds-manifest-pitch-out-of-range", TRAIN, ["manifest.json", "'camera.pitch_deg' = 600"],
+      {"ds": Copy("ds", edit_json("manifest.json", lambda d: d["camera"].update(pitch_deg=600)))}),
     c("trace-million-columns", f"{EVAL} --latency trace:trace.csv", ["trace.csv", "row 2", "64 columns"],
       trace_rows("t,latency_s\n" + "0" + "," * 1_000_000 + "\n"), timeout_s=10),
     c("sidecar-nested-30k", DIAG, ["r.json", "nested"],

@@ -73,7 +73,10 @@ def _ascii_digits_only(parse):
     if parse is int or parse is float:  # Python's own would read '1_0' as 10: the kit's strict parsers instead
         from plm_highway.cli._common import strict_float, strict_int
 
-        parse = strict_int if parse is int else strict_float
+        def any_float(text: str) -> float:  # nan and inf read, as float() reads them: range checks name them
+            return strict_float(text, non_finite=True)
+
+        parse = strict_int if parse is int else any_float
 
     def checked(text):
         if isinstance(text, str):
