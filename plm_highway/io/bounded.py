@@ -401,8 +401,8 @@ def parse_float_text(text: str, where: str, *, non_finite: bool = False) -> floa
     if non_finite and stripped.lower() in _NON_FINITE:
         return float(stripped)
     if not _TEXT_DECIMAL.fullmatch(stripped):
-        raise BadInput(f"{where}: {text!r} is not a plain decimal number (digits 0-9, optional sign, point and "
-                       "exponent)")
+        raise BadInput(f"{where}: {text!r} is not a number (a plain decimal: digits 0-9, optional sign, point "
+                       "and exponent)")
     value = float(stripped)
     if not non_finite and not math.isfinite(value):
         raise BadInput(f"{where}: {text!r} is not finite")

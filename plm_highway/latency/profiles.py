@@ -47,7 +47,6 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.errors import BadInput
-from plm_highway.io.bounded import refuse_non_ascii_digits
 
 MAX_SPEC_CHARS = 4096
 MAX_LATENCY_S = 10.0
@@ -527,9 +526,6 @@ def _trace_number(name: str, row: int, column: str, cells: list[str], index: int
     where = f"trace file {name}: row {row}, column {column!r}"
     if not text:
         raise BadInput(f"{where}: missing value")
-    refuse_non_ascii_digits(text, where)
-    if "_" in text:
-        raise BadInput(f"{where}: {text[:40]!r} holds '_'; write numbers without separators")
     try:
         value = float(text)
     except ValueError:
