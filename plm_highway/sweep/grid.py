@@ -15,15 +15,15 @@ A grid comes from the command line or a small YAML/JSON file (Hydra-style lists 
 Every cell is one closed-loop run. For the steering error each policy needs its reference, the
 Base Model (the expert for the expert) without latency on the same condition, track and seed: the
 grid adds those cells (``const:0``) when it does not hold them already. A cell's :meth:`SweepCell.key`
-names its result file; it hashes everything that changes the run (the condition's settings, the
-checkpoints, the step limit), so a changed definition never resumes from a stale result.
+names its result file; it hashes everything the run is made from, by content (the condition's settings as
+typed, the step limit, the track and trace files' bytes, the checkpoint files' sha256, the kit's version:
+:meth:`SweepGrid.inputs`), so a changed definition or input never resumes from a stale result. Names are
+text (:func:`grid_name`): ``1`` and ``'1'`` never become one condition.
 """
 
 from __future__ import annotations
 
-import hashlib
 import itertools
-import json
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
