@@ -229,6 +229,17 @@ class Make:
 
 
 DS = Copy("ds")
+
+
+def edit_steps(column: str, row: int, value) -> Callable[[Path], None]:
+    def apply(root: Path) -> None:
+        import numpy as np
+
+        with np.load(root / "steps.npz") as npz:
+            steps = {name: npz[name].copy() for name in npz.files}
+        steps[column][row] = value
+        np.savez(root / "steps.npz", **steps)
+    return apply
 CK = Copy("ck")
 REC = Copy("rec")
 COLLECT = "collect --episodes 1 --episode-seconds 1 --out out"
@@ -584,6 +595,18 @@ CASES = [
     c("ds-manifest-duplicate-key", TRAIN, ["manifest.json", "'format'", "more than once"],
       {"ds": Copy("ds", lambda r: (r / "manifest.json").write_text(
           (r / "manifest.json").read_text().replace('"format":', '"format": "x", "format":', 1)))}),
+    c("ds-marker-duplicate-key", "collect --track test --episodes 1 --episode-seconds 1 --out ds --overwrite",
+      ["ds", "marker cannot be trusted", "'kind'", "more than once"],
+      {"ds": Copy("ds", lambda r: (r / ".plm-highway-output.json").write_text(
+          (r / ".plm-highway-output.json").read_text().replace('"kind":', '"kind":"x","kind":', 1)))}),
+    c("ds-steering-label-40", TRAIN, ["steps.npz", "'steering'", "40", "row 3", "[-1, 1]"],
+      {"ds": Copy("ds", edit_steps("steering", 3, 40.0))}),
+    c("ds-manifest-speed-edited", TRAIN, ["manifest.json", "'speed_mps' = 30", "median"],
+      {"ds": Copy("ds", edit_json("manifest.json", lambda d: d.update(speed_mps=30)))}),
+    c("ds-manifest-camera-size-edited", TRAIN, ["manifest.json", "160x160", "frames.npy"],
+      {"ds": Copy("ds", edit_json("manifest.json", lambda d: d["camera"].update(height_px=160, width_px=160)))}),
+    c("ds-manifest-pitch-out-of-range", TRAIN, ["manifest.json", "'camera.pitch_deg' = 600"],
+      {"ds": Copy("ds", edit_json("manifest.json", lambda d: d["camera"].update(pitch_deg=600)))}),
     c("trace-million-columns", f"{EVAL} --latency trace:trace.csv", ["trace.csv", "row 2", "64 columns"],
       trace_rows("t,latency_s\n" + "0" + "," * 1_000_000 + "\n"), timeout_s=10),
     c("sidecar-nested-30k", DIAG, ["r.json", "nested"],
@@ -598,6 +621,21 @@ CASES = [
     c("non-ascii-delta-grid", f"{TAPM} --delta-grid 0.1,\u0660.\u0662", ["--delta-grid", "non-ASCII"],
       {"ds": DS, "ck": CK}),
     c("non-ascii-block-s", f"{DIAG} --block-s \u0665", ["--block-s", "non-ASCII"], {"rec": REC}),
+    # -- one strict number parser: no '_' separators, integers where integers are meant, text names typed ------
+    c("underscore-max-steps", "sweep --out sw --workers 0 --policy expert --max-steps 1_0", ["--max-steps", "'_'"]),
+    c("underscore-seeds", "evaluate --policy expert --max-steps 1 --seeds 0,1_0", ["--seeds", "1_0"]),
+    c("grid-seed-as-text", f"{SWEEP} --grid g.yaml", ["seeds[0]", "'1'", "integer"], {"g.yaml": "seeds: ['1']\n"}),
+    c("grid-condition-named-by-a-number", f"{SWEEP} --grid g.yaml", ["conditions name 1", "quotes"],
+      {"g.yaml": "conditions:\n  1: {}\n  '1': {}\n"}),
+    c("grid-track-named-by-a-number", f"{SWEEP} --grid g.yaml", ["tracks[0]", "int"], {"g.yaml": "tracks: [7]\n"}),
+    c("rec-arabic-indic-digit", DIAG, ["r.csv", "speed", "line 6", "non-ASCII digit"],
+      {"rec": Copy("rec", recording_rows(set_cell("speed", 5, "\u0661\u0665")))}),
+    c("rec-underscore-separator", DIAG, ["r.csv", "speed", "line 6", "'_'"],
+      {"rec": Copy("rec", recording_rows(set_cell("speed", 5, "1_5")))}),
+    c("trace-underscore-separator", f"{EVAL} --latency trace:trace.csv", ["trace.csv", "row 2", "'0_1'",
+      "not a plain decimal"], trace_rows("t,latency_s\n0,0_1\n1,0.1\n")),
+    c("trace-arabic-indic-digit", f"{EVAL} --latency trace:trace.csv", ["trace.csv", "row 2", "not a plain decimal"],
+      trace_rows("t,latency_s\n0,\u0660.1\n1,0.1\n")),
     c("non-ascii-sweep-seeds", f"{SWEEP} --seeds \u0663", ["seeds", "non-ASCII"]),
     c("diag-block-nanoseconds", f"{DIAG} --block-s 1e-9", "--block-s", {"rec": REC}),
     c("diag-block-tenth-second", f"{DIAG} --block-s 0.1", "--block-s", {"rec": REC}),

@@ -182,6 +182,8 @@ def test_bad_reset_options_are_refused(options, fragments):
     (np.float32(0.1), ["got shape ()"]),
     (np.array(["0.1"]), ["dtype <U3"]),
     ([None], ["dtype object"]),
+    (np.array([0], np.uint8), ["integer array of dtype uint8", "float32"]),
+    (np.array([1], np.int64), ["integer array of dtype int64"]),
 ])
 @pytest.mark.parametrize("wrapped", [False, True])
 def test_bad_actions_are_refused(action, fragments, wrapped):
@@ -205,10 +207,10 @@ def test_a_refused_action_leaves_the_env_where_it_was():
     assert after["lateral_offset_m"] == expected["lateral_offset_m"]
 
 
-def test_integer_and_float64_actions_of_the_right_shape_are_accepted():
+def test_float_arrays_and_lists_of_python_numbers_of_the_right_shape_are_accepted():
     env = make()
     env.reset(seed=0)
-    for action in (np.array([0]), np.array([0.05]), [0.05], (-2.0,)):
+    for action in ([0], np.array([0.05]), np.array([0.05], np.float32), [0.05], (-2.0,), (1,)):
         _, _, terminated, _, info = env.step(action)
         assert not terminated and np.isfinite(info["lateral_offset_m"])
 

@@ -381,3 +381,41 @@ def test_the_sim2real_tie_in_finds_the_simulated_cameras_delay():
     assert abs(found["latency_s"] - simulated["true_camera_latency_s"]) <= frame_s
     assert simulated["true_vehicle_delays"]["steering_time_constant_s"] == 0.1
     assert isinstance(simulated["diagnosis_delays_s"], dict) and simulated["verdict"]
+
+
+# -- the run cache: reused only for the same contents -------------------------------------------------------------
+
+
+def test_the_run_cache_is_keyed_by_the_checkpoints_contents_and_a_cached_run_edited_is_driven_again(
+        tmp_path, tmp_path_factory):
+    import shutil
+
+    from plm_highway.evaluation.latency_estimation import drive_suite
+    from tiny_models import other_tiny_checkpoints, tiny_checkpoints
+
+    suite = LatencySuite(conditions=("ideal",), tracks=("test",), seeds=(0,), constants_s=(0.15,), profiles=(),
+                         mitigation_constants_s=(), mitigation_profiles=(), probe_settings=(), duration_s=1.0,
+                         table3_seeds=())
+    ck, cache = tmp_path / "ck", tmp_path / "cache"
+    shutil.copytree(tiny_checkpoints(tmp_path_factory), ck)
+
+    def measured(checkpoints, cache_dir):
+        driven = []
+        records = drive_suite(suite, cache_dir, checkpoints=checkpoints, progress=False,
+                              on_record=lambda spec, record: driven.append(spec))
+        return [record["summary"] for _, record in records], len(driven)
+
+    first, driven = measured(ck, cache)
+    assert driven == len(first) >= 2
+    assert measured(ck, cache) == (first, 0)  # same contents: all from the cache
+    shutil.rmtree(ck)
+    shutil.copytree(other_tiny_checkpoints(tmp_path_factory), ck)  # 'train --overwrite' into the same directory
+    again, driven = measured(ck, cache)
+    fresh, _ = measured(ck, None)
+    assert driven == len(first) and again == fresh != first
+    victim = sorted(cache.glob("*.json"))[0]
+    data = json.loads(victim.read_text())
+    data["summary"]["lateral_offset_rms_m"] = 7.5
+    victim.write_text(json.dumps(data))
+    edited, driven = measured(ck, cache)
+    assert driven == 1 and edited == fresh

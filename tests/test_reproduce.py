@@ -264,3 +264,22 @@ def test_reproduce_on_the_unseen_track(checkpoints, tmp_path):
     assert "## Generalisation" not in report  # no extra tracks unless asked for
     assert "### Table 3:" in report and (out / "0.20s_comparison.png").is_file()
     assert reproduce.output_dir(None, "unseen", "unseen") == reproduce.DEFAULT_OUT / "unseen"
+
+
+def test_a_trace_setting_under_time_injection_runs_and_is_not_compared_under_the_legacy_fifo(checkpoints, tmp_path):
+    """The legacy FIFO's BM baseline is defined for steps: and frames: profiles; a trace: setting given with
+    --injection time is driven under that injection, and only the profiles the FIFO can drive are compared."""
+    trace = tmp_path / "x.csv"
+    trace.write_text("t,latency_s\n0,0.1\n0.5,0.2\n10,0.2\n")
+    out = tmp_path / "out"
+    code = cli.main(["reproduce", "--out", str(out), "--checkpoints", str(checkpoints), "--max-steps", "20",
+                     "--seeds", "1", "--settings", f"trace:{trace},steps:0.0-0.35:1.0", "--injection", "time",
+                     "--no-progress", "--workers", "0"])
+    assert code == 0
+    results = json.loads((out / "results.json").read_text())
+    text = json.dumps(results)
+    assert f"trace:{trace}" in text
+    # the legacy FIFO could only have refused the trace setting: it was left out of the comparison, never run there
+    assert cli.main(["reproduce", "--out", str(tmp_path / "legacy"), "--checkpoints", str(checkpoints),
+                     "--max-steps", "20", "--seeds", "1", "--settings", f"trace:{trace}", "--injection",
+                     "legacy-fifo", "--no-progress", "--workers", "0"]) == 2

@@ -46,16 +46,39 @@ def test_grid_cells_are_the_product_plus_the_missing_references():
         [("bm", "const:0", 0), ("bm", "const:0", 1), ("expert", "const:0", 0), ("expert", "const:0", 1)]
 
 
-def test_cell_keys_are_unique_and_change_with_what_changes_the_run():
-    grid = SweepGrid(latencies=("const:0.1", "const:0.2"), seeds=(0, 1, 2), policies=("bm", "plm", "expert"),
+def test_cell_keys_are_unique_and_change_with_what_changes_the_run(tmp_path):
+    grid = SweepGrid(latencies=("const:0.1", "const:0.2"), seeds=(0, 1, 2), policies=("expert",),
                      conditions={"a": {}, "b": {"env_config": {"speed_mps": 20}}})
-    keys = [cell.key(grid.settings(cell.condition, None)) for cell in grid.cells()]
+    inputs = grid.inputs()
+    keys = [cell.key(grid.settings(cell, inputs)) for cell in grid.cells()]
     assert len(set(keys)) == len(keys)
     cell = grid.cells()[0]
     changed = SweepGrid(latencies=grid.latencies, seeds=grid.seeds, policies=grid.policies,
                         conditions={"a": {"camera": {"pitch_deg": 9}}, "b": {}}, max_steps=10)
-    assert cell.key(grid.settings("a", None)) != cell.key(changed.settings("a", None))
-    assert cell.key(grid.settings("a", None)) != cell.key(grid.settings("a", "/some/checkpoints"))
+    assert cell.key(grid.settings(cell, inputs)) != cell.key(changed.settings(cell, inputs))
+    # typed: a pitch of 9 and of 9.0 are written differently, so they are not taken for one setting
+    typed = SweepGrid(latencies=grid.latencies, seeds=grid.seeds, policies=grid.policies,
+                      conditions={"a": {"camera": {"pitch_deg": 9.0}}, "b": {}}, max_steps=10)
+    assert cell.key(changed.settings(cell, inputs)) != cell.key(typed.settings(cell, inputs))
+    for part, value in (("tracks", {"test": "0" * 64}), ("kit_version", "0.0.0"),
+                        ("checkpoints", {"bm.pt": "1" * 64})):
+        other = {**inputs, part: value}
+        model_cell = type(cell)(cell.condition, cell.track, cell.latency, cell.seed, "bm")
+        assert model_cell.key(grid.settings(model_cell, inputs)) != model_cell.key(grid.settings(model_cell, other))
+
+
+def test_a_track_is_keyed_by_its_content_not_its_path(tmp_path):
+    """Two files called t.json in two directories are two tracks; one file edited is another track."""
+    from plm_highway.road.track import track_sha256
+
+    shipped = json.loads((__import__("importlib.resources").resources.files("plm_highway.road") / "tracks" /
+                          "test.json").read_text())
+    for name in ("one", "two"):
+        (tmp_path / name).mkdir()
+    (tmp_path / "one" / "t.json").write_text(json.dumps(shipped))
+    (tmp_path / "two" / "t.json").write_text(json.dumps({**shipped, "name": "another"}))
+    assert track_sha256(tmp_path / "one" / "t.json") != track_sha256(tmp_path / "two" / "t.json")
+    assert track_sha256(tmp_path / "one" / "t.json") == track_sha256(str(tmp_path / "one" / "t.json"))
 
 
 @given(st.integers(1, 50))

@@ -27,3 +27,19 @@ def tiny_checkpoints(tmp_path_factory) -> Path:
     train_tapm(root / "data", root / "ckpt" / "tapm", root / "ckpt" / "bm", config=config)
     _BUILT["dir"] = root / "ckpt"
     return _BUILT["dir"]
+
+
+def other_tiny_checkpoints(tmp_path_factory) -> Path:
+    """A second tiny pair from the same data and another training seed: other weights, same layout (what
+    ``plm-highway train ... --overwrite`` into the same directory leaves)."""
+    if "other" in _BUILT:
+        return _BUILT["other"]
+    from plm_highway.training.train import TrainConfig, train_base_model, train_tapm
+
+    data = tiny_checkpoints(tmp_path_factory).parent / "data"
+    root = tmp_path_factory.mktemp("tiny_models_other")
+    config = TrainConfig(epochs=1, balance_max_per_bin=None, augmentation=None, show_progress=False, seed=1)
+    train_base_model(data, root / "ckpt" / "bm", config=config)
+    train_tapm(data, root / "ckpt" / "tapm", root / "ckpt" / "bm", config=config)
+    _BUILT["other"] = root / "ckpt"
+    return _BUILT["other"]

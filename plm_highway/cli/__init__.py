@@ -70,6 +70,14 @@ def _ascii_digits_only(parse):
     """An argparse type that first refuses digits other than 0-9: ``int``/``float`` would read Arabic-Indic or
     full-width digits as numbers that no reader of the command line would take them for."""
 
+    if parse is int or parse is float:  # Python's own would read '1_0' as 10: the kit's strict parsers instead
+        from plm_highway.cli._common import strict_float, strict_int
+
+        def any_float(text: str) -> float:  # nan and inf read, as float() reads them: range checks name them
+            return strict_float(text, non_finite=True)
+
+        parse = strict_int if parse is int else any_float
+
     def checked(text):
         if isinstance(text, str):
             for char in text:

@@ -17,14 +17,39 @@ class Command:
     description: str | None = None
 
 
+def strict_int(text: str) -> int:
+    """An argparse type: an integer in the digits 0-9 (no '_' separators, no other scripts' digits)."""
+    from plm_highway.errors import BadInput
+    from plm_highway.io.bounded import parse_int_text
+
+    try:
+        return parse_int_text(text, "value")
+    except BadInput as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("value: ")) from None
+
+
+strict_int.__name__ = "integer"
+
+
+def strict_float(text: str, *, non_finite: bool = False) -> float:
+    """An argparse type: a decimal number in the digits 0-9 (no '_' separators, no other scripts' digits)."""
+    from plm_highway.errors import BadInput
+    from plm_highway.io.bounded import parse_float_text
+
+    try:
+        return parse_float_text(text, "value", non_finite=non_finite)
+    except BadInput as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("value: ")) from None
+
+
+strict_float.__name__ = "number"
+
+
 def bounded_int(minimum: int, maximum: int) -> Callable[[str], int]:
     """An argparse type: an integer in [minimum, maximum], refused by name otherwise."""
 
     def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        value = strict_int(text)
         if not minimum <= value <= maximum:
             raise argparse.ArgumentTypeError(f"{value} is outside the accepted range [{minimum}, {maximum:,}]")
         return value
@@ -37,10 +62,7 @@ def bounded_float(minimum: float, maximum: float, *, open_minimum: bool = False)
     """An argparse type: a finite number in [minimum, maximum] (or (minimum, maximum] if ``open_minimum``)."""
 
     def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        value = strict_float(text, non_finite=True)
         low_ok = value > minimum if open_minimum else value >= minimum
         if not math.isfinite(value) or not low_ok or value > maximum:
             bracket = "(" if open_minimum else "["

@@ -24,10 +24,9 @@ MIN_BLOCK_S = 1.0
 
 def finite_nonzero(text: str) -> float:
     """An argparse type: a finite, non-zero number (a scale factor)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    from plm_highway.cli._common import strict_float
+
+    value = strict_float(text, non_finite=True)
     if not math.isfinite(value) or value == 0:
         raise argparse.ArgumentTypeError(f"must be a finite, non-zero number, got {text}")
     return value

@@ -108,6 +108,7 @@ def read_dataset(data_dir: str | Path, mmap: bool = True) -> Dataset:
         raise BadInput(f"{steps_path}: not a readable .npz of step columns ({exc})") from exc
     steps = _validated_columns(steps, len(frames), source=str(steps_path))
     _check_counts(manifest_path, manifest, frames, steps)
+    _check_against_manifest(manifest_path, manifest, frames, steps)
     return Dataset(manifest=manifest, frames=frames, steps=steps)
 
 
@@ -178,6 +179,38 @@ def _load_frames(path: Path, mmap: bool) -> np.ndarray:
     return np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)
 
 
+# Label and setting ranges: what a collector can have written. A value outside is an edited or foreign file.
+LABEL_RANGES = {"steering": (-1.0, 1.0), "executed_steering": (-1.0, 1.0), "speed_mps": (0.0, 100.0)}
+MANIFEST_RANGES = {"speed_mps": (0.1, 100.0), "max_steering_rad": (0.01, 1.5), "camera.pitch_deg": (-45.0, 45.0),
+                   "camera.fov_deg": (1.0, 179.0), "camera.mount_height_m": (0.05, 20.0)}
+SPEED_AGREEMENT = 0.05  # the recorded speeds' median within 5% of a constant manifest speed
+
+
+def _check_against_manifest(path: Path, manifest: dict, frames: np.ndarray, steps: dict[str, np.ndarray]) -> None:
+    """The manifest's settings in their ranges, and agreeing with what the data holds where the data shows them:
+    the frame size against the camera's, the recorded speed against a constant manifest speed."""
+    for dotted, (low, high) in MANIFEST_RANGES.items():
+        node = manifest
+        for part in dotted.split("."):
+            node = node.get(part) if isinstance(node, dict) else None
+        if node is None or isinstance(node, dict):
+            continue  # absent, or a schedule (speed): nothing to compare
+        if isinstance(node, bool) or not isinstance(node, (int, float)) or not low <= node <= high:
+            raise BadInput(f"{path}: field {dotted!r} = {node!r} is outside [{low:g}, {high:g}]")
+    camera = manifest.get("camera") if isinstance(manifest.get("camera"), dict) else {}
+    size = (camera.get("height_px"), camera.get("width_px"))
+    if all(isinstance(v, int) and not isinstance(v, bool) for v in size) and frames.ndim == 3 \
+            and tuple(frames.shape[1:]) != size:
+        raise BadInput(f"{path}: camera is {size[0]}x{size[1]} px but frames.npy holds {frames.shape[1]}x"
+                       f"{frames.shape[2]} frames; the manifest does not describe this data")
+    speed = manifest.get("speed_mps")
+    if isinstance(speed, (int, float)) and not isinstance(speed, bool) and len(steps["speed_mps"]):
+        recorded = float(np.median(steps["speed_mps"]))
+        if abs(recorded - speed) > SPEED_AGREEMENT * speed:
+            raise BadInput(f"{path}: field 'speed_mps' = {speed:g} m/s but the recorded speeds' median is "
+                           f"{recorded:.3g} m/s (steps.npz); the manifest does not describe this data")
+
+
 def _validated_columns(steps: dict[str, np.ndarray], n_rows: int, source: str) -> dict[str, np.ndarray]:
     missing = sorted(set(STEP_COLUMNS) - set(steps))
     unknown = sorted(set(steps) - set(STEP_COLUMNS))
@@ -191,5 +224,12 @@ def _validated_columns(steps: dict[str, np.ndarray], n_rows: int, source: str) -
         if values.dtype.kind == "f" and not np.all(np.isfinite(values)):
             row = int(np.flatnonzero(~np.isfinite(values))[0])
             raise BadInput(f"{source}: column {name!r} is not finite at row {row}")
+        if name in LABEL_RANGES:
+            low, high = LABEL_RANGES[name]
+            outside = np.flatnonzero((values < low) | (values > high))
+            if len(outside):
+                row = int(outside[0])
+                raise BadInput(f"{source}: column {name!r} = {float(values[row]):g} at row {row} is outside "
+                               f"[{low:g}, {high:g}] ({len(outside)} row(s) outside)")
         columns[name] = values
     return columns

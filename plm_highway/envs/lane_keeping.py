@@ -356,11 +356,21 @@ class LaneKeepingCameraEnv(AbstractEnv):
         """Front-wheel angle for a normalised action, as highway-env's ``ContinuousAction`` maps it:
         clipped to [-1, 1] and mapped linearly in the action's own dtype (float32 actions give
         float32-rounded angles, exactly as before). Anything but one finite number is refused: a
-        policy that produces NaN must stop the run, and a (1, 1) or (2,) action is a bug upstream."""
+        policy that produces NaN must stop the run, and a (1, 1) or (2,) action is a bug upstream.
+
+        The action space is a float Box: a NumPy array must hold floats (an integer array, uint8 above all, would
+        wrap around in the mapping); a plain list or tuple of Python numbers is read as float64, as gymnasium's
+        ``Box.contains`` reads it."""
         array = np.asarray(action)
         if array.shape != (1,) or array.dtype.kind not in "fiu":
             raise BadInput(f"action {_short(action)}: expected one number (normalised steering in [-1, 1]) in "
                              f"an array of shape (1,), got shape {array.shape} and dtype {array.dtype}")
+        if array.dtype.kind in "iu":
+            if isinstance(action, np.ndarray):
+                raise BadInput(f"action {_short(action)}: the action space is Box(-1, 1, (1,), float32); got an "
+                               f"integer array of dtype {array.dtype}. Pass floats, e.g. np.array([0.0], np.float32) "
+                               f"or action.astype(np.float32)")
+            array = array.astype(np.float64)
         value = array[0]
         if not math.isfinite(value):
             raise BadInput(f"action {_short(action)}: steering must be finite; the policy produced {value}")

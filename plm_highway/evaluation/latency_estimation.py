@@ -206,7 +206,12 @@ def _policy(name: str, conditions, checkpoints):
     """The model policies, loaded once per process (each run resets them)."""
     from plm_highway.rollout.policies import make_policy
 
-    key = (name, conditions.latency_source, conditions.checkpoint_preset, checkpoints)
+    from plm_highway.io.digests import json_digest
+    from plm_highway.rollout.policies import checkpoint_pair_sha256
+
+    # by content: a pair retrained into the same directory while this process lives is another pair
+    contents = json_digest(checkpoint_pair_sha256(checkpoints, conditions.checkpoint_preset))
+    key = (name, conditions.latency_source, conditions.checkpoint_preset, contents)
     if key not in _POLICIES:
         _POLICIES[key] = make_policy(name, checkpoints, latency_source=conditions.latency_source,
                                      preset=conditions.checkpoint_preset)
@@ -300,29 +305,62 @@ def recording_round_trip(log, conditions) -> dict:
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def _cached(cache: Path | None, spec: RunSpec, max_steps: int | None) -> dict | None:
+def run_inputs(spec: RunSpec, checkpoints, _memo: dict | None = None) -> dict:
+    """What a run is made from, by content (its cache key besides the spec): the track's bytes, the checkpoint
+    pair's files (sha256; a pair retrained into the same ``--checkpoints`` is another pair, another directory
+    with the same files the same one), any ``trace:`` file's bytes and the kit's version."""
+    from plm_highway.io.digests import file_sha256, kit_version
+    from plm_highway.road.track import track_sha256
+    from plm_highway.rollout.policies import checkpoint_pair_sha256
+
+    memo = {} if _memo is None else _memo
+    preset = run_conditions(spec).checkpoint_preset
+    if ("pair", preset) not in memo:
+        memo[("pair", preset)] = checkpoint_pair_sha256(checkpoints, preset)
+    if ("track", spec.track) not in memo:
+        memo[("track", spec.track)] = track_sha256(spec.track)
+    kind, _, rest = spec.latency.partition(":")
+    return {"track_sha256": memo[("track", spec.track)], "checkpoints_sha256": memo[("pair", preset)],
+            "trace_sha256": file_sha256(rest, f"latency {spec.latency!r}: trace file") if kind == "trace" else None,
+            "kit_version": kit_version()}
+
+
+def _cached(cache: Path | None, spec: RunSpec, max_steps: int | None, inputs: dict) -> dict | None:
+    """A cached run's record when it was made from exactly these inputs and is as it was written (its digest
+    matches); otherwise None, and the run is driven again (its file is replaced: the cache is the kit's own)."""
     if cache is None:
         return None
-    import json
+    from plm_highway.io.bounded import JsonLimits, load_json
+    from plm_highway.io.digests import DIGEST_KEY, content_digest, json_digest
 
     path = cache / f"{spec.key}.json"
     if not path.is_file():
         return None
     try:
-        record = json.loads(path.read_text(encoding="utf-8"))
-    except ValueError:
+        record = load_json(path, JsonLimits(max_bytes=256 << 20, max_nodes=50_000_000), what="cached run")
+    except (OSError, BadInput):
         return None
-    return record if record.get("spec") == asdict(spec) and record.get("max_steps") == max_steps else None
+    if not isinstance(record, dict) or record.get(DIGEST_KEY) != content_digest(record):
+        return None
+    if (record.get("spec") != asdict(spec) or record.get("max_steps") != max_steps
+            or json_digest(record.get("inputs")) != json_digest(inputs)):
+        return None
+    return {key: value for key, value in record.items() if key not in ("inputs", DIGEST_KEY)}
 
 
-def _store(cache: Path | None, spec: RunSpec, record: dict) -> None:
+def _store(cache: Path | None, spec: RunSpec, record: dict, inputs: dict) -> None:
     if cache is None:
         return
-    from plm_highway.io import json_text
+    import json
 
+    from plm_highway.io import json_text
+    from plm_highway.io.digests import DIGEST_KEY, content_digest
+
+    stored = json.loads(json_text({**record, "inputs": inputs}))
+    stored[DIGEST_KEY] = content_digest(stored)
     cache.mkdir(parents=True, exist_ok=True)
     staged = cache / f".{spec.key}.json.partial"
-    staged.write_text(json_text(record), encoding="utf-8")
+    staged.write_text(json_text(stored), encoding="utf-8")
     staged.replace(cache / f"{spec.key}.json")
 
 
@@ -346,7 +384,10 @@ def drive_suite(suite: LatencySuite, cache=None, workers: int = 0, checkpoints=N
 
     cache = None if cache is None else Path(cache)
     runs = plan(suite)
-    records: list[dict | None] = [_cached(cache, spec, suite.max_steps(spec.conditions)) for spec in runs]
+    memo: dict = {}
+    inputs = [run_inputs(spec, checkpoints, memo) for spec in runs] if cache is not None else [None] * len(runs)
+    records: list[dict | None] = [_cached(cache, spec, suite.max_steps(spec.conditions), run_inputs_)
+                                  for spec, run_inputs_ in zip(runs, inputs)]
     todo = [i for i, record in enumerate(records) if record is None]
     bar = tqdm(total=len(runs), initial=len(runs) - len(todo), desc="latency estimation", unit="run",
                disable=not progress, file=sys.stderr)
@@ -361,7 +402,7 @@ def drive_suite(suite: LatencySuite, cache=None, workers: int = 0, checkpoints=N
         # Kept as the cache reads it back (JSON: inf and NaN become None), so a resumed measurement summarises
         # exactly what an uninterrupted one does.
         records[index] = json.loads(json_text(record))
-        _store(cache, runs[index], record)
+        _store(cache, runs[index], record, inputs[index])
         if on_record is not None:
             on_record(runs[index], record)
         bar.update(1)

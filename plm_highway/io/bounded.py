@@ -15,14 +15,18 @@ dataset manifests, output markers, sweep cells, latency traces). Each limit is e
   without saying where they were);
 - a key given twice in one object (JSON and YAML parsers silently keep the last one).
 
-Numbers in text fields (latency specs, seed lists, command-line options) must use the ASCII digits:
-Python's ``int``/``float`` also read Arabic-Indic, Devanagari and full-width digits, which a reader
-of the file would not take for the same number (:func:`refuse_non_ascii_digits`).
+Numbers in text (command-line options, seed lists, CSV cells, latency specs) are read by one strict
+parser, :func:`parse_int_text` and :func:`parse_float_text`: the ASCII digits 0-9 only (Python's
+``int``/``float`` also read Arabic-Indic, Devanagari and full-width digits, which a reader of the file
+would not take for the same number: :func:`refuse_non_ascii_digits`), no ``_`` separators (``int("1_0")``
+is 10), an integer where an integer is meant. In JSON and YAML documents a number must be a number:
+``seeds: ['1']`` is text, and refused where integers are meant.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import re
 import stat
 from dataclasses import dataclass
@@ -360,3 +364,53 @@ def refuse_non_ascii_digits(text: str, where: str) -> str:
         if not char.isascii() and char.isdecimal():
             raise BadInput(f"{where}: {text!r} holds the non-ASCII digit {char!r}; write numbers with the digits 0-9")
     return text
+
+
+_TEXT_INTEGER = re.compile(r"[+-]?[0-9]+")
+_TEXT_DECIMAL = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+_NON_FINITE = frozenset({"nan", "+nan", "-nan", "inf", "+inf", "-inf", "infinity", "+infinity", "-infinity"})
+MAX_TEXT_NUMBER_CHARS = 100
+
+
+def _number_text(text, where: str, what: str) -> str:
+    if not isinstance(text, str):
+        raise BadInput(f"{where}: expected {what} written as text, got {text!r}")
+    refuse_non_ascii_digits(text, where)
+    stripped = text.strip()
+    if len(stripped) > MAX_TEXT_NUMBER_CHARS:
+        raise BadInput(f"{where}: {stripped[:20]!r}... is {len(stripped):,} characters; {what} has at most "
+                       f"{MAX_TEXT_NUMBER_CHARS} (limit)")
+    if "_" in stripped:
+        raise BadInput(f"{where}: {text!r} holds '_'; write {what} without separators (digits 0-9 only)")
+    return stripped
+
+
+def parse_int_text(text: str, where: str) -> int:
+    """An integer written in text: optional sign and the digits 0-9, nothing else (no '_', no '1.0', no
+    Arabic-Indic digits); BadInput naming ``where`` and the text otherwise."""
+    stripped = _number_text(text, where, "an integer")
+    if not _TEXT_INTEGER.fullmatch(stripped):
+        raise BadInput(f"{where}: {text!r} is not an integer (optional sign and the digits 0-9)")
+    return int(stripped)
+
+
+def parse_float_text(text: str, where: str, *, non_finite: bool = False) -> float:
+    """A decimal number written in text (``-1.5``, ``2e-3``, ``.5``), digits 0-9 only, no '_';
+    ``non_finite``: also ``nan``/``inf`` (a recording's missing sample). BadInput naming ``where`` otherwise."""
+    stripped = _number_text(text, where, "a number")
+    if non_finite and stripped.lower() in _NON_FINITE:
+        return float(stripped)
+    if not _TEXT_DECIMAL.fullmatch(stripped):
+        raise BadInput(f"{where}: {text!r} is not a number (a plain decimal: digits 0-9, optional sign, point "
+                       "and exponent)")
+    value = float(stripped)
+    if not non_finite and not math.isfinite(value):
+        raise BadInput(f"{where}: {text!r} is not finite")
+    return value
+
+
+def require_int(value, where: str) -> int:
+    """An integer from a parsed JSON/YAML document: an int (not a bool, not text, not 1.0)."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise BadInput(f"{where}: expected an integer, got {value!r} ({type(value).__name__})")
+    return value

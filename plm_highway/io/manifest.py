@@ -60,6 +60,32 @@ def read_marker(directory: Path) -> Manifest | None:
     return Manifest(kind, files, frozenset(dirs))
 
 
+def marker_problem(directory: Path) -> str | None:
+    """Why the marker of ``directory`` cannot be trusted (a key given twice, not JSON, too large), or None when
+    it reads (or there is none). A damaged marker never counts as plm-highway's: replacing the directory on its
+    word is refused."""
+    from plm_highway.errors import BadInput
+    from plm_highway.io.bounded import JsonLimits, parse_json
+
+    path = directory / MARKER_NAME
+    try:
+        info = path.lstat()
+    except OSError:
+        return None
+    if not stat.S_ISREG(info.st_mode):
+        return f"{MARKER_NAME} is not a regular file"
+    if info.st_size > MAX_MARKER_BYTES:
+        return f"{MARKER_NAME} is {info.st_size:,} bytes, more than a marker holds ({MAX_MARKER_BYTES:,})"
+    try:
+        parse_json(path.read_bytes(), str(path), JsonLimits(max_bytes=MAX_MARKER_BYTES, max_depth=8,
+                                                            max_nodes=10_000_000))
+    except BadInput as exc:
+        return str(exc)
+    except OSError as exc:
+        return f"{path}: cannot be read ({exc.strerror or exc})"
+    return None
+
+
 def marker_text(kind: str, files: dict[str, dict] | None = None, dirs=()) -> str:
     from plm_highway._version import __version__
 

@@ -60,6 +60,7 @@ from plm_highway.io.manifest import (
     MARKER_NAME,
     ancestors,
     file_record,
+    marker_problem,
     marker_text,
     read_marker,
     record_matches,
@@ -300,6 +301,9 @@ def check_target(path: str | os.PathLike, kind: OutputKind, *, overwrite: bool =
                             "plm-highway does not write through links")
     if not target.exists():
         _check_parent(target, kind)
+        if _live_writer(target):
+            raise OutputRefused(_another_writer(text))
+        _SEEN_ABSENT.add(_identity(target))
         return target
     there = describe_existing(target)
     if kind.is_dir and not target.is_dir():
@@ -312,13 +316,48 @@ def check_target(path: str | os.PathLike, kind: OutputKind, *, overwrite: bool =
                             "nothing was changed. Write the output to another path")
     if kind.is_dir and not any(target.iterdir()):
         return target  # an empty directory holds nothing to lose (e.g. made with mkdir beforehand)
+    if kind.is_dir and (problem := marker_problem(target)) is not None:
+        raise OutputRefused(f"refusing to replace {text!r}: its marker cannot be trusted ({problem}); nothing was "
+                            "changed. Move the directory away yourself, or choose a new path")
     if not kind.recognises(target):
         raise OutputRefused(f"refusing to replace {text!r}: it is {there}, not {kind.describe} that plm-highway "
                             "wrote; nothing was changed. Choose a new path, or move it away yourself")
     if not overwrite:
+        if _live_writer(target) or (_identity(target) in _SEEN_ABSENT and _identity(target) not in _PUBLISHED_HERE):
+            raise OutputRefused(_another_writer(text) + " (it was not there when this run started)")
         raise OutputRefused(f"{text!r} already holds {kind.describe} (an earlier output); pass --overwrite to "
                             "replace it, or choose a new path")
     return target
+
+
+# Targets this process found absent, and those it published: a target found absent and now there, that this process
+# did not publish, was written by another plm-highway meanwhile (its author is named, not --overwrite advised).
+_SEEN_ABSENT: set[str] = set()
+_OWN_STAGING: set[Path] = set()  # this process's staging directories (live, but not another writer)
+_PUBLISHED_HERE: set[str] = set()
+
+
+def _identity(target: Path) -> str:
+    with contextlib.suppress(OSError, RuntimeError):
+        return str(target.resolve())
+    return str(target.absolute())
+
+
+def _another_writer(text: str) -> str:
+    return (f"another plm-highway is writing {text!r}; wait for it to finish or choose another path; nothing was "
+            "changed")
+
+
+def _live_writer(target: Path) -> bool:
+    """Whether a live plm-highway process holds a staging directory for ``target`` (it is being written now)."""
+    parent = target.parent
+    prefix = _staging_prefix(target)
+    with contextlib.suppress(OSError):
+        for candidate in parent.iterdir():
+            if (candidate.name.startswith(prefix) and candidate not in _OWN_STAGING and _is_claimed(candidate, target)
+                    and _staging_is_live(candidate)):
+                return True
+    return False
 
 
 def _directory_input(target: Path, protect: Sequence[str | os.PathLike]) -> Path | None:
@@ -421,6 +460,7 @@ def _new_staging_dir(target: Path) -> tuple[Path, int]:
             os.close(fd)
         shutil.rmtree(fresh, ignore_errors=True)
         raise
+    _OWN_STAGING.add(staging_dir)
     return staging_dir, fd
 
 
@@ -511,6 +551,7 @@ def _stage(target: Path, kind: OutputKind, overwrite: bool, update: tuple[str, .
 
 
 def _discard(staged: _Staged) -> None:
+    _OWN_STAGING.discard(staged.staging_dir)
     with contextlib.suppress(OSError):
         os.close(staged.lock_fd)
     shutil.rmtree(staged.staging_dir, ignore_errors=True)
@@ -710,6 +751,7 @@ def _publish(staged: _Staged) -> None:
     elif not _renameat2(source, target, _RENAME_NOREPLACE):
         os.rename(source, target)
     staged.published = True
+    _PUBLISHED_HERE.add(_identity(target))
 
 
 _RENAME_NOREPLACE, _RENAME_EXCHANGE = 1, 2
@@ -763,17 +805,23 @@ def write_outputs(targets: Sequence[tuple[str | os.PathLike, OutputKind]], *, ov
     try:
         for path, kind in targets:
             staged.append(_stage(path, kind, overwrite, update, extra))
-        yield [item.path for item in staged]
+        try:
+            yield [item.path for item in staged]
+        except OSError as exc:
+            raise _naming_output(exc, targets) from None
         with _parent_locks([item.target for item in staged]):
             for item in staged:  # all checks first: a refusal publishes nothing
                 _recheck(item, extra)
             plans = [_plan(item, extra) for item in staged]
-            for item, plan in zip(staged, plans):
-                if item.kind.is_dir:
-                    _carry(item, plan)
-                    _seal(item, plan)
-            for item in staged:
-                _publish(item)
+            try:
+                for item, plan in zip(staged, plans):
+                    if item.kind.is_dir:
+                        _carry(item, plan)
+                        _seal(item, plan)
+                for item in staged:
+                    _publish(item)
+            except OSError as exc:
+                raise _naming_output(exc, targets) from None
         for item, plan in zip(staged, plans):
             _warn(item, plan)
     finally:
@@ -784,10 +832,22 @@ def write_outputs(targets: Sequence[tuple[str | os.PathLike, OutputKind]], *, ov
                 _remove_created(item.created_parents)
 
 
+def _naming_output(exc: OSError, targets) -> OSError:
+    """``exc`` with the output it happened to named: a full disk (``ENOSPC``) or a quota raised by a write or a
+    close carries no path of its own."""
+    if exc.filename is not None:
+        return exc
+    names = ", ".join(repr(str(path)) for path, _ in targets)
+    error = type(exc)(exc.errno, f"{exc.strerror or exc} (writing {names}; nothing was published)",
+                      str(targets[0][0]) if len(targets) == 1 else names)
+    return error
+
+
 def _recheck(staged: _Staged, extra: tuple[_Input, ...]) -> None:
     if not staged.existed and os.path.lexists(staged.target):
-        raise OutputRefused(f"{str(staged.target)!r} appeared while this run was working (another process wrote "
-                            "it); nothing was published. Look at what is there, then run again with another path")
+        who = "another plm-highway" if staged.kind.recognises(staged.target) else "another program"
+        raise OutputRefused(f"{who} wrote {str(staged.target)!r} while this run was working; nothing was published. "
+                            "Wait for it to finish or choose another path")
     try:
         check_target(staged.target, staged.kind, overwrite=staged.overwrite or staged.update is not None,
                      protect=[p.path for p in extra])

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.errors import BadInput
+from plm_highway.io.bounded import parse_float_text
 from plm_highway.io import write_csv_into
 from plm_highway.latency.estimate import LatencyEstimatorConfig, estimate_stream
 
@@ -79,10 +80,7 @@ def read_lane_recording(path: str | os.PathLike) -> dict[str, np.ndarray] | None
                 if text == "" and name in LANE_COLUMNS:
                     values[name].append(math.nan)
                     continue
-                try:
-                    number = float(text)
-                except ValueError:
-                    raise BadInput(f"{path}: line {line}, column {name!r}: {text[:40]!r} is not a number") from None
+                number = parse_float_text(text, f"{path}: line {line}, column {name!r}", non_finite=True)
                 if not math.isfinite(number):
                     raise BadInput(f"{path}: line {line}, column {name!r}: {text!r} is not finite")
                 values[name].append(number)

@@ -82,20 +82,39 @@ def load_track(name_or_path: str | Path) -> TrackSpec:
         source = f"track '{text_name}'"
     else:
         path = Path(name_or_path)
-        if not path.is_file():
-            raise FileNotFoundError(
-                f"track {text_name!r}: neither a shipped track {list(SHIPPED_TRACKS)} nor an existing file"
-            )
         source = str(path)
-        size = path.stat().st_size
-        if size > MAX_TRACK_FILE_BYTES:
-            raise BadInput(f"{source}: {size:,} bytes is larger than a track file may be "
-                             f"({MAX_TRACK_FILE_BYTES:,} bytes)")
-        with open(path, "rb") as handle:
-            data = handle.read(MAX_TRACK_FILE_BYTES + 1)  # the file may have grown since stat
-        if len(data) > MAX_TRACK_FILE_BYTES:
-            raise BadInput(f"{source}: more bytes than a track file may hold ({MAX_TRACK_FILE_BYTES:,} bytes)")
+        data = _track_bytes(path, text_name)
     return parse_track(_json_of(data, source), source=source)
+
+
+def _track_bytes(path: Path, text_name: str) -> bytes:
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"track {text_name!r}: neither a shipped track {list(SHIPPED_TRACKS)} nor an existing file"
+        )
+    source = str(path)
+    size = path.stat().st_size
+    if size > MAX_TRACK_FILE_BYTES:
+        raise BadInput(f"{source}: {size:,} bytes is larger than a track file may be "
+                       f"({MAX_TRACK_FILE_BYTES:,} bytes)")
+    with open(path, "rb") as handle:
+        data = handle.read(MAX_TRACK_FILE_BYTES + 1)  # the file may have grown since stat
+    if len(data) > MAX_TRACK_FILE_BYTES:
+        raise BadInput(f"{source}: more bytes than a track file may hold ({MAX_TRACK_FILE_BYTES:,} bytes)")
+    return data
+
+
+def track_sha256(name_or_path: str | Path) -> str:
+    """The sha256 of the bytes a track is read from (a shipped track's resource, or the file): what a result
+    made on it is keyed by (two files called ``t.json`` in two directories are two tracks)."""
+    import hashlib
+
+    text_name = str(name_or_path)
+    if text_name in SHIPPED_TRACKS:
+        data = resources.files("plm_highway.road").joinpath("tracks", f"{text_name}.json").read_bytes()
+    else:
+        data = _track_bytes(Path(name_or_path), text_name)
+    return hashlib.sha256(data).hexdigest()
 
 
 def resolve_track(track: TrackSpec | Mapping | str | Path, source: str = "track") -> TrackSpec:

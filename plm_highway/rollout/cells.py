@@ -271,16 +271,27 @@ def _drive_chunk(chunk: _Chunk) -> list[RunLog]:
     """A worker: the chunk's runs batched, with the model policies this process loaded once."""
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     models = _load_models(chunk.cells,
-                          lambda name: worker_policy(name, chunk.checkpoints, chunk.preset, chunk.device))
+                          lambda name: worker_policy(name, chunk.checkpoints, chunk.preset, chunk.device,
+                                                      _pair_contents(chunk.checkpoints, chunk.preset)))
     with single_threaded_inference():
         return drive_batched(chunk.cells, [_policy_for(cell, models) for cell in chunk.cells], chunk.batch_size)
 
 
 @functools.lru_cache(maxsize=8)
-def worker_policy(name: str, checkpoints: str | None, preset: str, device: str = "cpu") -> VisionPolicy:
+def worker_policy(name: str, checkpoints: str | None, preset: str, device: str = "cpu",
+                  contents: str | None = None) -> VisionPolicy:
     """The named model policy, loaded once per process (pool workers keep it across chunks; call it with
-    positional arguments, as the workers do, to find what they loaded)."""
+    positional arguments, as the workers do, to find what they loaded). ``contents``: the digest of the pair's
+    files (:func:`_pair_contents`), so a pair retrained into the same directory while a worker lives (a Ray
+    cluster's) is loaded anew rather than served from this cache."""
     return make_policy(name, checkpoints, preset=preset, device=device)
+
+
+def _pair_contents(checkpoints: str | None, preset: str) -> str:
+    from plm_highway.io.digests import json_digest
+    from plm_highway.rollout.policies import checkpoint_pair_sha256
+
+    return json_digest(checkpoint_pair_sha256(checkpoints, preset))
 
 
 __all__ = ["DEFAULT_BATCH_SIZE", "ROLES", "Cell", "RunCell", "advancing", "check_env", "chunk_count",

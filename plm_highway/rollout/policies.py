@@ -107,6 +107,20 @@ def checkpoint_pair(checkpoint_dir=None, preset: str = SHIPPED_PRESET) -> tuple[
     )
 
 
+def checkpoint_pair_sha256(checkpoint_dir=None, preset: str = SHIPPED_PRESET) -> dict[str, str]:
+    """What the pair of :func:`checkpoint_pair` holds, by content: ``{"bm.pt": sha256, "bm.json": ..., "tapm.pt": ...,
+    "tapm.json": ...}``; a model retrained into the same directory gives other digests."""
+    from plm_highway.io.digests import file_sha256
+    from plm_highway.models.checkpoints import checkpoint_paths
+
+    digests = {}
+    for role, path in zip(("bm", "tapm"), checkpoint_pair(checkpoint_dir, preset)):
+        weights, description = checkpoint_paths(path)
+        digests[f"{role}.pt"] = file_sha256(weights, f"{role} checkpoint")
+        digests[f"{role}.json"] = file_sha256(description, f"{role} checkpoint description")
+    return digests
+
+
 def ekf_plant(conditions) -> dict:
     """What the EKF lane keeper must know of ``conditions`` (a :class:`~plm_highway.rollout.conditions.Conditions`):
     the camera, the steering range, the loop period, the actuator's lag and the processing delay (its LQR's
@@ -153,10 +167,36 @@ def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, lat
     # Batch-invariant kernels: a run's result does not depend on which runs shared its batch (or on
     # running alone), so batched, pooled and one-env runs of one seed give the same numbers.
     if name == "bm":
-        return VisionPolicy(inference.BaseModelPolicy(checkpoints.load_base_model(bm_path, device),
-                                                      batch_invariant=True))
-    return VisionPolicy(inference.PLMNetPolicy(checkpoints.load_plm_net(bm_path, tapm_path, device),
-                                               batch_invariant=True), latency_bias_s, latency_source)
+        model = checkpoints.load_base_model(bm_path, device)
+        check_preset(model.config, bm_path, checkpoint_dir, preset)
+        return VisionPolicy(inference.BaseModelPolicy(model, batch_invariant=True))
+    net = checkpoints.load_plm_net(bm_path, tapm_path, device)
+    check_preset(net.bm.config, bm_path, checkpoint_dir, preset)
+    return VisionPolicy(inference.PLMNetPolicy(net, batch_invariant=True), latency_bias_s, latency_source)
+
+
+def check_preset(config, bm_path, checkpoint_dir, preset: str) -> None:
+    """Refuse a checkpoint pair whose input size is not the one ``preset`` (that of the run's conditions) renders,
+    naming both presets, rather than failing at the first frame with the frame's shape."""
+    from plm_highway.errors import BadInput
+    from plm_highway.models.base_model import PRESETS
+
+    wanted = PRESETS.get(preset)
+    if wanted is None:
+        return
+    have = (config.image_size_px, config.input_channels)
+    if have == (wanted.image_size_px, wanted.input_channels):
+        return
+    theirs = next((name for name, c in PRESETS.items() if (c.image_size_px, c.input_channels) == have), None)
+    where = "the shipped checkpoints" if checkpoint_dir is None else f"the checkpoints at {str(checkpoint_dir)!r}"
+
+    def size(c) -> str:
+        return f"{c.image_size_px[0]}x{c.image_size_px[1]}, {c.input_channels} channel(s)"
+
+    are = f"preset {theirs!r} ({size(config)})" if theirs else f"an input of {size(config)}"
+    raise BadInput(f"{where} are {are} but these conditions need preset {preset!r} ({size(wanted)}); pass "
+                   f"--checkpoints with a {preset!r} pair (plm-highway train bm|tapm --preset {preset}) or choose "
+                   f"conditions for {theirs or 'that'} input ({Path(bm_path)})")
 
 
 def biased(policy: Policy, latency_bias_s: float) -> Policy:

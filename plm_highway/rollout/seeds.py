@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 from plm_highway.errors import BadInput
-from plm_highway.io.bounded import refuse_non_ascii_digits
+from plm_highway.io.bounded import parse_int_text, refuse_non_ascii_digits
 
 MAX_SEEDS = 1000  # per setting of a report; a sweep grid allows more (its own limit)
 SEED_LIMIT = 2 ** 32  # numpy seeds the env and the start perturbation with; a seed lies in [0, 2**32)
@@ -19,19 +19,22 @@ def parse_seeds(value: int | str | Iterable, first_seed: int = 0, *, limit: int 
     if isinstance(value, bool):
         raise BadInput(f"{what} {value!r}: expected a count (e.g. 5) or a list of seeds (e.g. 0,3,7)")
     if isinstance(value, int):
-        items, count = [value], True
+        numbers, count = [value], True
     elif isinstance(value, str):
         refuse_non_ascii_digits(value, what)
         items = [v.strip() for v in value.split(",")]
         count = len(items) == 1
+        try:
+            numbers = [parse_int_text(v, what) for v in items]
+        except BadInput as exc:
+            raise BadInput(f"{what} {value!r}: expected a count (e.g. 5) or a comma-separated list of seeds "
+                           f"(e.g. 0,3,7) in the digits 0-9 ({str(exc).removeprefix(what + ': ')})") from None
     else:
-        items, count = list(value), False
-    try:
-        numbers = [int(v) if isinstance(v, str) or (isinstance(v, int) and not isinstance(v, bool)) else _not_int(v)
-                   for v in items]
-    except ValueError:
-        raise BadInput(f"{what} {value!r}: expected a count (e.g. 5) or a comma-separated list of seeds "
-                       "(e.g. 0,3,7)") from None
+        numbers, count = list(value), False
+        for index, item in enumerate(numbers):  # a list from a file: numbers, not text ('1' is not the seed 1)
+            if isinstance(item, bool) or not isinstance(item, int):
+                raise BadInput(f"{what}[{index}] = {item!r}: a seed in a list must be an integer, not "
+                               f"{type(item).__name__}")
     if count:
         n = numbers[0]
         if not 1 <= n <= limit:
@@ -42,7 +45,3 @@ def parse_seeds(value: int | str | Iterable, first_seed: int = 0, *, limit: int 
     if len(set(numbers)) != len(numbers):
         raise BadInput(f"{what} {value!r}: a seed is repeated")
     return numbers
-
-
-def _not_int(value) -> int:
-    raise ValueError(value)

@@ -277,11 +277,15 @@ def _read_columns(path: Path, wanted: set[str] | None = None) -> tuple[list[str]
 
 def _parse_column(path: Path, name: str, values: list[str], line_numbers: np.ndarray) -> np.ndarray:
     out = np.empty(len(values))
+    from plm_highway.errors import BadInput
+    from plm_highway.io.bounded import parse_float_text
+
     for i, text in enumerate(values):
-        try:
-            out[i] = float(text)
-        except ValueError:
-            raise ValueError(f"{path}: column '{name}' line {line_numbers[i]}: {text!r} is not a number") from None
+        try:  # digits 0-9 only, no '_' (float() reads '1_0' as 10 and Arabic-Indic digits as numbers)
+            out[i] = parse_float_text(text, "", non_finite=True)
+        except BadInput as exc:
+            raise ValueError(f"{path}: column '{name}' line {line_numbers[i]}: {text!r} is not a number "
+                             f"({str(exc).removeprefix(': ')})") from None
     return out
 
 

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from plm_highway.errors import BadInput
+from plm_highway.io.bounded import parse_float_text
 from plm_highway.sim2real.effects import EFFECT_NAMES, EFFECTS
 from plm_highway.sim2real.replay import ANCHOR_S
 
@@ -40,10 +41,7 @@ def parse_effect_specs(specs: list[str]) -> dict[str, dict[str, float] | None]:
         for item in rest.split(","):
             key, eq, text = item.partition("=")
             key, text = (key.strip(), text) if eq else (primary, key)
-            try:
-                values[key] = float(text)
-            except ValueError:
-                raise BadInput(f"--effect {spec}: {text!r} is not a number") from None
+            values[key] = parse_float_text(text, f"--effect {spec}: {key}", non_finite=True)
             if not math.isfinite(values[key]):
                 raise BadInput(f"--effect {spec}: {key} must be a finite number, got {text!r}")
         out[name] = values

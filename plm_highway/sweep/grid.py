@@ -15,15 +15,15 @@ A grid comes from the command line or a small YAML/JSON file (Hydra-style lists 
 Every cell is one closed-loop run. For the steering error each policy needs its reference, the
 Base Model (the expert for the expert) without latency on the same condition, track and seed: the
 grid adds those cells (``const:0``) when it does not hold them already. A cell's :meth:`SweepCell.key`
-names its result file; it hashes everything that changes the run (the condition's settings, the
-checkpoints, the step limit), so a changed definition never resumes from a stale result.
+names its result file; it hashes everything the run is made from, by content (the condition's settings as
+typed, the step limit, the track and trace files' bytes, the checkpoint files' sha256, the kit's version:
+:meth:`SweepGrid.inputs`), so a changed definition or input never resumes from a stale result. Names are
+text (:func:`grid_name`): ``1`` and ``'1'`` never become one condition.
 """
 
 from __future__ import annotations
 
-import hashlib
 import itertools
-import json
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -42,6 +42,7 @@ MAX_GRID_FILE_BYTES = 1 << 20
 GRID_LIMITS = JsonLimits(max_bytes=MAX_GRID_FILE_BYTES, max_depth=16, max_nodes=200_000, max_int_digits=20,
                          max_expanded_chars=4 << 20)
 CONDITION_KEYS = ("camera", "env_config")
+MODEL_POLICIES = ("bm", "plm")  # the policies whose runs read the checkpoints
 GRID_KEYS = ("conditions", "latencies", "tracks", "seeds", "policies", "max_steps")
 
 
@@ -54,11 +55,13 @@ class SweepCell:
     policy: str
 
     def key(self, settings: Mapping) -> str:
-        """File-name-safe id: readable fields plus a hash of the cell and every setting of its run."""
+        """File-name-safe id: readable fields plus a digest of the cell and of everything its run is made from
+        (``settings``: :meth:`SweepGrid.settings`, contents and typed values, never paths)."""
+        from plm_highway.io.digests import json_digest
+
         readable = "_".join(str(v) for v in (self.policy, self.track, self.latency, f"s{self.seed}", self.condition))
         readable = re.sub(r"[^A-Za-z0-9.+-]+", "-", readable)[:80]
-        digest = hashlib.sha1(json.dumps([asdict(self), settings], sort_keys=True, default=str).encode()).hexdigest()
-        return f"{readable}-{digest[:12]}"
+        return f"{readable}-{json_digest([asdict(self), settings])[:16]}"
 
     @property
     def reference(self) -> SweepCell:
@@ -94,10 +97,32 @@ class SweepGrid:
         return (len(self.conditions) * len(self.tracks) * len(self.latencies) * len(self.seeds)
                 * len(self.policies))
 
-    def settings(self, condition: str, checkpoints) -> dict:
-        """What besides the cell's fields changes its run (hashed into its key)."""
-        return {"condition": dict(self.conditions[condition]), "max_steps": self.max_steps,
-                "checkpoints": None if checkpoints is None else str(Path(checkpoints).resolve())}
+    def settings(self, cell: SweepCell, inputs: Mapping) -> dict:
+        """What besides the cell's fields its run is made from (hashed into its key): the condition's settings and
+        the step limit as typed, the contents of its track and latency trace files, its checkpoints' sha256 (model
+        policies) and the kit's version. ``inputs``: :meth:`inputs`."""
+        return {"condition": self.conditions[cell.condition], "max_steps": self.max_steps,
+                "track_sha256": inputs["tracks"][cell.track], "trace_sha256": inputs["traces"].get(cell.latency),
+                "checkpoints_sha256": inputs["checkpoints"] if cell.policy in MODEL_POLICIES else None,
+                "kit_version": inputs["kit_version"]}
+
+    def inputs(self, checkpoints=None) -> dict:
+        """The contents the grid's runs read, as digests: every track file (a shipped track's too), every
+        ``trace:`` latency file, the checkpoint pair's files (when a model policy runs) and the kit's version.
+        Read once per sweep: a file changed since the last run gives its cells other keys, so they run again."""
+        from plm_highway.io.digests import file_sha256, kit_version
+        from plm_highway.road.track import track_sha256
+        from plm_highway.rollout.policies import checkpoint_pair_sha256
+
+        traces = {}
+        for spec in self.latencies + (REFERENCE_LATENCY,):
+            kind, _, rest = spec.strip().partition(":")
+            if kind == "trace":
+                traces[spec] = file_sha256(rest, f"sweep grid: latency {spec!r}: trace file")
+        models = any(cell.policy in MODEL_POLICIES for cell in self.cells())
+        return {"tracks": {track: track_sha256(track) for track in self.tracks}, "traces": traces,
+                "checkpoints": checkpoint_pair_sha256(checkpoints) if models else None,
+                "kit_version": kit_version()}
 
     def as_dict(self) -> dict:
         return {"conditions": {k: dict(v) for k, v in self.conditions.items()}, "latencies": list(self.latencies),
@@ -110,6 +135,11 @@ def check_grid(grid: SweepGrid) -> None:
     from plm_highway.latency import parse_profile
     from plm_highway.road.track import load_track
 
+    for name in ("latencies", "tracks", "policies"):
+        for index, value in enumerate(getattr(grid, name)):
+            grid_name(value, f"sweep grid: {name}[{index}]")
+    for name in grid.conditions:
+        grid_name(name, "sweep grid: condition name")
     for name in ("latencies", "tracks", "seeds", "policies"):
         values = getattr(grid, name)
         if not values:
@@ -161,14 +191,46 @@ def grid_from_mapping(data: Mapping, source: str = "grid") -> SweepGrid:
             raw = data[name]
             if isinstance(raw, str) or not isinstance(raw, Sequence):
                 raise BadInput(f"{source}: '{name}' must be a list, got {raw!r}")
-            values[name] = tuple(str(v) for v in raw)
+            values[name] = tuple(grid_name(v, f"{source}: {name}[{i}]") for i, v in enumerate(raw))
     if "seeds" in data:
         values["seeds"] = tuple(parse_seeds(data["seeds"], limit=MAX_SEEDS, what="sweep grid: seeds"))
     if "conditions" in data:
-        values["conditions"] = data["conditions"] if data["conditions"] is not None else {}
+        conditions = data["conditions"] if data["conditions"] is not None else {}
+        if not isinstance(conditions, Mapping):
+            raise BadInput(f"{source}: 'conditions' must be a mapping of names to settings, got {conditions!r}")
+        values["conditions"] = {grid_name(name, f"{source}: conditions name"): value
+                                for name, value in conditions.items()}
+        _refuse_merged(list(conditions), list(values["conditions"]), f"{source}: conditions")
     if "max_steps" in data:
         values["max_steps"] = data["max_steps"]
     return SweepGrid(**{name: values.get(name, getattr(defaults, name)) for name in GRID_KEYS})
+
+
+def grid_name(value, where: str) -> str:
+    """A name in a grid (a condition, track, latency spec or policy) as it is typed: text only.
+
+    A number is refused rather than turned into text: ``1`` and ``'1'`` are different YAML values that would
+    become one name (one condition in grid.json, its rows labelled alike). Surrounding spaces and characters
+    that Unicode normalisation (NFC) would change are refused too, so two names never differ invisibly.
+    """
+    import unicodedata
+
+    if not isinstance(value, str):
+        raise BadInput(f"{where} {value!r} is a {type(value).__name__}; names are text: write it in quotes "
+                       f"('{value}') if that is the name you mean")
+    if not value or value != value.strip():
+        raise BadInput(f"{where} {value!r}: a name is non-empty text without surrounding spaces")
+    if any(unicodedata.category(char).startswith("C") for char in value):
+        raise BadInput(f"{where} {value!r}: holds a control or invisible character")
+    if unicodedata.normalize("NFC", value) != value:
+        raise BadInput(f"{where} {value!r}: not in Unicode NFC form (it would compare unequal to the same name "
+                       "typed elsewhere); retype it")
+    return value
+
+
+def _refuse_merged(raw: list, names: list[str], where: str) -> None:
+    if len(set(names)) != len(names):
+        raise BadInput(f"{where}: {raw!r} name one thing twice")
 
 
 def load_grid(path: str | Path) -> SweepGrid:

@@ -16,7 +16,9 @@ chunks spread over the backend's workers (:mod:`plm_highway.rollout.backends`).
 
 from __future__ import annotations
 
+import json
 import math
+import os
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -35,6 +37,7 @@ from plm_highway.io import (
     write_json,
     write_output,
 )
+from plm_highway.io.digests import DIGEST_KEY, content_digest, json_digest
 from plm_highway.rollout.backends import make_backend
 from plm_highway.sweep.grid import SweepCell, SweepGrid
 from plm_highway.sweep.table import SWEEP_TABLE, TABLE_COLUMNS, cell_result, save_figures, table_rows
@@ -104,10 +107,12 @@ def run_sweep(grid: SweepGrid, out, workers: int | None = None, backend: str = "
         checkpoint_pair(checkpoints)  # fails now, naming what is missing, rather than in a worker
     runner = make_backend(backend, workers, address)
     try:
+        inputs = grid.inputs(checkpoints)  # contents, read once: a changed file gives its cells new keys
         _open_directory(out, grid, overwrite)
         cells = grid.cells()
-        keys = {cell: cell.key(grid.settings(cell.condition, checkpoints)) for cell in cells}
-        results = {cell: r for cell in cells if (r := _read_cell(out, keys[cell], cell)) is not None}
+        settings = {cell: grid.settings(cell, inputs) for cell in cells}
+        keys = {cell: cell.key(settings[cell]) for cell in cells}
+        results = {cell: r for cell in cells if (r := _read_cell(out, keys[cell], cell, settings[cell])) is not None}
         todo = [cell for cell in cells if cell not in results]
         n_workers = getattr(runner, "workers", 1)
         chunk_size = max(1, min(batch_size, math.ceil(len(todo) / max(1, n_workers))))
@@ -117,8 +122,9 @@ def run_sweep(grid: SweepGrid, out, workers: int | None = None, backend: str = "
         try:
             for index, chunk_results in runner.map_unordered(run_chunk, jobs):
                 for cell, result in zip(jobs[index].cells, chunk_results):
-                    write_json(out / "cells" / f"{keys[cell]}.json", {"cell": asdict(cell), **result}, SWEEP_CELL)
-                    results[cell] = result
+                    record = cell_record(cell, settings[cell], result)
+                    write_json(out / "cells" / f"{keys[cell]}.json", record, SWEEP_CELL)
+                    results[cell] = record  # as a resumed run reads it back (NaN as None): both give one table
                 bar.update(len(jobs[index].cells))
         finally:
             bar.close()
@@ -150,8 +156,20 @@ def _publish_set(out: Path, grid: SweepGrid, rows: list[dict]) -> list[Path]:
     return [out / "figures" / path.name for path in figures]
 
 
-def _read_cell(out: Path, key: str, cell: SweepCell) -> dict | None:
-    """A finished cell's result, or None. Files are written whole, so one that is there is complete."""
+def cell_record(cell: SweepCell, settings: dict, result: dict) -> dict:
+    """What a cell's file holds: the cell, what its run was made from, its result, and the digest of all that
+    (:data:`~plm_highway.io.digests.DIGEST_KEY`), as strict JSON reads it back."""
+    import json
+
+    record = json.loads(json_text({"cell": asdict(cell), "inputs": settings, **result}))
+    record[DIGEST_KEY] = content_digest(record)
+    return record
+
+
+def _read_cell(out: Path, key: str, cell: SweepCell, settings: dict) -> dict | None:
+    """A finished cell's result, or None (then it runs). Files are written whole, so one that is there is
+    complete; one whose content no longer matches the digest it was written with (edited by hand) is moved aside
+    to ``KEY.json.edited`` (kept, never overwritten) and the cell runs again."""
     path = out / "cells" / f"{key}.json"
     if not path.is_file():
         return None
@@ -161,7 +179,26 @@ def _read_cell(out: Path, key: str, cell: SweepCell) -> dict | None:
         raise BadInput(f"{path}: not a readable sweep cell result ({exc}); remove it to run the cell again") from None
     if not isinstance(data, dict) or data.get(JSON_MARKER_KEY) != SWEEP_CELL.name or data.get("cell") != asdict(cell):
         raise BadInput(f"{path}: not the result of cell {asdict(cell)}; remove it to run the cell again")
-    return data
+    record = {key_: value for key_, value in data.items() if key_ != JSON_MARKER_KEY}
+    why = None
+    if record.get(DIGEST_KEY) != content_digest(record):
+        why = "its content does not match the digest it was written with (edited since)"
+    elif json_digest(record.get("inputs")) != json_digest(json.loads(json_text(settings))):
+        why = "it was made from other inputs"
+    if why is None:
+        return record
+    aside = _unused_path(path.with_name(path.name + ".edited"))
+    os.rename(path, aside)
+    print(f"warning: {path}: {why}; moved to {aside.name} and run again", file=sys.stderr)
+    return None
+
+
+def _unused_path(path: Path) -> Path:
+    candidate, number = path, 1
+    while os.path.lexists(candidate):
+        number += 1
+        candidate = path.with_name(f"{path.name}-{number}")
+    return candidate
 
 
 def _progress(total: int, done: int, enabled: bool):

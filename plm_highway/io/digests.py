@@ -1,0 +1,74 @@
+"""What a result was made from, by content: the key of every reuse (sweep cells, estimate caches).
+
+A result is reused only when everything it was made from is the same *content*: the bytes of a track
+file or a latency trace (never its path: ``t.json`` in two working directories is two tracks), the
+sha256 of every checkpoint file (a retrained model in the same directory is another model), the
+settings with their types (``1`` and ``'1'`` differ) and the kit's version. A stored result carries the
+digest of its own content too (:func:`content_digest`), so a result edited by hand is recognised and
+made again rather than used.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+from plm_highway.errors import BadInput
+
+DIGEST_KEY = "content_sha256"  # in a stored result: the sha256 of the rest of it (see content_digest)
+
+
+def file_sha256(path: str | Path, what: str = "input file") -> str:
+    """The sha256 of a file's bytes; BadInput naming the file when it cannot be read."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as handle:
+            return hashlib.file_digest(handle, "sha256").hexdigest()
+    except OSError as exc:
+        raise BadInput(f"{what} {str(path)!r}: cannot be read ({exc.strerror or exc})") from None
+
+
+def files_sha256(paths: Iterable[str | Path], what: str = "input file") -> dict[str, str]:
+    """``{file name: sha256}`` of each file (names only: where the files lie is not what they hold)."""
+    return {Path(path).name: file_sha256(path, what) for path in paths}
+
+
+def _canonical(value):
+    """``value`` as typed JSON: keys sorted; text, integers, floats and booleans stay apart (``1``, ``1.0``,
+    ``'1'`` and ``True`` are four values); NaN and infinities as JSON's null, the way a stored result reads back."""
+    if isinstance(value, Mapping):
+        return {str(key): _canonical(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_canonical(item) for item in value]
+    if hasattr(value, "item") and getattr(value, "ndim", None) == 0:
+        value = value.item()
+    if isinstance(value, float):
+        return None if not math.isfinite(value) else {"float": repr(value)}
+    if isinstance(value, bool):
+        return {"bool": value}
+    if isinstance(value, int):
+        return {"int": str(value)}
+    if value is None or isinstance(value, str):
+        return value
+    return {type(value).__name__: str(value)}
+
+
+def json_digest(value) -> str:
+    """The sha256 of ``value`` in a canonical, typed JSON form (see :func:`_canonical`)."""
+    text = json.dumps(_canonical(value), sort_keys=True, separators=(",", ":"), ensure_ascii=True)
+    return hashlib.sha256(text.encode("ascii")).hexdigest()
+
+
+def content_digest(record: Mapping, *, ignore: Iterable[str] = ()) -> str:
+    """The digest of a stored result without its own digest (and the keys in ``ignore``)."""
+    skipped = {DIGEST_KEY, *ignore}
+    return json_digest({key: value for key, value in record.items() if key not in skipped})
+
+
+def kit_version() -> str:
+    from plm_highway._version import __version__
+
+    return __version__
