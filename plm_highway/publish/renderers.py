@@ -66,7 +66,7 @@ def population_status(root: Path) -> str:
 
 
 def estimation_table3(root: Path) -> str:
-    """Seed paper 004's Table 3 in simulation beside the paper's RMSE (``plm-highway estimate table3``)."""
+    """The EKF paper's Table 3 in simulation beside the paper's RMSE (``plm-highway estimate table3``)."""
     from plm_highway.estimation.table3 import readme_table
 
     return readme_table(_json(root, TABLE3))
