@@ -45,12 +45,14 @@ def configure(parser) -> None:
     parser.add_argument("--json", metavar="OUT.json", help="write the result JSON here")
     parser.add_argument("--out", metavar="DIR", help="write result.json and per-step CSV logs (one per run, and "
                                                      "steps.csv with the runs side by side) into this directory")
+    parser.add_argument("--print-json", action="store_true",
+                        help="print the full result JSON instead of the short summary")
     add_overwrite(parser)
     add_device(parser)
 
 
 def run(args) -> int:
-    from plm_highway.evaluation.evaluate import EVALUATION_DIR, EVALUATION_JSON, evaluate, publish_results
+    from plm_highway.evaluation.evaluate import EVALUATION_DIR, EVALUATION_JSON, evaluate, publish_results, summary_lines
     from plm_highway.io import check_target, json_text
     from plm_highway.rollout.policies import single_threaded_inference
 
@@ -61,9 +63,15 @@ def run(args) -> int:
         result, logs = evaluate(args.track, args.latency, args.policy, args.seed, args.max_steps, args.checkpoints,
                                 args.seeds, args.conditions, args.injection, device_of(args),
                                 latency_source=args.latency_source)
-    sys.stdout.write(json_text(result, EVALUATION_JSON))
     if args.json or args.out:
         publish_results(result, logs, args.json, args.out, overwrite=args.overwrite)
+    if args.print_json:
+        sys.stdout.write(json_text(result, EVALUATION_JSON))
+        return 0
+    print("\n".join(summary_lines(result)))
+    written = [path for path in (args.json, args.out) if path]
+    print(f"full result: {', '.join(map(str, written))}" if written else
+          "full result: --json OUT.json or --out DIR writes it (--print-json prints it)")
     return 0
 
 
