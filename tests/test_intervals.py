@@ -22,7 +22,9 @@ reductions = st.lists(st.floats(-1e4, 99.999), min_size=MIN_INTERVAL_VALUES, max
 def test_a_positive_quantity_is_interval_of_its_logarithms_by_hand():
     # log values 0, 1, 2: mean 1, sd 1; the 95% interval exp(1 -+ t(0.975, 2) / sqrt(3)) around e
     estimate = mean_ci([1.0, math.e, math.e**2], scale="positive")
-    assert estimate.mean == pytest.approx(math.e)
+    assert estimate.centre == pytest.approx(math.e)
+    assert estimate.mean == pytest.approx((1 + math.e + math.e**2) / 3)  # the arithmetic mean, inside the interval
+    assert estimate.low < estimate.mean < estimate.high
     assert estimate.low == pytest.approx(math.exp(1 - T_975_2 / math.sqrt(3)))
     assert estimate.high == pytest.approx(math.exp(1 + T_975_2 / math.sqrt(3)))
     assert prediction_interval([1.0, math.e, math.e**2], scale="positive") == pytest.approx(
@@ -33,7 +35,8 @@ def test_a_reduction_is_the_interval_of_the_ratio_by_hand():
     # ratios 0.5, 0.25, 0.125 (reductions 50, 75, 87.5%): log2 ratios -1, -2, -3, mean -2 -> ratio 0.25, reduction 75%
     estimate = mean_ci([50.0, 75.0, 87.5], scale="reduction")
     half = T_975_2 * math.log(2) / math.sqrt(3)  # sd of the natural logs: ln 2
-    assert estimate.mean == pytest.approx(75.0)
+    assert estimate.centre == pytest.approx(75.0)
+    assert estimate.mean == pytest.approx(212.5 / 3)
     assert estimate.low == pytest.approx(100 * (1 - 0.25 * math.exp(half)))
     assert estimate.high == pytest.approx(100 * (1 - 0.25 * math.exp(-half)))
     assert estimate.high < 100
@@ -49,7 +52,7 @@ def test_the_linear_interval_of_a_signed_quantity_is_unchanged():
 def test_zeros_keep_a_positive_interval_at_or_above_zero():
     # log(0) is undefined: the linear interval of 0, 1, 2 (mean 1, sd 1) clipped at 0
     estimate = mean_ci([0.0, 1.0, 2.0], scale="positive")
-    assert estimate.mean == 1.0 and estimate.low == 0.0
+    assert estimate.mean == estimate.centre == 1.0 and estimate.low == 0.0
     assert estimate.high == pytest.approx(1 + T_975_2 / math.sqrt(3))
     all_zero = mean_ci([0.0, 0.0, 0.0], scale="positive")
     assert (all_zero.mean, all_zero.low, all_zero.high) == (0.0, 0.0, 0.0)
@@ -82,7 +85,7 @@ def test_a_positive_quantitys_interval_lies_above_zero_and_contains_the_geometri
     estimate = mean_ci(values, scale="positive")
     geometric_mean = math.exp(sum(math.log(v) for v in values) / len(values))
     assert 0 < estimate.low <= estimate.high < math.inf
-    assert estimate.mean == pytest.approx(geometric_mean, rel=1e-9)
+    assert estimate.centre == pytest.approx(geometric_mean, rel=1e-9)
     assert estimate.low * (1 - 1e-12) <= geometric_mean <= estimate.high * (1 + 1e-12)
     pi_low, pi_high = prediction_interval(values, scale="positive")
     assert 0 < pi_low <= estimate.low * (1 + 1e-12) and estimate.high <= pi_high * (1 + 1e-12)
@@ -94,7 +97,7 @@ def test_a_reductions_interval_never_exceeds_100_percent_and_contains_its_centre
     estimate = mean_ci(values, scale="reduction")
     ratios = [1 - v / 100 for v in values]
     centre = 100 * (1 - math.exp(sum(math.log(r) for r in ratios) / len(ratios)))
-    assert estimate.mean == pytest.approx(centre, rel=1e-9, abs=1e-9)
+    assert estimate.centre == pytest.approx(centre, rel=1e-9, abs=1e-9)
     assert estimate.low <= estimate.high <= 100
     assert estimate.low - 1e-9 <= centre <= estimate.high + 1e-9
     pi_low, pi_high = prediction_interval(values, scale="reduction")
@@ -105,4 +108,11 @@ def test_a_reductions_interval_never_exceeds_100_percent_and_contains_its_centre
 @given(st.lists(st.floats(0, 1e3), min_size=MIN_INTERVAL_VALUES, max_size=20))
 def test_a_positive_quantitys_interval_never_goes_below_zero_even_with_zeros(values):
     estimate = mean_ci(values, scale="positive")
-    assert 0 <= estimate.low <= estimate.mean <= estimate.high
+    assert 0 <= estimate.low <= estimate.centre * (1 + 1e-9) and estimate.centre <= estimate.high * (1 + 1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(1e-6, 1e6), min_size=MIN_INTERVAL_VALUES, max_size=4))
+def test_with_three_or_four_values_the_arithmetic_mean_lies_inside_the_log_interval(values):
+    estimate = mean_ci(values, scale="positive")
+    assert estimate.low * (1 - 1e-9) <= estimate.mean <= estimate.high * (1 + 1e-9)

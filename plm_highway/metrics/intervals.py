@@ -1,16 +1,21 @@
-"""Centres over seeds or pairs with their confidence intervals: the one definition every report uses.
+"""Means over seeds or pairs with their confidence intervals: the one definition every report uses.
 
-:func:`mean_ci` gives the centre of a few values (one per seed or per trained pair) and a two-sided Student-t
+:func:`mean_ci` gives the mean of a few values (one per seed or per trained pair) and a two-sided Student-t
 confidence interval, computed on the scale that respects the quantity:
 
-- ``"linear"`` (a difference, a signed quantity): the arithmetic mean, ``mean +- t(1 - (1 - confidence) / 2, n - 1)
-  * s / sqrt(n)`` with ``s`` the sample standard deviation.
+- ``"linear"`` (a difference, a signed quantity): ``mean +- t(1 - (1 - confidence) / 2, n - 1) * s / sqrt(n)`` with
+  ``s`` the sample standard deviation.
 - ``"positive"`` (an RMS, an MAE, a Frechet distance, a maximum: never negative): the same interval of the logarithms,
-  exponentiated, around the geometric mean, so it lies in (0, inf). With a zero among the values the logarithm is
-  undefined; the linear interval is used then, its lower end clipped at 0.
+  exponentiated (the interval of the geometric mean), so it lies in (0, inf). With a zero among the values the
+  logarithm is undefined; the linear interval is used then, its lower end clipped at 0.
 - ``"reduction"`` (``100 * (1 - mitigated / baseline)`` in %, never above 100%): the interval of the ratios
-  ``mitigated / baseline`` on the log scale, mapped to ``100 * (1 - ratio)``; its centre is ``100 * (1 - the geometric
-  mean ratio)``. With a ratio of 0 among them (a mitigated error of 0), the linear interval of the ratios clipped at 0.
+  ``mitigated / baseline`` on the log scale, mapped to ``100 * (1 - ratio)``, so it never exceeds 100%. With a ratio
+  of 0 among them (a mitigated error of 0), the linear interval of the ratios, clipped at 0.
+
+``mean`` is the arithmetic mean on every scale (what targets and ratios are judged on); ``centre`` is the interval's
+own centre (the geometric mean, or ``100 * (1 - the geometric mean ratio)``), which the interval always contains. The
+arithmetic mean of positive values is never below the geometric one; with 3 or 4 values it always lies inside the
+interval too, with more and strongly skewed values it can lie above it (for a reduction: below it).
 
 The t quantile, not the normal one: with the handful of seeds a report runs, the normal quantile would give
 intervals too narrow (at n = 5 the 95% t quantile is 2.776, the normal 1.960). With fewer than
@@ -20,7 +25,7 @@ an interval of an RMS would reach far below 0 on the linear scale), so the inter
 meaningless interval.
 
 :func:`prediction_interval` gives the interval for one more value (one new seed or trained pair), on the same scale:
-``centre +- t * s * sqrt(1 + 1/n)`` in the working scale.
+``t * s * sqrt(1 + 1/n)`` about the centre in the working scale.
 """
 
 from __future__ import annotations
@@ -39,11 +44,10 @@ SCALES = ("linear", "positive", "reduction")
 
 @dataclass(frozen=True)
 class Estimate:
-    """Centre of ``n`` values with its two-sided confidence interval (``low``, ``high`` None when n < 3).
+    """Mean of ``n`` values with its two-sided confidence interval (``low``, ``high`` None when n < 3).
 
-    ``mean``: the centre on the quantity's scale (arithmetic mean for ``"linear"``, geometric mean for
-    ``"positive"``, ``100 * (1 - geometric mean ratio)`` for ``"reduction"``; see the module docstring).
     ``values``: the values themselves, in the order given (for reports that list them per seed).
+    ``scale`` and ``centre``: the scale the interval is computed on and the interval's centre (module docstring).
     """
 
     mean: float
@@ -52,6 +56,7 @@ class Estimate:
     n: int
     values: tuple[float, ...] = field(default=(), compare=False, repr=False)
     scale: str = field(default="linear", compare=False)
+    centre: float | None = field(default=None, compare=False, repr=False)
 
     @property
     def half_width(self) -> float | None:
@@ -126,16 +131,16 @@ def _t_half(working: np.ndarray, confidence: float) -> float:
 
 
 def mean_ci(values: Iterable[float], confidence: float = CONFIDENCE, scale: str = "linear") -> Estimate:
-    """Centre of ``values`` and its confidence interval on ``scale`` (module docstring); ValueError unless there is
+    """Mean of ``values`` and its confidence interval on ``scale`` (module docstring); ValueError unless there is
     at least one value, every value is finite and lies in the scale's range (a caller drops undefined values)."""
     data = _checked(values, confidence)
     working, logged = _working(data, scale)
     centre = float(np.mean(working))
-    kept = tuple(data.tolist())
+    mean, kept = float(np.mean(data)), tuple(data.tolist())
     if data.size < MIN_INTERVAL_VALUES:
-        return Estimate(_back(centre, scale, logged), None, None, int(data.size), kept, scale)
+        return Estimate(mean, None, None, int(data.size), kept, scale, _back(centre, scale, logged))
     low, high = _bounds(centre, _t_half(working, confidence) / math.sqrt(data.size), scale, logged)
-    return Estimate(_back(centre, scale, logged), low, high, int(data.size), kept, scale)
+    return Estimate(mean, low, high, int(data.size), kept, scale, _back(centre, scale, logged))
 
 
 def prediction_interval(values: Iterable[float], confidence: float = CONFIDENCE,

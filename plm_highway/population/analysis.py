@@ -2,12 +2,12 @@
 
 Simulator seeds are near-replicates of one pair (the same weights, starts within +-0.2 m); the training run is
 the larger source of variance. So every outcome is first averaged over a pair's seeds (seeds nested in pairs),
-and the statistics are across pairs: the centre with its 95% Student-t confidence interval, and the 95%
-**prediction interval** for one new pair made with the same recipe, ``centre +- t(0.975, K-1) * s * sqrt(1 + 1/K)``,
-which is what a user who trains one pair can expect. Both on the quantity's scale
-(:mod:`plm_highway.metrics.intervals`): errors (MAE, RMS, maximum, Frechet) on the log scale around their geometric
-mean, so never below 0; reductions through the ratio PLM-Net / BM on the log scale, so never above 100%; differences
-on the linear scale. With fewer than 3 pairs there is no interval.
+and the statistics are across pairs: the mean with its 95% Student-t confidence interval, and the 95%
+**prediction interval** for one new pair made with the same recipe, ``t(0.975, K-1) * s * sqrt(1 + 1/K)`` about the
+centre, which is what a user who trains one pair can expect. Both on the quantity's scale
+(:mod:`plm_highway.metrics.intervals`): errors (MAE, RMS, maximum, Frechet) on the log scale, so never below 0;
+reductions through the ratio PLM-Net / BM on the log scale, so never above 100%; differences on the linear scale.
+With fewer than 3 pairs there is no interval.
 
 A reduction is ``100 * (1 - PLM-Net / BM)`` of a pair's seed-mean errors. It rises with the BM's error by
 construction (the BM's error is its denominator), so the report also fits PLM-Net's error against the BM's
@@ -42,7 +42,7 @@ PAIR_OUTCOMES = ("steering_mae_paper", "steering_mae_paper_common", "offset_rms_
 
 @dataclass(frozen=True)
 class Spread:
-    """Centre across pairs, its confidence interval and the prediction interval for a new pair (None with n < 3)."""
+    """Mean across pairs, its confidence interval and the prediction interval for a new pair (None with n < 3)."""
 
     mean: float
     ci_low: float | None

@@ -291,7 +291,7 @@ def headline(document: dict) -> list[str]:
     return [
         f"{n} independently trained BM/PLM-Net pairs (recipe `{plan['recipe']['name']}`), {plan['conditions']} "
         f"conditions, {entry['label']} latency, whole test track, {len(plan['sim_seeds'])} simulator seeds each; "
-        f"geometric means over pairs, {statistics}:",
+        f"means over pairs, {statistics}:",
         f"steering MAE reduction {_bare(entry['mae_reduction_pct'], 1, '%')} (PLM-Net lower "
         f"in {shares['lower_mae']} of {shares['pairs']} pairs; the paper: "
         f"{_paper_reduction(setting)});",
@@ -336,9 +336,9 @@ def render_report(document: dict, figures: list[str]) -> str:
         "(paper unit, 1 = 450 deg of steering wheel), each step missed after leaving the road counted as a full-scale "
         "error; the lateral offset from the lane centre with missed steps held at the offset the car left with; the "
         "Frechet distance to the reference's path. The common-span MAE (judged only until a run leaves the road, as "
-        "the reproduction report does) is secondary. Statistics are over pairs (seeds averaged within a pair): errors "
-        "as geometric means with their 95% CI on the log scale (never below 0), reductions as 100 x (1 - the geometric "
-        "mean of PLM-Net / BM) with the CI of that ratio (never above 100%), and the 95% prediction interval (PI) for "
+        "the reproduction report does) is secondary. Statistics are over pairs (seeds averaged within a pair): means "
+        "with 95% CIs on the quantity's scale (errors on the log scale, never below 0; reductions through the ratio "
+        "PLM-Net / BM on the log scale, never above 100%), and the 95% prediction interval (PI) for "
         f"one new pair made with this recipe. With fewer than {MIN_INTERVAL_VALUES} pairs there are too few pairs for an "
         "interval: the tables then say \"no interval\" and \"no PI\".",
         "",
