@@ -629,7 +629,7 @@ def _constant_setting(settings: dict, latency_s: float) -> dict | None:
 OPEN_LOOP_VERDICTS = {
     "worse": "PLM-Net predicts the BM's action worse than holding the earlier one (the CI is below 0)",
     "better": "PLM-Net predicts the BM's action better than holding the earlier one (the CI is above 0)",
-    "undecided": "PLM-Net and holding the earlier action are not told apart (the CI spans 0, or one seed)",
+    "undecided": "PLM-Net and holding the earlier action are not told apart (the CI spans 0, or too few seeds for an interval)",
 }
 
 
