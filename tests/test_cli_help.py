@@ -33,7 +33,7 @@ def help_page(*words: str) -> tuple[str, list[str]]:
     return result.stdout, heavy
 
 
-@pytest.mark.parametrize("words", [("--help",), ("evaluate", "--help")])
+@pytest.mark.parametrize("words", [("--help",), ("evaluate", "--help"), ("demo", "zigzag", "--help")])
 def test_help_pages_import_no_torch_and_no_simulator(words):
     page, heavy = help_page(*words)
     assert "usage: plm-highway" in page
@@ -59,7 +59,10 @@ def test_the_help_read_from_source_equals_the_imported_library():
     from plm_highway.evaluation.evaluate import evaluate
     from plm_highway.rollout import conditions, policies
 
+    from plm_highway.evaluation.demo import zigzag
+
     assert static_defaults("plm_highway.evaluation.evaluate", "evaluate") == defaults_of(evaluate)
+    assert static_defaults("plm_highway.evaluation.demo", "zigzag") == defaults_of(zigzag)
     for name in ("CONDITION_NAMES", "LATENCY_SOURCE_NAMES"):
         assert static_names("plm_highway.rollout.conditions", name) == tuple(getattr(conditions, name))
     assert static_names("plm_highway.rollout.conditions", "INJECTION_LATENCY_SOURCE") == \
