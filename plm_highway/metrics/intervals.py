@@ -40,6 +40,7 @@ from scipy import stats
 CONFIDENCE = 0.95
 MIN_INTERVAL_VALUES = 3
 SCALES = ("linear", "positive", "reduction")
+MAX_LOG = math.log(np.finfo(float).max)
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,8 @@ def _back(value: float, scale: str, logged: bool) -> float:
     """A working-scale value on the quantity's scale."""
     if scale == "linear":
         return value
-    quantity = math.exp(value) if logged else max(0.0, value)
+    # exp saturates at the largest float's logarithm: values spanning hundreds of decades give a finite bound
+    quantity = math.exp(min(value, MAX_LOG)) if logged else max(0.0, value)
     return quantity if scale == "positive" else 100.0 * (1.0 - quantity)
 
 
