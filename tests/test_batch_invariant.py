@@ -127,3 +127,40 @@ def test_the_conv_stack_is_the_layer_by_layer_convolutions_bit_for_bit(preset):
     assert torch.equal(stacked, layer_by_layer)
     assert torch.equal(stacked, alone)
     torch.testing.assert_close(stacked, bm.convs(pixels), rtol=1e-5, atol=1e-5)
+
+
+KERNEL_VARIATION_CHECK = """
+import numpy as np, torch
+from plm_highway.models.inference import PLMNetPolicy
+from plm_highway.models.shipped import load_shipped_plm_net
+assert torch.backends.cpu.get_cpu_capability() == "DEFAULT", torch.backends.cpu.get_cpu_capability()
+plm_net = load_shipped_plm_net("default")
+rng = np.random.default_rng(7)
+height, width = plm_net.bm.config.image_size_px
+frames = rng.integers(0, 256, (9, height, width), dtype=np.uint8)
+speeds, latencies = rng.uniform(5, 30, 9), rng.choice([0.0, 0.1, 0.2, 0.25, 0.5], 9)
+for invariant in (True, False):
+    policy = PLMNetPolicy(plm_net, batch_invariant=invariant)
+    alone = np.array([policy.steer_batch(frames[i:i + 1], speeds[i:i + 1], latencies[i:i + 1])[0] for i in range(9)])
+    batched = policy.steer_batch(frames, speeds, latencies)
+    print(invariant, float(np.max(np.abs(batched - alone))))
+"""
+
+
+def test_the_properties_hold_with_the_generic_kernels_on_one_thread():
+    # Another processor makes PyTorch pick other kernels; ATEN_CPU_CAPABILITY=default forces the generic ones
+    # (no AVX2/AVX-512), which every x86-64 processor runs. The mode stays exact, the default kernels within
+    # one forward pass's rounding (tests/test_batched.py, ONE_FORWARD_ATOL).
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = {**os.environ, "ATEN_CPU_CAPABILITY": "default", "OMP_NUM_THREADS": "1",
+           "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
+    result = subprocess.run([sys.executable, "-c", KERNEL_VARIATION_CHECK], env=env, capture_output=True, text=True,
+                            timeout=300)
+    assert result.returncode == 0, result.stderr
+    differences = dict(line.split() for line in result.stdout.splitlines())
+    assert float(differences["True"]) == 0.0
+    assert float(differences["False"]) <= 1e-5

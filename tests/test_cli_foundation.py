@@ -96,10 +96,10 @@ def test_evaluate_expert_writes_json_and_csvs(tmp_path):
     run_dir = tmp_path / "results" / "run"
     out = run_dir / "result.json"
     result = plm("evaluate", "--policy", "expert", "--latency", "const:0.2", "--max-steps", "200",
-                 "--out", str(run_dir))
+                 "--out", str(run_dir), "--print-json")
     assert result.returncode == 0, result.stderr
     data = json.loads(out.read_text())
-    assert json.loads(result.stdout) == data  # the same result is printed
+    assert json.loads(result.stdout) == data  # --print-json: the same result is printed
     assert data["latency"] == "const:0.2" and data["policy"] == "expert" and data["track"] == "test"
     assert set(data["runs"]) == {"reference", "baseline"}
     for run in data["runs"].values():

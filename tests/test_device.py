@@ -313,12 +313,44 @@ def test_run_cells_refuses_cuda_without_cuda_before_driving(no_cuda):
 
 
 @needs_cuda
-def test_evaluate_on_cuda_drives_like_the_cpu():
+def test_the_models_on_cuda_steer_like_the_cpu_step_by_step():
+    # Identical inputs (what a CPU run gave its model, step by step), one forward pass on each device: the GPU sums
+    # float32 in another order, so the steering agrees to one forward pass's rounding (~1e-6 at |steering| <= 1; 1e-5
+    # as in the policies' test above). A closed loop is not compared: it feeds each step's difference back through
+    # the car and the camera, and how far it then drifts depends on the GPU.
+    from plm_highway.rollout.closed_loop import drive
+
+    calls = []
+    cpu = make_policy("plm")
+    model = cpu.model_policy
+
+    class Recording:
+        def __getattr__(self, name):
+            return getattr(model, name)
+
+        def __call__(self, frame, speed_mps, latency_s=0.0):
+            steering = model(frame, speed_mps, latency_s)
+            calls.append((np.array(frame), speed_mps, latency_s, steering))
+            return steering
+
+    cpu.model_policy = Recording()
+    drive("cpu", cpu, "test", "steps:0.0-0.35:1.0", 0, max_steps=40)
+    on_cuda = make_policy("plm", device="cuda").model_policy
+    frames, speeds, latencies, on_cpu = zip(*calls)
+    for start in range(0, len(calls), 8):  # batches of 8 steps
+        steering = on_cuda.steer_batch(np.stack(frames[start:start + 8]), speeds[start:start + 8],
+                                       latencies[start:start + 8])
+        np.testing.assert_allclose(steering, on_cpu[start:start + 8], rtol=0, atol=1e-5, err_msg=f"step {start}")
+
+
+@needs_cuda
+def test_evaluate_runs_on_cuda_with_the_cpus_latency_realisation():
     from plm_highway.evaluation.evaluate import evaluate
 
     on_cpu, _ = evaluate(max_steps=40, seeds=2, device="cpu")
     on_cuda, _ = evaluate(max_steps=40, seeds=2, device="cuda")
     for cpu_seed, cuda_seed in zip(on_cpu["per_seed"], on_cuda["per_seed"]):
+        assert cuda_seed["runs"].keys() == cpu_seed["runs"].keys()
         for role, run in cpu_seed["runs"].items():
-            # float32 sums in another order: the same car within millimetres over 2 s
-            assert cuda_seed["runs"][role]["lateral_offset_rms_m"] == pytest.approx(run["lateral_offset_rms_m"], abs=5e-3)
+            assert cuda_seed["runs"][role]["steps"] == run["steps"]
+            assert np.isfinite(cuda_seed["runs"][role]["lateral_offset_rms_m"])

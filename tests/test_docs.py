@@ -107,7 +107,7 @@ def test_ci_runs_the_readme_quick_start_then_its_test_commands_verbatim():
     quick, tests = commands("Quick start"), commands("Tests")
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
     assert quick[0] == "pip install torch==2.13.0"
-    assert "plm-highway demo zigzag --latency 0.25 --overwrite" in quick
+    assert "plm-highway demo zigzag --latency 0.25 --out runs/quickstart/zigzag.png --overwrite" in quick
     assert tests[-1] == "python -m pytest"
     for command in quick + tests:  # each one is a line of the README as written
         assert re.search(rf"^{re.escape(command)}$", readme, re.MULTILINE)
@@ -121,8 +121,38 @@ def test_ci_runs_the_readme_quick_start_then_its_test_commands_verbatim():
             cli.build_parser(argv).parse_args(argv)
 
 
+def test_the_quick_start_writes_only_under_the_ignored_runs_folder():
+    # a clean checkout stays clean (git status) after the Quick start: every output it names is under runs/
+    import shlex
+
+    outputs = []
+    for command in _readme_commands()("Quick start"):
+        words = shlex.split(command)
+        if words[0] != "plm-highway":
+            continue
+        argv = words[1:]
+        args = cli.build_parser(argv).parse_args(argv)
+        outputs += [value for name in ("out", "json") if (value := getattr(args, name, None))]
+    assert len(outputs) == 2 and all(Path(output).parts[0] == "runs" for output in outputs), outputs
+    assert "/runs/" in (ROOT / ".gitignore").read_text(encoding="utf-8").splitlines()
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert "plm-highway demo zigzag --latency 0.25 --out figures/zigzag.png --overwrite" in readme  # the committed one
+
+
+def test_the_readme_says_what_its_commands_need_and_skip():
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    lessons = readme[readme.index("## Lessons"):readme.index("## Commands")]
+    assert "PLM_FAST=1 jupyter lab lessons/" in lessons
+    tests = readme[readme.index("## Tests"):]
+    assert "Chromium and chromedriver" in tests and "../shared/real" in tests
+    quick = readme[readme.index("## Quick start"):readme.index("## Lessons")]
+    assert "--index-url https://download.pytorch.org/whl/cpu" in quick
+    assert "one shipped BM/PLM-Net pair under the simulator's ideal conditions" in " ".join(quick.split())
+    assert "<!-- render: quickstart-shipped-pair -->" in quick
+
+
 def test_the_hero_figure_is_one_the_kit_wrote():
-    # the Quick start's demo replaces it with --overwrite, which the kit allows only for a figure it wrote itself
+    # made by the documented demo command with --overwrite, which the kit allows only for a figure it wrote itself
     from PIL import Image
 
     with Image.open(ROOT / "figures" / "zigzag.png") as image:

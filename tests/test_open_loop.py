@@ -127,4 +127,5 @@ def test_the_report_says_when_the_closed_loop_gain_is_not_prediction():
     undecided = _reproduction(2.0, 40.0)  # CI -3..7
     assert "not told apart" in report.open_loop_lines(undecided)[0]
     table = report.open_loop_table(damping)
-    assert table[1] == [["0.20 s (6 steps)", "0.0200 ± 0.0010", "0.0300 ± 0.0020", "-50.0 ± 5.0%", "40.0 ± 5.0%"]]
+    assert table[1] == [["0.20 s (6 steps)", "0.0200 [0.0190, 0.0210]", "0.0300 [0.0280, 0.0320]", "-50.0% [-55.0, -45.0]",
+                         "40.0% [35.0, 45.0]"]]

@@ -37,10 +37,27 @@ def test_spread_of_one_value_has_no_interval_and_of_none_is_none():
 
 
 @settings(max_examples=50, deadline=None)
-@given(st.lists(st.floats(-100, 100), min_size=2, max_size=30))
-def test_the_prediction_interval_always_contains_the_confidence_interval(values):
-    result = analysis.spread(values)
+@given(st.lists(st.floats(-100, 99), min_size=3, max_size=30), st.sampled_from(["linear", "reduction"]))
+def test_the_prediction_interval_always_contains_the_confidence_interval(values, scale):
+    result = analysis.spread(values, scale=scale)
     assert result.pi_low <= result.ci_low + 1e-9 and result.ci_high <= result.pi_high + 1e-9
+
+
+def test_two_pairs_give_a_centre_but_no_interval():
+    result = analysis.spread([0.5, 5.0], scale="positive")
+    assert result.mean == pytest.approx(2.75)
+    assert (result.ci_low, result.ci_high, result.pi_low, result.pi_high, result.n) == (None, None, None, None, 2)
+
+
+def test_errors_and_reductions_get_their_own_scales():
+    assert analysis.scale_of("plm_offset_rms_m") == "positive"
+    assert analysis.scale_of("bm_steering_mae_paper") == "positive"
+    assert analysis.scale_of("mae_reduction_pct") == "reduction"
+    # offsets that a linear interval would take below 0 m stay above it
+    offsets = analysis.spread([0.2, 0.3, 9.0], scale=analysis.scale_of("plm_offset_rms_m"))
+    assert 0 < offsets.pi_low <= offsets.ci_low < offsets.mean < offsets.ci_high <= offsets.pi_high
+    assert offsets.mean == pytest.approx(9.5 / 3)
+    assert analysis.spread([0.2, 0.3, 9.0]).ci_low < 0
 
 
 def test_pair_summaries_average_seeds_within_a_pair_before_the_reduction():
@@ -145,3 +162,21 @@ def test_a_recipe_for_other_conditions_is_refused():
 
     with pytest.raises(BadInput, match="made for the 'ideal' conditions"):
         recipe_named("default", "paper")
+
+
+def test_the_committed_populations_statistics_and_report_are_those_of_its_results(repo_root):
+    import json
+
+    from plm_highway.io import json_text
+    from plm_highway.population.report import analyse, read_results, render_report
+
+    directory = repo_root / "figures" / "population"
+    document = json.loads((directory / "population.json").read_text(encoding="utf-8"))
+    rows = read_results(directory / "results.csv")
+    trainings = {int(pair): record for pair, record in document["trainings"].items()}
+    numbers = json.loads(json_text(analyse(PopulationPlan.from_dict(document["plan"]), trainings, rows)))
+    for key, value in numbers.items():
+        assert document[key] == value, f"population.json's {key} is not what results.csv gives"
+    figures = [line.split("](")[1].rstrip(")") for line in (directory / "report.md").read_text().splitlines()
+               if line.startswith("![")]
+    assert (directory / "report.md").read_text(encoding="utf-8") == render_report(document, figures)

@@ -70,7 +70,7 @@ def test_confidence_interval_covers_the_true_mean_95_percent_of_the_time():
 
 
 @settings(max_examples=50, deadline=None)
-@given(st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=30))
+@given(st.lists(st.floats(-1e3, 1e3), min_size=3, max_size=30))
 def test_interval_contains_the_mean_and_shrinks_with_confidence(values):
     wide, narrow = mean_ci(values, 0.99), mean_ci(values, 0.5)
     assert wide.low <= narrow.low + 1e-9 <= wide.mean + 1e-6 and wide.mean - 1e-6 <= narrow.high <= wide.high + 1e-9

@@ -57,13 +57,24 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 def _add_command(subparsers, command: Command, prefix: tuple[str, ...], argv: list[str]) -> None:
     words = (*prefix, command.name)
     parser = subparsers.add_parser(command.name, help=command.help, description=command.description or command.help,
-                                   formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                                   formatter_class=DefaultsOnceFormatter)
     parser.set_defaults(command=" ".join(words), _run=command.run)
     if tuple(argv[:len(words)]) == words:
         command.configure(parser)
         for action in parser._actions:  # every typed option reads ASCII digits only
             if action.type is not None and action.type is not str:
                 action.type = _ascii_digits_only(action.type)
+
+
+class DefaultsOnceFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Adds "(default: X)" to an option's help only where it says something: not where the help already names its
+    default, and not for an absent default (None) or an off switch (False)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if "default" in text or action.default is None or action.default is False:
+            return text
+        return super()._get_help_string(action)
 
 
 def _ascii_digits_only(parse):

@@ -102,6 +102,54 @@ def add_seed(parser: argparse.ArgumentParser, default: int = 0) -> None:
     parser.add_argument("--seed", type=SEED, default=default, help="random seed (0 to 2**32-1)")
 
 
+def _module_tree(module: str):
+    """The parsed source of a ``plm_highway`` module, read without importing it (or anything it imports)."""
+    import ast
+    from pathlib import Path
+
+    parts = module.split(".")
+    if parts[0] != "plm_highway":
+        raise ValueError(f"{module}: not a plm_highway module")
+    path = Path(__file__).resolve().parent.parent.joinpath(*parts[1:]).with_suffix(".py")
+    return ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+
+
+def static_defaults(module: str, function: str) -> dict:
+    """The literal keyword defaults of ``module.function``, read from its source: what :func:`defaults_of` gives,
+    without importing the library behind a command (``--help`` stays fast and imports no torch)."""
+    import ast
+
+    for node in _module_tree(module).body:
+        if isinstance(node, ast.FunctionDef) and node.name == function:
+            args = node.args
+            positional = [*args.posonlyargs, *args.args]
+            pairs = list(zip(positional[len(positional) - len(args.defaults):], args.defaults))
+            pairs += [(a, d) for a, d in zip(args.kwonlyargs, args.kw_defaults) if d is not None]
+            return {arg.arg: ast.literal_eval(default) for arg, default in pairs}
+    raise ValueError(f"{module}: no function {function}")
+
+
+def static_names(module: str, name: str) -> tuple:
+    """A module-level tuple of names (or a dict's keys, or ``tuple(OTHER)`` of such a constant), read from the
+    module's source without importing it."""
+    import ast
+
+    assigned = {target.id: node.value for node in _module_tree(module).body if isinstance(node, ast.Assign)
+                for target in node.targets if isinstance(target, ast.Name)}
+
+    def names(value) -> tuple:
+        if isinstance(value, ast.Call) and getattr(value.func, "id", None) == "tuple" and len(value.args) == 1:
+            inner = value.args[0]
+            return names(assigned[inner.id]) if isinstance(inner, ast.Name) else names(inner)
+        if isinstance(value, ast.Dict):  # its keys (the values need not be literals)
+            return tuple(ast.literal_eval(key) for key in value.keys)
+        return tuple(ast.literal_eval(value))  # a tuple or a list
+
+    if name not in assigned:
+        raise ValueError(f"{module}: no module-level {name}")
+    return names(assigned[name])
+
+
 def defaults_of(function: Callable) -> dict:
     """The keyword defaults of a library function: the one place a command's defaults are defined."""
     import inspect

@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_overwrite, add_seed, defaults_of
+from plm_highway.cli._common import Command, add_overwrite, add_seed
 
 GROUP_HELP = "quick demonstrations"
 
 
 def configure_zigzag(parser) -> None:
-    from plm_highway.evaluation.demo import zigzag
+    from plm_highway.cli._common import static_defaults
 
-    d = defaults_of(zigzag)
+    # Read from the library's source, not imported: the help page stays fast (tests/test_cli_help.py).
+    d = static_defaults("plm_highway.evaluation.demo", "zigzag")
     parser.add_argument("--latency", default=d["latency"], help="a profile spec, or seconds (e.g. 0.25)")
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
     parser.add_argument("--policy", choices=["auto", "bm", "expert"], default=d["policy"],

@@ -1,10 +1,11 @@
-"""``plm-highway estimate ...``: the model-based side (seed paper 004's delay-compensated lane EKF)."""
+"""``plm-highway estimate ...``: the model-based side (the delay-compensated lane EKF of Kim, Kang and Ahn, Sensors 2025)."""
 
 from __future__ import annotations
 
 from plm_highway.cli._common import Command, add_overwrite, bounded_float, bounded_int
 
-GROUP_HELP = "model-based latency compensation: the delay-compensated lane-coordinate EKF (seed paper 004)"
+GROUP_HELP = ("model-based latency compensation: the delay-compensated lane-coordinate EKF (Kim, Kang and Ahn, "
+              "Sensors 2025)")
 
 
 def configure_table3(parser) -> None:
@@ -150,7 +151,7 @@ def run_latency(args) -> int:
     return 0
 
 
-COMMANDS = [Command("table3", "reproduce seed paper 004's Table 3 in simulation (camera, EKF, delay-compensated EKF)",
+COMMANDS = [Command("table3", "reproduce the EKF paper's Table 3 in simulation (camera, EKF, delay-compensated EKF)",
                     configure_table3, run_table3),
             Command("compare", "PLM-Net, the Base Model and the EKF lane keeper without and with delay compensation "
                                "in the closed loop (same track, conditions, latencies, seeds)", configure_compare,

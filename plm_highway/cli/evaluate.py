@@ -10,12 +10,14 @@ MAX_STEPS = 10_000_000
 
 
 def configure(parser) -> None:
-    from plm_highway.cli._common import defaults_of
-    from plm_highway.evaluation.evaluate import evaluate
-    from plm_highway.rollout.conditions import CONDITION_NAMES, INJECTION_LATENCY_SOURCE, LATENCY_SOURCE_NAMES
-    from plm_highway.rollout.policies import POLICY_NAMES
+    from plm_highway.cli._common import static_defaults, static_names
 
-    d = defaults_of(evaluate)
+    # Read from the library's source, not imported: the help page stays fast (tests/test_cli_help.py).
+    d = static_defaults("plm_highway.evaluation.evaluate", "evaluate")
+    CONDITION_NAMES, INJECTION_LATENCY_SOURCE, LATENCY_SOURCE_NAMES = (
+        static_names("plm_highway.rollout.conditions", name)
+        for name in ("CONDITION_NAMES", "INJECTION_LATENCY_SOURCE", "LATENCY_SOURCE_NAMES"))
+    POLICY_NAMES = static_names("plm_highway.rollout.policies", "POLICY_NAMES")
     parser.add_argument("--track", default=d["track"], help="train, test, unseen or a track JSON path")
     parser.add_argument("--latency", default=d["latency"],
                         help="latency profile, e.g. const:0.2 or steps:0.0-0.35:1.0")
@@ -23,11 +25,11 @@ def configure(parser) -> None:
                         help="plm: reference + BM baseline + PLM-Net; bm: the first two; expert: the expert twice; "
                              "ekf: the EKF lane keeper without latency, without and with delay compensation, its LQR "
                              "designed for the conditions' loop, actuator and processing delay")
-    parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: shipped)")
+    parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: the shipped pair)")
     parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],
                         help="ideal: this simulator's setup; paper: the paper's loop, pipeline, camera, latency "
                              "injection and the `paper` checkpoints, as reproduce --conditions paper drives them")
-    parser.add_argument("--injection", choices=tuple(INJECTION_LATENCY_SOURCE),
+    parser.add_argument("--injection", choices=INJECTION_LATENCY_SOURCE,
                         help="latency injection instead of the conditions' own (ideal: time, paper: legacy-fifo), as "
                              "for reproduce; legacy-fifo also runs the BM baseline of a time-varying profile at its "
                              "middle latency, as the original code did")
@@ -43,12 +45,14 @@ def configure(parser) -> None:
     parser.add_argument("--json", metavar="OUT.json", help="write the result JSON here")
     parser.add_argument("--out", metavar="DIR", help="write result.json and per-step CSV logs (one per run, and "
                                                      "steps.csv with the runs side by side) into this directory")
+    parser.add_argument("--print-json", action="store_true",
+                        help="print the full result JSON instead of the short summary")
     add_overwrite(parser)
     add_device(parser)
 
 
 def run(args) -> int:
-    from plm_highway.evaluation.evaluate import EVALUATION_DIR, EVALUATION_JSON, evaluate, publish_results
+    from plm_highway.evaluation.evaluate import EVALUATION_DIR, EVALUATION_JSON, evaluate, publish_results, summary_lines
     from plm_highway.io import check_target, json_text
     from plm_highway.rollout.policies import single_threaded_inference
 
@@ -59,9 +63,15 @@ def run(args) -> int:
         result, logs = evaluate(args.track, args.latency, args.policy, args.seed, args.max_steps, args.checkpoints,
                                 args.seeds, args.conditions, args.injection, device_of(args),
                                 latency_source=args.latency_source)
-    sys.stdout.write(json_text(result, EVALUATION_JSON))
     if args.json or args.out:
         publish_results(result, logs, args.json, args.out, overwrite=args.overwrite)
+    if args.print_json:
+        sys.stdout.write(json_text(result, EVALUATION_JSON))
+        return 0
+    print("\n".join(summary_lines(result)))
+    written = [path for path in (args.json, args.out) if path]
+    print(f"full result: {', '.join(map(str, written))}" if written else
+          "full result: --json OUT.json or --out DIR writes it (--print-json prints it)")
     return 0
 
 

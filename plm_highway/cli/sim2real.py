@@ -90,7 +90,7 @@ def configure_make_recording(parser) -> None:
                         choices=["auto", "simulator", "kinematic", "single-track", "commonroad-st", "commonroad-mb"],
                         help="vehicle physics (auto: single-track when an effect needs tires, else kinematic)")
     parser.add_argument("--car", default=defaults["car"], choices=["auto", *CARS],
-                        help="the car and its driving: sedan (seed paper car, 10-30 m/s) or small (1:10 scale "
+                        help="the car and its driving: sedan (the EKF paper's car, 10-30 m/s) or small (1:10 scale "
                              "F1TENTH car, 0.8-4 m/s); auto: the sedan, or the simulator's 5-m car for a "
                              "kinematic model")
     add_seed(parser, defaults["seed"])

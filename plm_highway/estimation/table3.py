@@ -365,16 +365,18 @@ def table3(seeds: int | tuple[int, ...] = 5, config: SimulationConfig = Simulati
             if keep_runs is not None:
                 keep_runs.append(run)
             bar.update()
-        metrics = {variant: {state: {measure: mean_ci([m[variant][state][measure] for m in per_seed])
+        metrics = {variant: {state: {measure: mean_ci([m[variant][state][measure] for m in per_seed], scale="positive")
                                      for measure in ("rmse", "peak")} for state in STATES} for variant in REPORTED}
-        results.append(ScenarioResult(scenario, metrics, {k: mean_ci(v) for k, v in accuracy.items()},
+        results.append(ScenarioResult(scenario, metrics, {k: mean_ci(v, scale="positive") for k, v in accuracy.items()},
                                       float(np.mean(rates)), scenario_checks(scenario.number, metrics)))
     bar.close()
     return Table3Result(seed_list, tuple(results), config, measurement)
 
 
 def _ci_cell(interval: Estimate) -> str:
-    return f"{interval.mean:.3f} [{_bound(interval.low):.3f}, {_bound(interval.high):.3f}]"
+    from plm_highway.metrics.intervals import interval_text
+
+    return interval_text(interval.mean, interval.low, interval.high, interval.n, short=True)
 
 
 @dataclass(frozen=True)

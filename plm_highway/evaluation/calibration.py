@@ -168,13 +168,13 @@ def bm_calibration(options: CalibrationOptions = CalibrationOptions()) -> dict:
             penalised.append(penalised_mae(reference.columns["steering"], delayed.columns["steering"])
                              * chosen.max_steering_rad)
         per_latency[latency_s] = {"injected_s": injected_s[latency_s],
-                                  "mae_rad_per_seed": maes, "mae_rad": mean_ci(maes).as_dict(),
+                                  "mae_rad_per_seed": maes, "mae_rad": mean_ci(maes, scale="positive").as_dict(),
                                   "mae_penalised_rad_per_seed": penalised,
-                                  "mae_penalised_rad": mean_ci(penalised).as_dict(),
+                                  "mae_penalised_rad": mean_ci(penalised, scale="positive").as_dict(),
                                   "left_road": [by_cell[(s, spec_of[latency_s])].left_road for s in seed_list],
                                   "paper_rad": paper_bm_mae_rad(latency_s)}
     floor_values = [value * chosen.max_steering_rad for value in noise_floor(references)]
-    floor = {"mae_rad_per_pair": floor_values, "mae_rad": mean_ci(floor_values).as_dict()}
+    floor = {"mae_rad_per_pair": floor_values, "mae_rad": mean_ci(floor_values, scale="positive").as_dict()}
     pipeline = (chosen.processing_delay_steps, chosen.steering_time_constant_s)
     as_conditions = pipeline == (CONDITIONS[conditions].processing_delay_steps,
                                  CONDITIONS[conditions].steering_time_constant_s)

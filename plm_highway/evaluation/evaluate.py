@@ -79,6 +79,31 @@ def compare_runs(logs: dict[str, RunLog], track_spec: TrackSpec, latency_spec: s
     return result
 
 
+RUN_TITLES = {"reference": "reference (no latency)", "baseline": "baseline (with latency)",
+              "mitigated": "mitigated (with latency)"}
+
+
+def summary_lines(result: dict) -> list[str]:
+    """A short human summary of an evaluation: per run the lane (lateral-offset RMS and maximum, whether it left
+    the road) beside the steering MAE against the reference (normalised steering, 1 = full lock), first seed."""
+    steering = result.get("steering") or {}
+    conditions = f", {result['conditions']} conditions" if result.get("conditions") else ""
+    lines = [f"{result['policy']} on track {result['track']}, latency {result['latency']}, seed {result['seed']}"
+             f"{conditions}:",
+             f"{'run':<26} {'offset RMS':>11} {'offset max':>11} {'left road':>10} {'steering MAE':>13}"]
+    for name, run in result["runs"].items():
+        mae = steering.get(name, {}).get("mae") if isinstance(steering.get(name), dict) else None
+        lines.append(f"{RUN_TITLES.get(name, name):<26} {run['lateral_offset_rms_m']:>9.3f} m "
+                     f"{run['lateral_offset_max_m']:>9.3f} m {'yes' if run['left_road'] else 'no':>10} "
+                     f"{'-' if mae is None else f'{mae:.4f}':>13}")
+    if steering.get("mae_reduction_pct") is not None:
+        baseline, mitigated = result["runs"]["baseline"], result["runs"]["mitigated"]
+        offset_change = 100.0 * (1.0 - mitigated["lateral_offset_rms_m"] / baseline["lateral_offset_rms_m"])
+        lines.append(f"reduction by PLM-Net against the baseline: steering MAE {steering['mae_reduction_pct']:.1f}%, "
+                     f"lateral-offset RMS {offset_change:.1f}% (negative: higher)")
+    return lines
+
+
 def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps=None, checkpoints=None,
              seeds=None, conditions: str = "ideal", injection: str | None = None, device="cpu",
              latency_source: str | None = None) -> tuple[dict, dict]:

@@ -141,7 +141,7 @@ def measure_open_loop(track_spec: TrackSpec, conditions: Conditions, policies: d
         holding, plm = zip(*pairs)
         out[latency_s] = {
             "lag_steps": lags[latency_s],
-            "holding_mae": mean_ci(list(holding)), "plm_mae": mean_ci(list(plm)),
-            "reduction_pct": mean_ci([reduction_pct(h, p) for h, p in pairs]),
+            "holding_mae": mean_ci(list(holding), scale="positive"), "plm_mae": mean_ci(list(plm), scale="positive"),
+            "reduction_pct": mean_ci([reduction_pct(h, p) for h, p in pairs], scale="reduction"),
             "per_seed": [{"holding_mae": h, "plm_mae": p} for h, p in pairs]}
     return out

@@ -124,7 +124,8 @@ class CompareResult:
         return out
 
     def summary(self, policy: str, latency: str, bias_s: float = 0.0) -> dict:
-        return {metric: _interval(list(self.by_seed(policy, latency, bias_s, metric).values()))
+        return {metric: _interval(list(self.by_seed(policy, latency, bias_s, metric).values()),
+                                  "linear" if metric == "left_road" else "positive")
                 for metric in SUMMARISED}
 
     def paired_difference(self, latency: str, metric: str, first: str, second: str, bias_s: float = 0.0) -> dict:
@@ -170,12 +171,14 @@ class CompareResult:
         }
 
 
-def _interval(values: list[float]) -> dict:
+def _interval(values: list[float], scale: str = "linear") -> dict:
+    """Mean and 95% interval over seeds: an outcome (an error, never negative) on the log scale, a paired
+    difference on the linear one (:mod:`plm_highway.metrics.intervals`)."""
     from plm_highway.metrics.intervals import mean_ci
 
     if not values:
         return {"mean": None, "low": None, "high": None, "n": 0}
-    return mean_ci(values).as_dict()
+    return mean_ci(values, scale=scale).as_dict()
 
 
 def command_line(config: CompareConfig, seeds: int) -> str:
@@ -281,9 +284,10 @@ TABLE_METRICS = ("steering_mae_paper", "steering_mae_paper_common", "offset_rms_
 def cell(interval: dict, digits: int = 3) -> str:
     if interval["mean"] is None:
         return "n/a"
-    if interval["low"] is None:
-        return f"{interval['mean']:.{digits}f}"
-    return f"{interval['mean']:.{digits}f} [{interval['low']:.{digits}f}, {interval['high']:.{digits}f}]"
+    from plm_highway.metrics.intervals import interval_text
+
+    return interval_text(interval["mean"], interval["low"], interval["high"], interval.get("n", 0),
+                         lambda value: f"{value:.{digits}f}", short=True)
 
 
 def verdict(difference: dict, first: str, second: str) -> str:

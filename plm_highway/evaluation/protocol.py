@@ -9,7 +9,7 @@ Rules:
   its own outcome (time and place), and a second, penalised MAE counts every step the run missed
   (up to the reference's length) as an error of :data:`OFF_ROAD_PENALTY` (normalised steering).
 - **Seeds.** Every setting runs under each seed; the report gives the mean over seeds and a 95%
-  Student-t confidence interval (:func:`plm_highway.metrics.intervals.mean_ci`), and a noise floor: the BM at 0 s against itself
+  Student-t confidence interval on the quantity's scale (:func:`plm_highway.metrics.intervals.mean_ci`), and a noise floor: the BM at 0 s against itself
   under the next seed.
 - **Units.** Errors in normalised steering (1 = the env's ``max_steering_rad`` at the front
   wheels), in front-wheel radians, and in the paper's unit (1 = 450 deg of steering wheel) through
@@ -29,7 +29,7 @@ import numpy as np
 
 from plm_highway.errors import BadInput
 from plm_highway.evaluation import paper_results as paper
-from plm_highway.metrics.intervals import Estimate, mean_ci
+from plm_highway.metrics.intervals import Estimate, mean_ci, too_few
 from plm_highway.metrics.steering import ERROR_NAMES, common_span, reduction_pct, steering_errors
 from plm_highway.vehicle.paper_units import PAPER_FULL_SCALE_DEG, PAPER_STEERING_RATIO
 
@@ -178,11 +178,13 @@ def aggregate_steering(per_seed: Sequence[dict]) -> dict:
     """``{run: {metric: Estimate}}`` and ``{metric_reduction_pct: Estimate}`` over the seeds' steering dicts."""
     out: dict = {}
     for run in ("baseline", "mitigated"):
-        out[run] = {m: mean_ci([s[run][m] for s in per_seed]) for m in (*ERROR_NAMES, "mae_penalised")}
+        out[run] = {m: mean_ci([s[run][m] for s in per_seed], scale="positive")
+                    for m in (*ERROR_NAMES, "mae_penalised")}
     for m in ERROR_NAMES:
-        out[f"{m}_reduction_pct"] = mean_ci([s[f"{m}_reduction_pct"] for s in per_seed])
+        out[f"{m}_reduction_pct"] = mean_ci([s[f"{m}_reduction_pct"] for s in per_seed], scale="reduction")
     out["mae_penalised_reduction_pct"] = mean_ci(
-        [reduction_pct(s["baseline"]["mae_penalised"], s["mitigated"]["mae_penalised"]) for s in per_seed])
+        [reduction_pct(s["baseline"]["mae_penalised"], s["mitigated"]["mae_penalised"]) for s in per_seed],
+        scale="reduction")
     return out
 
 
@@ -274,7 +276,7 @@ def _why_missed(entry: dict, paper_baseline: dict | None, paper_mitigated: dict 
 
 def _ci_text(estimate: Estimate) -> str:
     if estimate.low is None:
-        return "(1 seed, no CI)"
+        return f"({estimate.n} seed{'s' if estimate.n != 1 else ''}, {too_few('seeds')})"
     return f"(95% CI {estimate.low:.1f} to {estimate.high:.1f}, {estimate.n} seeds)"
 
 

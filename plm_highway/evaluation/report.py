@@ -26,7 +26,7 @@ from plm_highway.io import (
     write_csv_into,
     write_output,
 )
-from plm_highway.metrics.intervals import Estimate, mean_ci
+from plm_highway.metrics.intervals import MIN_INTERVAL_VALUES, Estimate, interval_text, mean_ci
 from plm_highway.metrics.steering import ERROR_NAMES, reduction_pct
 from plm_highway.road.track import TrackSpec
 from plm_highway.rollout.conditions import (
@@ -175,18 +175,16 @@ def pct(value) -> str:
 
 
 def est(estimate: Estimate | None, fmt=num) -> str:
-    """``mean ± half-width`` (95% CI), or the mean alone with one seed."""
+    """``centre [low, high]`` (95% CI on the quantity's scale), or the centre with "n=2, no interval"."""
     if estimate is None:
         return "—"
-    if estimate.half_width is None:
-        return fmt(estimate.mean)
-    return f"{fmt(estimate.mean)} ± {fmt(estimate.half_width)}"
+    return interval_text(estimate.mean, estimate.low, estimate.high, estimate.n, fmt, short=True)
 
 
 def est_pct(estimate: Estimate | None) -> str:
     if estimate is None:
         return "—"
-    return pct(estimate.mean) if estimate.half_width is None else f"{estimate.mean:.1f} ± {estimate.half_width:.1f}%"
+    return interval_text(estimate.mean, estimate.low, estimate.high, estimate.n, lambda v: f"{v:.1f}", "%", short=True)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -362,8 +360,9 @@ TEMPLATE = r"""
 {%- endmacro -%}
 # Reproducing PLM-Net on the `{{ r.track.name }}` track, {{ r.conditions.name }} conditions
 
-Command: `{{ r.command }}`. Seeds {{ seeds }} ({{ r.seeds | length }} per setting); every number with a ± is the mean
-over the seeds and the half-width of its 95% confidence interval (Student t).
+Command: `{{ r.command }}`. Seeds {{ seeds }} ({{ r.seeds | length }} per setting); every number with an interval
+`[low, high]` is the mean over the seeds and its 95% confidence interval (Student t; errors on the log scale,
+reductions through the ratio PLM-Net / BM, so never below 0 or above 100%; see Protocol).
 {%- if r.max_steps %} At most {{ r.max_steps }} policy steps per run: a **shortened** run, whose numbers cover only
 the start of the track and are not comparable with the paper's.{% else %} Each run is scored over its first
 {{ r.track.steps_scored }} steps, ending {{ "%.0f" | format(sight) }} m before the road's end (see Protocol).{% endif %}
@@ -630,7 +629,7 @@ def _constant_setting(settings: dict, latency_s: float) -> dict | None:
 OPEN_LOOP_VERDICTS = {
     "worse": "PLM-Net predicts the BM's action worse than holding the earlier one (the CI is below 0)",
     "better": "PLM-Net predicts the BM's action better than holding the earlier one (the CI is above 0)",
-    "undecided": "PLM-Net and holding the earlier action are not told apart (the CI spans 0, or one seed)",
+    "undecided": "PLM-Net and holding the earlier action are not told apart (the CI spans 0, or too few seeds for an interval)",
 }
 
 
@@ -683,8 +682,11 @@ def protocol_lines(r: Reproduction) -> list[str]:
          "the steps all three reached, so a run that left the road does not shorten one side's average only. Leaving "
          "the road is listed with its time and place; the penalised MAE counts every step a run missed (up to the "
          f"reference's length) as an error of {protocol.OFF_ROAD_PENALTY:g} (normalised)."),
-        ("**Confidence intervals**: mean over seeds ± the half-width of the 95% Student-t interval of the mean; "
-         "reductions are computed per seed, then averaged."),
+        ("**Confidence intervals**: 95% Student-t intervals over seeds, on the quantity's scale "
+         "(plm_highway.metrics.intervals): errors (MAE, MSE, RMSE) with the interval of their logarithms, so never below "
+         "0; reductions, computed per seed, with the interval of the logarithms of the ratios PLM-Net / BM, so never "
+         "above 100%; differences with the linear interval; the number beside each is the arithmetic mean. With fewer than {MIN_INTERVAL_VALUES} seeds there are too few seeds for an interval "
+         "(\"no interval\")."),
         (f"**End of the road**: the camera sees {sight_m(r.conditions.camera) - 5:.0f} m ahead of the car (range + "
          f"mount offset); runs on an open track stop {sight_m(r.conditions.camera):.0f} m before the road's end (a "
          "further 5 m margin), before the end can appear in a frame. Earlier reports drove to the end, and the BM "

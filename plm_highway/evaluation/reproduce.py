@@ -181,7 +181,7 @@ def measure_track(track_spec: TrackSpec, specs: list[str], seeds: list[int], con
                           "logs": first_logs}
     floor = protocol.noise_floor(references)
     return {"track_spec": track_spec, "references": references, "settings": settings,
-            "noise_floor": mean_ci(floor) if floor else None}
+            "noise_floor": mean_ci(floor, scale="positive") if floor else None}
 
 
 def run_track(track, specs: list[str], policies: dict, seed: int, max_steps: int | None, progress=None) -> dict:

@@ -3,8 +3,11 @@
 Simulator seeds are near-replicates of one pair (the same weights, starts within +-0.2 m); the training run is
 the larger source of variance. So every outcome is first averaged over a pair's seeds (seeds nested in pairs),
 and the statistics are across pairs: the mean with its 95% Student-t confidence interval, and the 95%
-**prediction interval** for one new pair made with the same recipe,
-``mean +- t(0.975, K-1) * s * sqrt(1 + 1/K)``, which is what a user who trains one pair can expect.
+**prediction interval** for one new pair made with the same recipe, ``t(0.975, K-1) * s * sqrt(1 + 1/K)`` about the
+centre, which is what a user who trains one pair can expect. Both on the quantity's scale
+(:mod:`plm_highway.metrics.intervals`): errors (MAE, RMS, maximum, Frechet) on the log scale, so never below 0;
+reductions through the ratio PLM-Net / BM on the log scale, so never above 100%; differences on the linear scale.
+With fewer than 3 pairs there is no interval.
 
 A reduction is ``100 * (1 - PLM-Net / BM)`` of a pair's seed-mean errors. It rises with the BM's error by
 construction (the BM's error is its denominator), so the report also fits PLM-Net's error against the BM's
@@ -28,7 +31,7 @@ from scipy import stats
 
 from plm_highway.evaluation import paper_results as paper
 from plm_highway.evaluation.protocol import paper_key
-from plm_highway.metrics.intervals import mean_ci
+from plm_highway.metrics.intervals import mean_ci, prediction_interval
 from plm_highway.metrics.steering import reduction_pct
 
 CONFIDENCE = 0.95
@@ -39,7 +42,7 @@ PAIR_OUTCOMES = ("steering_mae_paper", "steering_mae_paper_common", "offset_rms_
 
 @dataclass(frozen=True)
 class Spread:
-    """Mean across pairs, its confidence interval and the prediction interval for a new pair (None with n < 2)."""
+    """Mean across pairs, its confidence interval and the prediction interval for a new pair (None with n < 3)."""
 
     mean: float
     ci_low: float | None
@@ -52,18 +55,21 @@ class Spread:
         return asdict(self)
 
 
-def spread(values: Iterable[float], confidence: float = CONFIDENCE) -> Spread | None:
-    """:class:`Spread` of the finite ``values`` (None when there are none)."""
+def spread(values: Iterable[float], confidence: float = CONFIDENCE, scale: str = "linear") -> Spread | None:
+    """:class:`Spread` of the finite ``values`` on ``scale`` (``"linear"``, ``"positive"`` or ``"reduction"``; see
+    :mod:`plm_highway.metrics.intervals`); None when there are none."""
     data = np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=float)
     if data.size == 0:
         return None
-    estimate = mean_ci(data, confidence)
-    if data.size < 2:
-        return Spread(estimate.mean, None, None, None, None, int(data.size))
-    # A prediction interval for one more pair: the CI's half-width scaled from the mean's spread to a draw's.
-    half = (estimate.high - estimate.mean) * math.sqrt(data.size + 1.0)
-    return Spread(estimate.mean, estimate.low, estimate.high, estimate.mean - half, estimate.mean + half,
-                  int(data.size))
+    estimate = mean_ci(data, confidence, scale)
+    pi = prediction_interval(data, confidence, scale)
+    pi_low, pi_high = (None, None) if pi is None else pi
+    return Spread(estimate.mean, estimate.low, estimate.high, pi_low, pi_high, int(data.size))
+
+
+def scale_of(outcome: str) -> str:
+    """The scale a pair outcome's interval is computed on: reductions, or errors that are never negative."""
+    return "reduction" if outcome.endswith("reduction_pct") else "positive"
 
 
 def _mean(values: Sequence[float]) -> float:
@@ -136,12 +142,12 @@ def verdict(setting: str, summaries: Sequence[dict]) -> dict | None:
         return None
     at_setting = [s for s in summaries if s["setting"] == setting]
     matching = [s for s in at_setting if comparable(s, numbers["bm_mae"])]
-    reductions = spread(s["mae_reduction_pct"] for s in matching)
+    reductions = spread((s["mae_reduction_pct"] for s in matching), scale="reduction")
     result = {"setting": setting, "paper": numbers, "pairs": len(at_setting), "comparable_pairs": len(matching),
               "comparable": [s["pair"] for s in matching],
               "reduction": None if reductions is None else reductions.as_dict(),
               "bm_ratio_to_paper": [s["bm_steering_mae_paper"] / numbers["bm_mae"] for s in at_setting]}
-    if len(matching) < MIN_COMPARABLE_PAIRS:
+    if len(matching) < MIN_COMPARABLE_PAIRS or reductions.pi_low is None:
         result["verdict"] = "not testable"
     elif reductions.pi_low <= numbers["reduction_pct"] <= reductions.pi_high:
         result["verdict"] = "reproduced"

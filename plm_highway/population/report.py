@@ -15,6 +15,7 @@ from plm_highway.errors import BadInput
 from plm_highway.evaluation.outcomes import OUTCOMES
 from plm_highway.evaluation.protocol import setting_label, setting_tag
 from plm_highway.io import directory_kind, json_text, pyplot, save_figure_into, write_csv_into, write_output
+from plm_highway.metrics.intervals import MIN_INTERVAL_VALUES, interval_text, too_few
 from plm_highway.population import analysis
 from plm_highway.population.plan import PopulationPlan, pair_name
 
@@ -92,7 +93,7 @@ def analyse(plan: PopulationPlan, trainings: dict, all_rows: list[dict]) -> dict
 
 
 def _spread(summaries: list[dict], key: str) -> dict | None:
-    value = analysis.spread(s[key] for s in summaries)
+    value = analysis.spread((s[key] for s in summaries), scale=analysis.scale_of(key))
     return None if value is None else value.as_dict()
 
 
@@ -254,36 +255,49 @@ def _f(value, digits: int = 3) -> str:
     return f"{value:.{digits}f}"
 
 
-def _ci(spread: dict | None, digits: int = 3, unit: str = "") -> str:
+def _ci(spread: dict | None, digits: int = 3, unit: str = "", short: bool = True) -> str:
     if spread is None:
         return "n/a"
-    if spread["ci_low"] is None:
-        return f"{_f(spread['mean'], digits)}{unit} (n={spread['n']})"
-    return (f"{_f(spread['mean'], digits)}{unit} [{_f(spread['ci_low'], digits)}, {_f(spread['ci_high'], digits)}]")
+    return interval_text(spread["mean"], spread["ci_low"], spread["ci_high"], spread["n"],
+                         lambda value: _f(value, digits), unit, "pairs", short)
+
+
+def _bare(spread: dict | None, digits: int = 3, unit: str = "") -> str:
+    """The centre alone, or with its interval when there is one (the headline says once when there is none)."""
+    if spread is None or spread["ci_low"] is None:
+        return f"{_f(_mean(spread), digits)}{unit}"
+    return _ci(spread, digits, unit)
 
 
 def _pi(spread: dict | None, digits: int = 1) -> str:
-    if spread is None or spread["pi_low"] is None:
+    if spread is None:
         return "n/a"
+    if spread["pi_low"] is None:
+        return "no PI"
     return f"[{_f(spread['pi_low'], digits)}, {_f(spread['pi_high'], digits)}]"
 
 
 def headline(document: dict) -> list[str]:
-    """Three lines: the population's result in both metrics at the paper's headline latency, with the pair count."""
+    """Three lines: the population's result in both metrics at the paper's headline latency, with the pair count,
+    the conditions and the recipe."""
     per = document["per_setting"]
     setting = "const:0.25" if "const:0.25" in per else next(s for s in per if s != "const:0")
     entry = per[setting]
     n = len(document["pairs_driven"])
     shares = entry["shares"]
+    plan = document["plan"]
+    statistics = ("95% CIs over pairs" if n >= MIN_INTERVAL_VALUES
+                  else f"{too_few('pairs')} (the 95% CIs need at least {MIN_INTERVAL_VALUES})")
     return [
-        f"{n} independently trained BM/PLM-Net pairs, {document['plan']['conditions']} conditions, "
-        f"{entry['label']} latency, whole test track, {len(document['plan']['sim_seeds'])} simulator seeds each:",
-        f"steering MAE reduction {_ci(entry['mae_reduction_pct'], 1, '%')} (mean, 95% CI over pairs; PLM-Net lower "
+        f"{n} independently trained BM/PLM-Net pairs (recipe `{plan['recipe']['name']}`), {plan['conditions']} "
+        f"conditions, {entry['label']} latency, whole test track, {len(plan['sim_seeds'])} simulator seeds each; "
+        f"means over pairs, {statistics}:",
+        f"steering MAE reduction {_bare(entry['mae_reduction_pct'], 1, '%')} (PLM-Net lower "
         f"in {shares['lower_mae']} of {shares['pairs']} pairs; the paper: "
         f"{_paper_reduction(setting)});",
-        f"lateral-offset RMS {_ci(entry['plm_offset_rms_m'], 3, ' m')} with PLM-Net against "
-        f"{_ci(entry['bm_offset_rms_m'], 3, ' m')} without (reference BM without latency "
-        f"{_ci(entry['ref_offset_rms_m'], 3, ' m')}); PLM-Net lower in {shares['lower_offset_rms']} of "
+        f"lateral-offset RMS {_bare(entry['plm_offset_rms_m'], 3, ' m')} with PLM-Net against "
+        f"{_bare(entry['bm_offset_rms_m'], 3, ' m')} without (reference BM without latency "
+        f"{_bare(entry['ref_offset_rms_m'], 3, ' m')}); PLM-Net lower in {shares['lower_offset_rms']} of "
         f"{shares['pairs']} pairs.",
     ]
 
@@ -322,8 +336,11 @@ def render_report(document: dict, figures: list[str]) -> str:
         "(paper unit, 1 = 450 deg of steering wheel), each step missed after leaving the road counted as a full-scale "
         "error; the lateral offset from the lane centre with missed steps held at the offset the car left with; the "
         "Frechet distance to the reference's path. The common-span MAE (judged only until a run leaves the road, as "
-        "the reproduction report does) is secondary. Statistics are over pairs (seeds averaged within a pair): mean "
-        "with 95% CI, and the 95% prediction interval (PI) for one new pair made with this recipe.",
+        "the reproduction report does) is secondary. Statistics are over pairs (seeds averaged within a pair): means "
+        "with 95% CIs on the quantity's scale (errors on the log scale, never below 0; reductions through the ratio "
+        "PLM-Net / BM on the log scale, never above 100%), and the 95% prediction interval (PI) for "
+        f"one new pair made with this recipe. With fewer than {MIN_INTERVAL_VALUES} pairs there are too few pairs for an "
+        "interval: the tables then say \"no interval\" and \"no PI\".",
         "",
     ]
     lines += ["## Steering and lane keeping by latency", "",

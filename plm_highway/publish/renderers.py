@@ -14,6 +14,7 @@ from plm_highway.errors import BadInput
 from plm_highway.publish.blocks import MissingResult
 
 POPULATION = Path("figures/population/population.json")
+REPRODUCE_IDEAL = Path("figures/reproduce/results.json")
 TABLE3 = Path("figures/estimation/table3.json")
 COMPARISON = Path("figures/estimation/compare/compare.json")
 # The bench models target is judged on the median of these three runs with the shipped weights.
@@ -47,6 +48,27 @@ def population_headline(root: Path) -> str:
     return "\n".join(f"> {line}" for line in lines) + f"\n>\n> From [{POPULATION.parent}/report.md]({POPULATION.parent}/report.md)."
 
 
+def quickstart_shipped_pair(root: Path) -> str:
+    """What the Quick start's evaluation measures, from the committed reproduction with the same shipped pair under
+    the same ideal conditions: the steering MAE reduction beside the lane keeping, at 0.25 s."""
+    result = _json(root, REPRODUCE_IDEAL)
+    shipped = {role: f"plm_highway/checkpoints/{role}_default.pt" for role in ("bm", "tapm")}
+    if result["conditions"] != "ideal" or {r: c["path"] for r, c in result["checkpoints"].items()} != shipped:
+        raise BadInput(f"{REPRODUCE_IDEAL}: not the shipped pair under ideal conditions, which the Quick start runs")
+    setting = result["settings"]["const:0.25"]
+    seeds = setting["per_seed"]
+
+    def mean_over_seeds(run: str) -> float:
+        return sum(seed["runs"][run]["lateral_offset_rms_m"] for seed in seeds) / len(seeds)
+
+    baseline, mitigated = mean_over_seeds("baseline"), mean_over_seeds("mitigated")
+    return (f"With the shipped pair under ideal conditions at 0.25 s, the committed reproduction "
+            f"([figures/reproduce/report.md](figures/reproduce/report.md), {len(seeds)} seeds, the first "
+            f"{result['steps_scored']} steps) has PLM-Net lowering the steering MAE by "
+            f"{setting['steering']['mae_reduction_pct']['mean']:.1f}% but the lateral-offset RMS only from "
+            f"{baseline:.3f} m to {mitigated:.3f} m ({100 * (1 - mitigated / baseline):.0f}% lower; means over the seeds).")
+
+
 def population_status(root: Path) -> str:
     """How far the committed population run got, what each pair's training cost, and the remedies' decisions."""
     document = _json(root, POPULATION)
@@ -66,7 +88,7 @@ def population_status(root: Path) -> str:
 
 
 def estimation_table3(root: Path) -> str:
-    """Seed paper 004's Table 3 in simulation beside the paper's RMSE (``plm-highway estimate table3``)."""
+    """The EKF paper's Table 3 in simulation beside the paper's RMSE (``plm-highway estimate table3``)."""
     from plm_highway.estimation.table3 import readme_table
 
     return readme_table(_json(root, TABLE3))
@@ -190,6 +212,7 @@ def sim2real_bench(root: Path) -> str:
 RENDERERS: dict[str, Callable[[Path], str]] = {
     "population-headline": population_headline,
     "population-status": population_status,
+    "quickstart-shipped-pair": quickstart_shipped_pair,
     "estimation-table3": estimation_table3,
     "plm-vs-ekf-table": plm_vs_ekf_table,
     "plm-vs-ekf-who-wins": plm_vs_ekf_who_wins,
