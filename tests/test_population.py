@@ -318,3 +318,23 @@ def test_restart_trains_every_pair_again_with_the_new_recipe(finished, tmp_path)
     assert sorted(p.name for p in (tmp_path / "out" / "pairs").iterdir()) == ["pair-00.json"]
     assert {r["pair"] for r in read_results(tmp_path / "out" / "results.csv")} == {0}
     assert json.loads((tmp_path / "work" / "plan.json").read_text())["recipe"]["bm"]["epochs"] == 2
+
+
+@pytest.mark.slow
+def test_the_prepared_gpu_run_completes_at_toy_size_on_the_cpu(tmp_path):
+    """.ci/gpu-run as docs/devices.md documents it, shrunk (PLM_GPU_RUN_TOY) and on the CPU: the CUDA tests' step,
+    the models bench and a population whose pairs are committed as records, each step's wall time on record."""
+    import os
+
+    env = {**os.environ, "PLM_GPU_RUN_TOY": "1", "PLM_GPU_RUN_DEVICE": "cpu", "PLM_GPU_RUN_WORKERS": "1"}
+    out = tmp_path / "gpu-run"
+    result = subprocess.run([str(REPO / ".ci" / "gpu-run"), str(out)], env=env, capture_output=True, text=True,
+                            timeout=1200)
+    assert result.returncode == 0, result.stderr[-3000:] + result.stdout[-3000:]
+    walls = dict(line.split() for line in (out / "wall_s.txt").read_text().splitlines())
+    assert list(walls) == ["cuda-tests", "bench-models", "population"]
+    assert sorted(p.name for p in (out / "population" / "pairs").iterdir()) == ["pair-00.json", "pair-01.json"]
+    assert json.loads((out / "bench-models.json").read_text())
+    assert "`.ci/gpu-run OUT`" in (REPO / "docs" / "devices.md").read_text()
+    again = subprocess.run([str(REPO / ".ci" / "gpu-run"), str(out)], env=env, capture_output=True, text=True)
+    assert again.returncode == 2 and "exists" in again.stderr

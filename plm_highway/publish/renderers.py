@@ -70,18 +70,37 @@ def quickstart_shipped_pair(root: Path) -> str:
 
 
 def population_status(root: Path) -> str:
-    """How far the committed population run got, what each pair's training cost, and the remedies' decisions."""
+    """How far the committed population run got, what each pair's training and driving cost (per stage, with the
+    load), and the remedies' decisions."""
+    import statistics
+
     document = _json(root, POPULATION)
     plan = document["plan"]
     trainings = document["trainings"]
-    minutes = ", ".join(f"pair {pair}: {record['summary']['seconds'] / 60:.0f} min"
-                        for pair, record in sorted(trainings.items(), key=lambda item: int(item[0]))
-                        if record.get("summary", {}).get("seconds") is not None)
+    stages_of = document.get("stages", {})
+    per_pair, training_minutes = [], []
+    for pair, record in sorted(trainings.items(), key=lambda item: int(item[0])):
+        summary = record.get("summary", {})
+        if summary.get("seconds") is None:
+            continue
+        training_minutes.append(summary["seconds"] / 60)
+        times = summary.get("stages", {})
+        split = ", ".join(f"{label} {times[stage]['wall_s'] / 60:.1f}" for stage, label in
+                          (("collect", "collect"), ("bm_training", "BM"), ("tapm_training", "TAPM")) if stage in times)
+        loads = [times[s][k] for s in times for k in ("load_start", "load_end") if times[s].get(k) is not None]
+        drive = stages_of.get(pair, {}).get("driving", {}).get("wall_s")
+        text = f"pair {pair}: {summary['seconds'] / 60:.1f} min"
+        if split:
+            text += f" ({split}; load {min(loads):.1f}-{max(loads):.1f})" if loads else f" ({split})"
+        if drive is not None:
+            text += f", driving {drive / 60:.1f} min on {stages_of[pair].get('workers')} workers"
+        per_pair.append(text)
     lines = [f"- Pairs: {document['pairs_planned']} planned, {len(document['pairs_trained'])} trained, "
              f"{len(document['pairs_failed'])} failed, {len(document['pairs_driven'])} driven "
              f"({plan['conditions']} conditions, {len(plan['sim_seeds'])} simulator seeds per pair and setting).",
-             f"- Training one pair with recipe `{plan['recipe']['name']}` on {plan['recipe']['threads']} CPU threads: "
-             f"{minutes}."]
+             f"- Training one pair with recipe `{plan['recipe']['name']}` on {plan['recipe']['threads']} CPU threads "
+             f"(wall minutes, median {statistics.median(training_minutes):.1f}): " + "; ".join(per_pair) + "."
+             if training_minutes else "- No pair has a training time on record."]
     for name, remedy in sorted(document.get("remedies", {}).items()):
         lines.append(f"- Remedy `{name}`: **{remedy['decision']}** ({remedy['decision_rule']}).")
     return "\n".join(lines)
