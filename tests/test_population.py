@@ -237,6 +237,11 @@ def test_a_committed_study_grows_in_a_fresh_clone_without_training_its_pairs_aga
     _copy_report(source / "out", tmp_path / "out")
     committed = {p.name: p.read_bytes() for p in (tmp_path / "out" / "pairs").iterdir()}
     assert set(committed) == {"pair-00.json", "pair-01.json"}
+    # --report-only: the report of the planned three from the two committed pairs, nothing trained
+    shown = run_population(tiny_plan(pairs=3, seeds=(0, 1)), options(tmp_path, work=tmp_path / "w0",
+                                                                      report_only=True))
+    assert shown["pairs_planned"] == 3 and shown["pairs_driven"] == [0, 1]
+    assert not any((tmp_path / "w0" / "pairs").iterdir())
     run_population(tiny_plan(pairs=3, seeds=(0, 1)), options(tmp_path))
     # only the new pair was trained and driven here; the committed records are untouched
     assert sorted(p.name for p in (tmp_path / "work" / "pairs").iterdir()) == ["pair-02"]

@@ -47,6 +47,8 @@ def configure(parser) -> None:
     parser.add_argument("--batch-size", type=bounded_int(1, 4096), default=16,
                         help="envs stepped together per worker (one batched forward pass per step)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    parser.add_argument("--report-only", action="store_true",
+                        help="render the report from the pairs committed under --out; train and drive nothing")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace an earlier population report at --out (never anything else)")
     parser.add_argument("--restart", action="store_true",
@@ -71,7 +73,7 @@ def run(args) -> int:
 
         resolve_device(args.device)
     options = RunOptions(work, out, args.backend, args.workers, args.address, args.batch_size, args.overwrite,
-                         args.restart, not args.no_progress, args.command_line, args.device)
+                         args.restart, not args.no_progress, args.report_only, args.command_line, args.device)
     result = run_population(plan, options)
     document = {"plan": plan.as_dict(), **result}
     for line in headline(document):

@@ -70,6 +70,7 @@ class RunOptions:
     overwrite: bool = False  # replace an earlier report at ``out``
     restart: bool = False  # start the work directory afresh instead of resuming it
     progress: bool = True
+    report_only: bool = False  # render the report from the committed pairs; train and drive nothing
     command: str = ""
     device: str = "cpu"  # training and driving: cpu, cuda or auto (resolved by each worker)
 
@@ -110,7 +111,7 @@ def run_population(plan: PopulationPlan, options: RunOptions) -> dict:
     for record in records.values():
         adopt(state, record)
     todo = [seeds for seeds in plan.pairs if not record_complete(records.get(seeds.pair), plan)]
-    if todo:
+    if todo and not options.report_only:
         backend = make_backend(options.backend, options.workers, options.address)
         bar = _progress(len(plan.pairs), len(plan.pairs) - len(todo), "population: pairs", "pair", options.progress)
         try:
