@@ -115,6 +115,7 @@ class Contradiction:
 class Consistency:
     checks: list[Check]
     contradictions: list[Contradiction] = field(default_factory=list)
+    window_s: float = HEADING_DERIVATIVE_WINDOW_S  # the derivative window the turn rates were compared over
 
     @property
     def consistent(self) -> bool:
@@ -124,11 +125,17 @@ class Consistency:
     def not_checked(self) -> list[Check]:
         return [c for c in self.checks if c.status == "not checked"]
 
+    @property
+    def unchecked_turns(self) -> list[Check]:
+        """The turn checks the recording's own samples could not decide (a column not recorded is not
+        among them): a sign or unit error in those channels would go unseen and be fitted as physics."""
+        return [c for c in self.not_checked if c.name != "speed_vs_position" and not c.text.startswith("no ")]
+
     def check(self, name: str) -> Check:
         return next(c for c in self.checks if c.name == name)
 
     def to_json(self) -> dict:
-        return {"consistent": self.consistent,
+        return {"consistent": self.consistent, "window_s": self.window_s,
                 "contradictions": [asdict(c) for c in self.contradictions],
                 "checks": {c.name: {k: v for k, v in asdict(c).items() if k != "name"} for c in self.checks},
                 "not_checked": [f"{c.name}: {c.text}" for c in self.not_checked]}
@@ -267,12 +274,14 @@ def check_consistency(rec: Recording) -> Consistency:
     checks: list[Check] = []
     # The shortest derivative window over which the car's turning stands out of the heading's noise:
     # a noisy recording is compared over longer windows (every rate through the same filter).
+    longest_noise = math.nan  # the heading rate's noise over the longest window, when none shows turning
     for window_s in WINDOWS_S:
         d = channel_rates(rec, window_s)
         turning, turns, turn_std = _turning(rec, d)
         if turns:
             break
     if not turns:
+        longest_noise = d.heading_rate_noise
         d = channel_rates(rec)
         turning, _, turn_std = _turning(rec, d)
     window_s = d.window_s
@@ -295,9 +304,14 @@ def check_consistency(rec: Recording) -> Consistency:
         checks.append(Check("speed_vs_position", ("speed", "x, y"), "consistent" if ok else "contradicts",
                             f"speed is {ratio:.3g} x the positions' derivative", ratio=ratio, seconds=moving_s))
 
-    no_turns = (f"the car barely turns (heading rate std {turn_std:.3g} rad/s, with the heading's noise, even "
-                f"over {WINDOWS_S[-1]:g}-s windows)" if _seconds(turning, dt) >= MIN_CHECK_S
-                else f"the car moves for only {_seconds(turning, dt):.1f} s")
+    if _seconds(turning, dt) < MIN_CHECK_S:
+        no_turns = f"the car moves for only {_seconds(turning, dt):.1f} s"
+    elif turn_std < MIN_TURN_RATE_STD_RADPS:
+        no_turns = f"the car barely turns (heading rate std {turn_std:.3g} rad/s)"
+    else:
+        no_turns = (f"the turning does not stand out of the heading's noise even over {WINDOWS_S[-1]:g}-s windows "
+                    f"(heading rate std {turn_std:.3g} rad/s; its noise {longest_noise:.3g} rad/s over "
+                    f"{WINDOWS_S[-1]:g} s)")
     turning_s = _seconds(turning, dt)
 
     # The heading against the direction of travel.
@@ -369,8 +383,8 @@ def check_consistency(rec: Recording) -> Consistency:
                 if decided else f"lat_accel and the path's acceleration barely correlate (rho = {rho:+.2f})")
         checks.append(Check("lat_accel_vs_turning", ("lat_accel", "speed", "heading"), status, text, ratio=ratio,
                             correlation=rho, seconds=_seconds(turning, dt)))
-    consistency = Consistency(checks)
-    return Consistency(checks, blame(consistency))
+    consistency = Consistency(checks, window_s=window_s)
+    return Consistency(checks, blame(consistency), window_s)
 
 
 # ----------------------------------------------------------------------------------------------
