@@ -23,9 +23,14 @@ check                   measured                         consistent when
                         |d(x, y)/dt| x d(heading)/dt
 ======================= ================================ =============================================
 
-Derivatives are Savitzky-Golay (the window the replay uses for the heading). A check that cannot be
-made says why (a column not recorded, a car that barely turns or barely moves, channels that do not
-correlate). When checks fail, :func:`blame` names the channel that is most likely wrong and why:
+Derivatives are Savitzky-Golay, over the window the replay uses for the heading (0.5 s) or, on a noisy
+recording, over the shortest longer window (:data:`WINDOWS_S`) where the car's turning stands out of the
+heading's noise; the gyro, the steering's turn and the lateral acceleration are integrated and put through
+the same filter, so every pair compared carries the same smoothing and lag. A turn direction is decided
+by a correlation that is strong and, over the independent windows compared, not chance (Fisher's z). A
+check that cannot be made says why (a column not recorded, a car that barely turns or barely moves,
+turning lost in the heading's noise, channels that do not correlate); :attr:`Consistency.unchecked_turns`
+lists the turn checks left undecided, which lower a diagnosis' confidence. When checks fail, :func:`blame` names the channel that is most likely wrong and why:
 the same factor on the speed and on the yaw rate is the **time** column's scale (both positions and
 heading change that much slower per recorded second); a factor on one of them alone is that
 column's **units** (3.6: km/h; 57.3: deg/s; 9.81: g); a turn direction that one channel alone
