@@ -20,17 +20,31 @@ from plm_highway.sim2real.benchmark import CASE_SETS
 from plm_highway.sim2real.consistency import check_consistency
 from plm_highway.sim2real.diagnose import diagnose, to_json
 from plm_highway.sim2real.recording import read_recording, recording_from_arrays, write_recording
-from plm_highway.sim2real.synth import as_read, make_recording
+from plm_highway.sim2real.synth import NoiseLevels, as_read, make_recording
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real" / "iac_putnam_run4_2.csv"
+
+
+def _base(noise_scale: float):
+    recording, _ = make_recording({"transport_delay": 0.15, "tire_slip": None}, rng=np.random.default_rng(31),
+                                  duration_s=60.0, noise=NoiseLevels().scaled(noise_scale))
+    return recording
 
 
 @pytest.fixture(scope="session")
 def base():
     """A consistent 60-s recording with every optional channel (a late car, the seed paper's tires)."""
-    recording, _ = make_recording({"transport_delay": 0.15, "tire_slip": None}, rng=np.random.default_rng(31),
-                                  duration_s=60.0)
-    return recording
+    return _base(1.0)
+
+
+# The same drive measured 5 and 10 times as noisily: over the default 0.5-s derivative window the
+# heading's rate is then mostly noise (the turn checks must look over longer windows).
+NOISE_SCALES = (5.0, 10.0)
+
+
+@pytest.fixture(scope="session", params=NOISE_SCALES, ids=lambda s: f"noise x{s:g}")
+def noisy_base(request):
+    return _base(request.param)
 
 
 def _corrupted(recording, change, drop=()):
@@ -62,7 +76,7 @@ CLASSES = {
     "speed in km/h": (_scale("speed", 3.6), (), "speed", "units", "km/h"),
     "speed in mph": (_scale("speed", 2.23694), (), "speed", "units", "mph"),
     "time column doubled": (_scale("t", 2.0), (), "t", "scale", "2 x the true time"),
-    "time column halved": (_scale("t", 0.5), (), "t", "scale", "0.5 x the true time"),
+    "time column halved": (_scale("t", 0.5), (), "t", "scale", "the recorded time is 0.5"),
     "steering sign flipped": (_scale("steer", -1.0), (), "steer", "sign", "positive must steer left"),
     "yaw rate sign flipped": (_scale("yaw_rate", -1.0), (), "yaw_rate", "sign", "sign flipped"),
     "yaw rate in deg/s": (_set("yaw_rate", lambda c: np.degrees(c["yaw_rate"])), (), "yaw_rate", "units", "deg/s"),
@@ -89,6 +103,52 @@ def test_each_self_contradiction_is_inconsistent_naming_the_channel_and_the_caus
     assert blamed == [(channel, cause)], (blamed, result["summary"])
     assert words in result["consistency"]["contradictions"][0]["text"]
     assert result["summary"].startswith("Inconsistent:") and channel in result["summary"]
+
+
+@pytest.mark.parametrize("name", list(CLASSES))
+def test_each_self_contradiction_is_found_on_a_noisy_recording_too(noisy_base, name):
+    """A sign or unit error is never fitted as physics because the recording is noisy."""
+    change, drop, channel, cause, words = CLASSES[name]
+    result = to_json(diagnose(_corrupted(noisy_base, change, drop)))
+    assert result["verdict"] == "inconsistent", result["summary"]
+    assert result["effects"] == []
+    blamed = [(c["channel"], c["cause"]) for c in result["consistency"]["contradictions"]]
+    assert blamed == [(channel, cause)], (blamed, result["summary"])
+    assert words in result["consistency"]["contradictions"][0]["text"]
+
+
+def test_a_noisy_consistent_recording_is_checked_not_skipped(noisy_base):
+    """Every check is made (over a longer window than the clean recording's) and every one holds."""
+    checks = check_consistency(noisy_base)
+    assert {c.name: c.status for c in checks.checks} == {name: "consistent" for name in (
+        "speed_vs_position", "heading_vs_course", "yaw_rate_vs_heading", "steer_vs_turning", "lat_accel_vs_turning")}
+    assert checks.window_s > check_consistency(_base(1.0)).window_s
+    yaw = checks.check("yaw_rate_vs_heading")
+    assert yaw.ratio == pytest.approx(1.0, abs=0.1) and yaw.correlation > 0.9
+    assert checks.check("steer_vs_turning").correlation > 0.9
+
+
+def test_a_noisy_consistent_recording_gets_physics_at_normal_confidence(noisy_base):
+    result = to_json(diagnose(noisy_base))
+    assert result["verdict"] not in ("inconsistent",), result["summary"]
+    assert result["consistency"]["consistent"] is True and result["consistency"]["not_checked"] == []
+    assert result["confidence"] == "normal", result["summary"]
+
+
+def test_turn_checks_that_cannot_be_made_lower_the_confidence_and_are_named():
+    """A heading so noisy that no window shows the turning: the steering's sign is unchecked, said so."""
+    recording, _ = make_recording({"transport_delay": 0.15, "tire_slip": None}, rng=np.random.default_rng(31),
+                                  duration_s=60.0, noise=NoiseLevels(heading_rad=0.5), with_yaw_rate=False)
+    checks = check_consistency(recording)
+    assert checks.consistent
+    assert checks.check("steer_vs_turning").status == "not checked"
+    assert "does not stand out of the heading's noise" in checks.check("steer_vs_turning").text
+    result = to_json(diagnose(recording))
+    assert result["confidence"] == "low"
+    assert "could not be checked against itself for" in result["summary"] and "steer vs turning" in result["summary"]
+    # A column not recorded is no such doubt: the same drive with a quiet heading is normal confidence.
+    quiet = to_json(diagnose(_base(1.0)))
+    assert quiet["confidence"] == "normal"
 
 
 def test_what_could_not_be_checked_is_said(base):
@@ -126,6 +186,17 @@ def test_consistent_recordings_are_not_flagged(case):
     checks = check_consistency(as_read(recording))
     assert checks.consistent, [c.text for c in checks.contradictions]
     assert checks.check("speed_vs_position").status == "consistent"
+
+
+@pytest.mark.parametrize("case", list(_library_recordings()), ids=lambda c: c[0])
+def test_noisy_consistent_recordings_are_not_flagged_and_are_checked(case):
+    """No false alarm five times as noisy, and no turn check skipped for the noise."""
+    _, effects, options = case
+    recording, _ = make_recording(effects, rng=np.random.default_rng(2), noise=NoiseLevels().scaled(5.0),
+                                  **({"duration_s": 60.0} | options))
+    checks = check_consistency(as_read(recording))
+    assert checks.consistent, [c.text for c in checks.contradictions]
+    assert [c.name for c in checks.not_checked if not c.text.startswith("no ")] == []
 
 
 @pytest.mark.skipif(not REAL.is_file(), reason="../shared/real is absent")

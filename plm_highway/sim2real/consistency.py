@@ -23,9 +23,14 @@ check                   measured                         consistent when
                         |d(x, y)/dt| x d(heading)/dt
 ======================= ================================ =============================================
 
-Derivatives are Savitzky-Golay (the window the replay uses for the heading). A check that cannot be
-made says why (a column not recorded, a car that barely turns or barely moves, channels that do not
-correlate). When checks fail, :func:`blame` names the channel that is most likely wrong and why:
+Derivatives are Savitzky-Golay, over the window the replay uses for the heading (0.5 s) or, on a noisy
+recording, over the shortest longer window (:data:`WINDOWS_S`) where the car's turning stands out of the
+heading's noise; the gyro, the steering's turn and the lateral acceleration are integrated and put through
+the same filter, so every pair compared carries the same smoothing and lag. A turn direction is decided
+by a correlation that is strong and, over the independent windows compared, not chance (Fisher's z). A
+check that cannot be made says why (a column not recorded, a car that barely turns or barely moves,
+turning lost in the heading's noise, channels that do not correlate); :attr:`Consistency.unchecked_turns`
+lists the turn checks left undecided, which lower a diagnosis' confidence. When checks fail, :func:`blame` names the channel that is most likely wrong and why:
 the same factor on the speed and on the yaw rate is the **time** column's scale (both positions and
 heading change that much slower per recorded second); a factor on one of them alone is that
 column's **units** (3.6: km/h; 57.3: deg/s; 9.81: g); a turn direction that one channel alone
@@ -61,6 +66,13 @@ MIN_SIGN_CORRELATION = 0.5
 MIN_TURN_RATE_STD_RADPS = 0.01
 TURN_NOISE_FACTOR = 5.0
 MIN_CHECK_S = 5.0
+# Derivative windows tried in turn, shortest first: the first over which the car's turning stands out
+# of the heading's noise is used for every turn-rate check (noise through a Savitzky-Golay derivative
+# falls as the window's 1.5 power; a lane change's turn rate survives windows of a few seconds).
+WINDOWS_S = (HEADING_DERIVATIVE_WINDOW_S, 1.0, 2.0, 4.0, 8.0)
+# A turn direction also needs this Fisher z (atanh(rho) x sqrt(independent windows - 3)): a long
+# window over a short recording leaves few independent stretches, and few can correlate by chance.
+SIGN_Z = 3.0
 MAX_GYRO_LAG_S = 0.6
 STEER_LAG_S = (-0.2, 1.0)
 
@@ -108,6 +120,7 @@ class Contradiction:
 class Consistency:
     checks: list[Check]
     contradictions: list[Contradiction] = field(default_factory=list)
+    window_s: float = HEADING_DERIVATIVE_WINDOW_S  # the derivative window the turn rates were compared over
 
     @property
     def consistent(self) -> bool:
@@ -117,11 +130,17 @@ class Consistency:
     def not_checked(self) -> list[Check]:
         return [c for c in self.checks if c.status == "not checked"]
 
+    @property
+    def unchecked_turns(self) -> list[Check]:
+        """The turn checks the recording's own samples could not decide (a column not recorded is not
+        among them): a sign or unit error in those channels would go unseen and be fitted as physics."""
+        return [c for c in self.not_checked if c.name != "speed_vs_position" and not c.text.startswith("no ")]
+
     def check(self, name: str) -> Check:
         return next(c for c in self.checks if c.name == name)
 
     def to_json(self) -> dict:
-        return {"consistent": self.consistent,
+        return {"consistent": self.consistent, "window_s": self.window_s,
                 "contradictions": [asdict(c) for c in self.contradictions],
                 "checks": {c.name: {k: v for k, v in asdict(c).items() if k != "name"} for c in self.checks},
                 "not_checked": [f"{c.name}: {c.text}" for c in self.not_checked]}
@@ -152,11 +171,28 @@ class ChannelRates:
     valid: np.ndarray  # inside the filter's reach, not in a gap or glitch
     moving: np.ndarray  # valid and moving by the recorded speed and by the positions
     heading_rate_noise: float
+    window_s: float = HEADING_DERIVATIVE_WINDOW_S
+
+    def through_filter(self, rate: np.ndarray, dt: float) -> np.ndarray:
+        """A rate channel (the gyro's, the steering's) as the heading's rate sees it: integrated to an
+        angle, then differentiated by the same filter, so both carry the same smoothing and lag."""
+        angle = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * dt)])
+        return _derivative(angle, self.window_s, dt)
 
 
-def channel_rates(rec: Recording) -> ChannelRates:
+def _window(window_s: float, dt: float) -> int:
+    return max(5, round(window_s / dt) | 1)
+
+
+def _derivative(values: np.ndarray, window_s: float, dt: float) -> np.ndarray:
+    window = min(_window(window_s, dt), (values.shape[0] - 1) | 1 if values.shape[0] % 2 == 0 else values.shape[0])
+    return savgol_filter(values, window, 2, deriv=1, delta=dt, mode="interp")
+
+
+def channel_rates(rec: Recording, window_s: float = HEADING_DERIVATIVE_WINDOW_S) -> ChannelRates:
+    """The rates, each a Savitzky-Golay derivative over ``window_s`` (longer windows for noisier recordings)."""
     dt = rec.dt_s
-    window = max(5, round(HEADING_DERIVATIVE_WINDOW_S / dt) | 1)
+    window = _window(window_s, dt)
     half = window // 2
 
     def rate(values: np.ndarray) -> np.ndarray:
@@ -177,7 +213,7 @@ def channel_rates(rec: Recording) -> ChannelRates:
     sigma = 1.4826 * float(np.median(np.abs(d3 - np.median(d3)))) / math.sqrt(20.0) if d3.size else 0.0
     taps = savgol_filter(np.eye(window)[half], window, 2, deriv=1, delta=dt)  # impulse response
     return ChannelRates(speed_pos, course, course_rate, heading_rate, valid, moving,
-                        sigma * float(np.sqrt(np.sum(taps**2))))
+                        sigma * float(np.sqrt(np.sum(taps**2))), window_s)
 
 
 def _slope(y: np.ndarray, x: np.ndarray) -> float:
@@ -219,11 +255,42 @@ def _seconds(mask: np.ndarray, dt: float) -> float:
     return float(mask.sum()) * dt
 
 
+def _turning(rec: Recording, d: ChannelRates) -> tuple[np.ndarray, bool, float]:
+    """(the samples compared, whether the car turns well above the heading rate's noise, the rate's std)."""
+    turning = d.moving & d.valid
+    turn_std = float(np.std(d.heading_rate[turning])) if turning.any() else 0.0
+    turns = (_seconds(turning, rec.dt_s) >= MIN_CHECK_S and turn_std >= MIN_TURN_RATE_STD_RADPS
+             and turn_std >= TURN_NOISE_FACTOR * d.heading_rate_noise)
+    return turning, turns, turn_std
+
+
+def _decided(rho: float, seconds: float, window_s: float) -> bool:
+    """Whether a correlation decides a turn direction: strong, and unlikely by chance given the number
+    of independent stretches compared (one per filter window; Fisher's z at least SIGN_Z)."""
+    if not math.isfinite(rho) or abs(rho) < MIN_SIGN_CORRELATION:
+        return False
+    independent = seconds / max(window_s, HEADING_DERIVATIVE_WINDOW_S)
+    return independent > 3 and abs(math.atanh(min(abs(rho), 0.999999))) * math.sqrt(independent - 3) >= SIGN_Z
+
+
 def check_consistency(rec: Recording) -> Consistency:
     """Every relation between the recording's channels that its columns allow (see the module docstring)."""
-    d = channel_rates(rec)
     dt = rec.dt_s
     checks: list[Check] = []
+    # The shortest derivative window over which the car's turning stands out of the heading's noise:
+    # a noisy recording is compared over longer windows (every rate through the same filter).
+    longest_noise = math.nan  # the heading rate's noise over the longest window, when none shows turning
+    for window_s in WINDOWS_S:
+        d = channel_rates(rec, window_s)
+        turning, turns, turn_std = _turning(rec, d)
+        if turns:
+            break
+    if not turns:
+        longest_noise = d.heading_rate_noise
+        d = channel_rates(rec)
+        turning, _, turn_std = _turning(rec, d)
+    window_s = d.window_s
+    over = f" over {window_s:g}-s windows" if window_s != HEADING_DERIVATIVE_WINDOW_S else ""
 
     # Speed against the positions.
     moving_s = _seconds(d.moving, dt)
@@ -242,13 +309,15 @@ def check_consistency(rec: Recording) -> Consistency:
         checks.append(Check("speed_vs_position", ("speed", "x, y"), "consistent" if ok else "contradicts",
                             f"speed is {ratio:.3g} x the positions' derivative", ratio=ratio, seconds=moving_s))
 
-    # Turning: needed by every other check.
-    turning = d.moving & d.valid
-    turn_std = float(np.std(d.heading_rate[turning])) if turning.any() else 0.0
-    turns = (_seconds(turning, dt) >= MIN_CHECK_S and turn_std >= MIN_TURN_RATE_STD_RADPS
-             and turn_std >= TURN_NOISE_FACTOR * d.heading_rate_noise)
-    no_turns = (f"the car barely turns (heading rate std {turn_std:.3g} rad/s)" if _seconds(turning, dt) >= MIN_CHECK_S
-                else f"the car moves for only {_seconds(turning, dt):.1f} s")
+    if _seconds(turning, dt) < MIN_CHECK_S:
+        no_turns = f"the car moves for only {_seconds(turning, dt):.1f} s"
+    elif turn_std < MIN_TURN_RATE_STD_RADPS:
+        no_turns = f"the car barely turns (heading rate std {turn_std:.3g} rad/s)"
+    else:
+        no_turns = (f"the turning does not stand out of the heading's noise even over {WINDOWS_S[-1]:g}-s windows "
+                    f"(heading rate std {turn_std:.3g} rad/s; its noise {longest_noise:.3g} rad/s over "
+                    f"{WINDOWS_S[-1]:g} s)")
+    turning_s = _seconds(turning, dt)
 
     # The heading against the direction of travel.
     if turns:
@@ -258,10 +327,10 @@ def check_consistency(rec: Recording) -> Consistency:
         ratio = _slope(d.course_rate[turning], d.heading_rate[turning])
         # Rotated frames keep heading - course steady at the rotation; mirrored ones make it wander.
         rotated = abs(mean_direction) >= 0.9 and abs(offset) > MAX_HEADING_COURSE_OFFSET_RAD
-        decided = abs(rho) >= MIN_SIGN_CORRELATION
+        decided = _decided(rho, turning_s, window_s)
         status = ("contradicts" if rho < 0 or rotated else "consistent") if decided else "not checked"
-        text = (f"the direction of travel turns {ratio:+.3g} x the heading's rate (rho = {rho:+.2f}) and differs "
-                f"from the heading by {math.degrees(offset):+.1f} deg")
+        text = (f"the direction of travel turns {ratio:+.3g} x the heading's rate (rho = {rho:+.2f}{over}) and "
+                f"differs from the heading by {math.degrees(offset):+.1f} deg")
         checks.append(Check("heading_vs_course", ("heading", "x, y"), status, text, ratio=ratio, correlation=rho,
                             offset_rad=offset, seconds=_seconds(turning, dt)))
     else:
@@ -274,10 +343,11 @@ def check_consistency(rec: Recording) -> Consistency:
         checks.append(Check("yaw_rate_vs_heading", ("yaw_rate", "heading"), "not checked", no_turns))
     else:
         max_lag = round(MAX_GYRO_LAG_S / dt)
-        lag, rho, ratio = _lagged_fit(rec.yaw_rate_radps, d.heading_rate, turning, range(-max_lag, max_lag + 1), dt)
-        ok = rho >= MIN_SIGN_CORRELATION and _within(ratio)
-        status = "consistent" if ok else ("contradicts" if abs(rho) >= MIN_SIGN_CORRELATION else "not checked")
-        text = (f"yaw_rate is {ratio:+.3g} x the heading's rate (rho = {rho:+.2f} at a lag of {lag:+.2f} s)"
+        gyro = d.through_filter(rec.yaw_rate_radps, dt)
+        lag, rho, ratio = _lagged_fit(gyro, d.heading_rate, turning, range(-max_lag, max_lag + 1), dt)
+        decided = _decided(rho, turning_s, window_s)
+        status = ("consistent" if rho > 0 and _within(ratio) else "contradicts") if decided else "not checked"
+        text = (f"yaw_rate is {ratio:+.3g} x the heading's rate (rho = {rho:+.2f} at a lag of {lag:+.2f} s{over})"
                 if status != "not checked" else
                 f"yaw_rate and the heading's rate barely correlate (rho = {rho:+.2f})")
         checks.append(Check("yaw_rate_vs_heading", ("yaw_rate", "heading"), status, text, ratio=ratio,
@@ -290,10 +360,11 @@ def check_consistency(rec: Recording) -> Consistency:
             / v.cg_to_rear_m
         lo, hi = (round(s / dt) for s in STEER_LAG_S)
         # d(heading)(t) against the steering's turn at t - lag: a(t + lag) ~ b(t) with a = heading rate.
-        lag, rho, ratio = _lagged_fit(d.heading_rate, kinematic, turning, range(lo, hi + 1), dt)
-        decided = abs(rho) >= MIN_SIGN_CORRELATION
-        status = ("consistent" if rho >= MIN_SIGN_CORRELATION else "contradicts") if decided else "not checked"
-        text = (f"the car turns {ratio:+.3g} x the way the steering says (rho = {rho:+.2f} at a delay of {lag:.2f} s)"
+        lag, rho, ratio = _lagged_fit(d.heading_rate, d.through_filter(kinematic, dt), turning, range(lo, hi + 1), dt)
+        decided = _decided(rho, turning_s, window_s)
+        status = ("consistent" if rho > 0 else "contradicts") if decided else "not checked"
+        text = (f"the car turns {ratio:+.3g} x the way the steering says (rho = {rho:+.2f} at a delay of {lag:.2f} s"
+                f"{over})"
                 if decided else f"the steering and the turning barely correlate (rho = {rho:+.2f})")
         checks.append(Check("steer_vs_turning", ("steer", "heading"), status, text, ratio=ratio, correlation=rho,
                             lag_s=lag, seconds=_seconds(turning, dt)))
@@ -308,16 +379,17 @@ def check_consistency(rec: Recording) -> Consistency:
         checks.append(Check("lat_accel_vs_turning", ("lat_accel", "speed", "heading"), "not checked", no_turns))
     else:
         expected = d.speed_from_position * d.heading_rate  # the path's own: speed units cannot enter
-        rho = float(np.corrcoef(rec.lat_accel_mps2[turning], expected[turning])[0, 1])
-        ratio = _slope(rec.lat_accel_mps2[turning], expected[turning])
-        decided = abs(rho) >= MIN_SIGN_CORRELATION
+        lat = d.through_filter(rec.lat_accel_mps2, dt)
+        rho = float(np.corrcoef(lat[turning], expected[turning])[0, 1])
+        ratio = _slope(lat[turning], expected[turning])
+        decided = _decided(rho, turning_s, window_s)
         status = ("consistent" if rho > 0 and _within(ratio) else "contradicts") if decided else "not checked"
-        text = (f"lat_accel is {ratio:+.3g} x the positions' speed x the heading's rate (rho = {rho:+.2f})"
+        text = (f"lat_accel is {ratio:+.3g} x the positions' speed x the heading's rate (rho = {rho:+.2f}{over})"
                 if decided else f"lat_accel and the path's acceleration barely correlate (rho = {rho:+.2f})")
         checks.append(Check("lat_accel_vs_turning", ("lat_accel", "speed", "heading"), status, text, ratio=ratio,
                             correlation=rho, seconds=_seconds(turning, dt)))
-    consistency = Consistency(checks)
-    return Consistency(checks, blame(consistency))
+    consistency = Consistency(checks, window_s=window_s)
+    return Consistency(checks, blame(consistency), window_s)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -491,8 +491,12 @@ def summary_text(d: Diagnosis) -> str:
     unit = d.signal.unit
     label = d.signal.label
     lines = []
-    if d.confidence == "low":
+    if d.data.get("low_confidence_reasons"):
         lines.append(f"Low confidence: only {_scored_text(d.data)} ({'; '.join(d.data['low_confidence_reasons'])}).")
+    if d.data.get("unchecked_consistency"):
+        lines.append("Low confidence: the recording could not be checked against itself for "
+                     + "; ".join(d.data["unchecked_consistency"])
+                     + ", so a flipped sign or a wrong unit in those channels would read as physics.")
     if d.verdict == "unexcited":
         lines.append(f"Unexcited: '{d.recording.name}' cannot show steering-path physics: the steering moves the "
                      f"model's {label} by {d.data['model_signal_rms']:.4g} {unit} RMS and the car's {label} varies by "
@@ -736,6 +740,7 @@ def diagnose(recording: Recording, *, block_s: float | None = None, anchor_s: fl
     problem = make_problem(recording, signal_name, block_s, split)
     signal = problem.signal
     data = scored_data(recording, signal)
+    data["unchecked_consistency"] = [f"{c.name.replace('_', ' ')} ({c.text})" for c in consistency.unchecked_turns]
     block = np.floor((recording.t_s - recording.t_s[0]) / block_s).astype(int)
     _check_enough(data, recording, len(np.unique(block[signal.usable])))
     checks, notes = channel_notes(recording, signal)
@@ -807,7 +812,8 @@ def diagnose(recording: Recording, *, block_s: float | None = None, anchor_s: fl
     verdict = _verdict(selection, fit, data, left, left_plain, noise, signal, plain_signal)
     d = Diagnosis(recording, signal, noise, selection, block_s, anchor_s, heldout, before, after, best,
                   pose_before, pose_after, windows, conditions, fit, summary="", checks=checks, notes=notes,
-                  verdict=verdict, confidence="low" if data["low_confidence_reasons"] else "normal", data=data,
+                  verdict=verdict, confidence="low" if data["low_confidence_reasons"] or data["unchecked_consistency"]
+                  else "normal", data=data,
                   residual=left if selection.winner.effects else left_plain, channels=problem.channels,
                   problem=problem, consistency=consistency, library_verdict=verdict)
     d.summary = summary_text(d)

@@ -182,16 +182,18 @@ def candidates_figure(d: Diagnosis, plt):
 def consistency_figure(d: Diagnosis, plt):
     """Each relation the consistency checks measure, over time: what one channel says against another."""
     rec = d.recording
-    rates = channel_rates(rec)
+    rates = channel_rates(rec, d.consistency.window_s)  # the window the checks compared over
     checks = {c.name: c for c in d.consistency.checks}
     t = rec.t_s
     v = rec.vehicle
-    steered = rec.speed_mps * np.sin(np.arctan(v.cg_to_rear_m / v.wheelbase_m * np.tan(rec.steer_rad))) \
-        / v.cg_to_rear_m
+    steered = rates.through_filter(rec.speed_mps * np.sin(np.arctan(v.cg_to_rear_m / v.wheelbase_m
+                                                                    * np.tan(rec.steer_rad))) / v.cg_to_rear_m, rec.dt_s)
+    gyro = rates.through_filter(rec.yaw_rate_radps, rec.dt_s) if rec.yaw_rate_radps is not None else None
+    lat = rates.through_filter(rec.lat_accel_mps2, rec.dt_s) if rec.lat_accel_mps2 is not None else None
     panels = [
         ("speed_vs_position", "speed [m/s]", [(rec.speed_mps, "speed column"),
                                              (rates.speed_from_position, "|d(x, y)/dt| from the positions")]),
-        ("yaw_rate_vs_heading", "yaw rate [rad/s]", [(rec.yaw_rate_radps, "yaw_rate column"),
+        ("yaw_rate_vs_heading", "yaw rate [rad/s]", [(gyro, "yaw_rate column"),
                                                      (rates.heading_rate, "d(heading)/dt")]),
         ("heading_vs_course", "turn rate [rad/s]", [(rates.heading_rate, "d(heading)/dt"),
                                                     (rates.course_rate, "d(course)/dt from the positions")]),
@@ -200,7 +202,7 @@ def consistency_figure(d: Diagnosis, plt):
     ]
     if rec.lat_accel_mps2 is not None:
         panels.append(("lat_accel_vs_turning", "lateral accel [m/s^2]",
-                       [(rec.lat_accel_mps2, "lat_accel column"),
+                       [(lat, "lat_accel column"),
                         (rates.speed_from_position * rates.heading_rate, "|d(x, y)/dt| x d(heading)/dt")]))
     fig, axes = plt.subplots(len(panels), 1, figsize=(10, 2.3 * len(panels)), sharex=True)
     for ax, (name, ylabel, series) in zip(axes, panels):
@@ -213,7 +215,7 @@ def consistency_figure(d: Diagnosis, plt):
         ax.legend(loc="upper right")
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel("time as recorded [s]")
-    fig.suptitle(f"{rec.name}: the recording against itself")
+    fig.suptitle(f"{rec.name}: the recording against itself (turn rates over {d.consistency.window_s:g}-s windows)")
     fig.tight_layout()
     return fig
 
