@@ -17,7 +17,7 @@ SCRIPT = """
 import sys
 from plm_highway.cli import main
 code = main(sys.argv[1:])
-print("HEAVY", *[name for name in {heavy!r} if name in sys.modules])
+print("HEAVY", *[name for name in {heavy!r} + ("nbformat",) if name in sys.modules])
 print("EXIT", code)
 """
 
@@ -67,7 +67,7 @@ def test_help_pages_import_no_torch_and_no_simulator(words):
 def test_every_help_page_imports_no_torch_no_simulator_no_plotting(words):
     page, heavy = help_page(*words, "--help")
     assert f"usage: plm-highway {' '.join(words)}" in " ".join(page.split())
-    assert not {"torch", "highway_env", "matplotlib"} & set(heavy), heavy
+    assert not {"torch", "highway_env", "matplotlib", "nbformat"} & set(heavy), heavy
     if words != ("sim2real", "make-recording"):  # its help lists each effect's parameters, held by objects in code
         assert "scipy" not in heavy
 
@@ -154,7 +154,11 @@ def test_the_defaults_other_help_pages_read_from_source_equal_the_imported_libra
         read = static_defaults(module.__name__, function.__name__)  # a computed default (compare's config) is left out
         assert read == {name: value for name, value in defaults_of(function).items() if name in read}, function.__name__
     assert static_defaults(plm_vs_ekf.__name__, "compare")["seeds"] == defaults_of(plm_vs_ekf.compare)["seeds"]
-    for module, name in ((table3, "MAX_SEEDS"), (plm_vs_ekf, "MAX_SEEDS"), (bench_models, "TRAIN_BATCH_SIZE"),
+    from plm_highway.grading import notebooks
+
+    for module, name in ((notebooks, "DEFAULT_SOLUTIONS"), (notebooks, "DEFAULT_LESSONS"),
+                         (notebooks, "DEFAULT_FIGURES"),
+                         (table3, "MAX_SEEDS"), (plm_vs_ekf, "MAX_SEEDS"), (bench_models, "TRAIN_BATCH_SIZE"),
                          (bench_metrics, "DEFAULT_POINTS"), (bench_metrics, "DEFAULT_REPEAT"),
                          (bench_metrics, "DEFAULT_SEED")):
         assert static_value(module.__name__, name) == getattr(module, name), name

@@ -1347,7 +1347,8 @@ def test_bench_closed_loop_table_prints_intervals_from_the_values_and_none_for_t
     def figure(values):  # as a result file holds it (the interval is recomputed from the values)
         return {"mean": sum(values) / len(values), "values": values}
 
-    check = {"conditions": "ideal", "reference_forward_mae": figure([1.0, 2.0, 3.0]), "fused_mae": figure([1.0, 2.0, 3.0]),
+    check = {"conditions": "ideal", "reference_forward_mae": figure([1.0, 2.0, 3.0]),
+             "fused_mae": figure([1.0, 2.0, 3.0]),
              "fused_int8_mae": figure([1.0, 2.0, 3.5]), "int8_minus_fused_mae": figure([0.0, 0.0, 0.5])}
     row = format_closed_loop_table({"closed_loop": {"default": check}})[2]
     assert "| 2.00000 [0.45712, 7.22330] |" in row and "| yes |" in row

@@ -155,8 +155,8 @@ def static_names(module: str, name: str) -> tuple:
 def static_fields(module: str, cls: str) -> dict:
     """The defaults of a dataclass's fields (``name: type = value``), read from ``module``'s source without
     importing it: what ``defaults_of(cls)`` gives for the fields whose default :func:`static_value` can read
-    (a literal, arithmetic on literals, ``Path(...)`` of literals, an item of a literal dict, or a module-level constant,
-    also one imported from another module)."""
+    (a literal, arithmetic on literals, ``Path(...)`` of literals, an item of a literal dict, or a module-level
+    constant, also one imported from another module)."""
     import ast
 
     for node in _module_tree(module).body:
