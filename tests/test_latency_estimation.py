@@ -288,6 +288,45 @@ def test_a_mitigation_whose_estimate_never_locked_is_not_counted_as_met():
     assert any(t["met"] for t in locked["targets"] if t["target"].startswith("mitigation "))
 
 
+def test_the_summarised_intervals_respect_their_quantity():
+    from plm_highway.evaluation.latency_estimation import quantity_scale, summary_interval
+
+    assert [quantity_scale(name) for name in ("lock_s", "mae_true", "offset_rms_m", "reduction_true_pct",
+                                              "estimable_fraction")] == ["positive", "positive", "positive",
+                                                                        "reduction", "linear"]
+    # a time to lock: the log-scale interval, never below 0 (the symmetric one here would reach -1.0 s)
+    lock = summary_interval("lock_s", [0.5, 2.0, 9.0, None, math.inf])  # runs that never locked are left out
+    assert lock["n"] == 3 and lock["mean"] == pytest.approx(23 / 6)
+    symmetric_low = lock["mean"] - 4.302653 * np.std([0.5, 2.0, 9.0], ddof=1) / np.sqrt(3)
+    assert symmetric_low < 0 < lock["low"] < lock["mean"] < lock["high"]
+    logs = np.log([0.5, 2.0, 9.0])
+    half = 4.302653 * np.std(logs, ddof=1) / np.sqrt(3)
+    assert lock["low"] == pytest.approx(np.exp(logs.mean() - half), rel=1e-6)
+    # an MAE reduction: the ratios' interval, never above 100% (the symmetric one would reach past it)
+    reduction = summary_interval("reduction_true_pct", [99.9, 90.0, 50.0])
+    assert reduction["mean"] + 4.302653 * np.std([99.9, 90.0, 50.0], ddof=1) / np.sqrt(3) > 100
+    assert reduction["low"] < reduction["mean"] < reduction["high"] < 100
+    # a share: within [0, 1]
+    share = summary_interval("within_fraction", [1.0, 0.9, 0.3])
+    assert 0 <= share["low"] < share["mean"] < share["high"] == 1.0
+    # fewer than 3 seeds: a mean, no interval; no defined value: nothing
+    assert summary_interval("lock_s", [1.0, 3.0]) == {"mean": 2.0, "low": None, "high": None, "n": 2}
+    assert summary_interval("lock_s", [None, math.nan]) is None
+
+
+def test_the_report_prints_intervals_as_their_ends_and_says_when_the_seeds_are_too_few():
+    two_seeds = json.loads(json.dumps(fabricated_results()))  # seeds 0 and 1
+    report = render_markdown(two_seeds)
+    assert "too few seeds for an interval" in report and "(n=2, no interval)" in report and "±" not in report
+    three = fabricated_results()
+    mitigation = three["mitigation"][0]
+    mitigation["mae_true"] = {"mean": 0.02, "low": 0.015, "high": 0.03, "n": 3}
+    row = next(line for line in render_markdown(three).splitlines()
+               if line.startswith(f"| {mitigation['conditions']} | {mitigation['track']} | ")
+               and f"{mitigation['offset_rms_ratio']:.2f}" in line)
+    assert "| 0.0200 [0.0150, 0.0300] |" in row
+
+
 def test_the_report_directory_is_rendered_from_its_results_file(tmp_path):
     results = fabricated_results()
     paths = write_latency_report(results, tmp_path / "report")

@@ -1310,21 +1310,52 @@ def test_bench_models_refuses_bad_arguments(capsys, args, message):
 def test_bench_says_whether_the_approximation_stays_within_the_exact_forms_interval():
     from plm_highway.bench.models import mean_within_ci
 
-    exact = [1.0, 2.0, 3.0]  # mean 2, 95% half width 4.3027 / sqrt(3) = 2.484
-    assert mean_within_ci([4.4, 4.5, 4.5], exact)  # mean 4.4667: 2.4667 from 2
-    assert not mean_within_ci([4.5, 4.5, 4.5], exact)  # mean 4.5: 2.5 from 2
-    assert mean_within_ci([-0.4, -0.5, -0.5], exact) and not mean_within_ci([-0.5] * 3, exact)
+    # MAEs 1, 2, 3: logs 0, 0.6931, 1.0986 (mean 0.5973, sd 0.5555); t(0.975, 2) = 4.3027 -> half width 1.3801
+    # on the log scale: the interval [exp(-0.7828), exp(1.9774)] = [0.4571, 7.223]
+    exact = [1.0, 2.0, 3.0]
+    assert mean_within_ci([7.1, 7.2, 7.2], exact) and not mean_within_ci([7.3, 7.2, 7.3], exact)
+    assert mean_within_ci([0.46, 0.46, 0.46], exact) and not mean_within_ci([0.45] * 3, exact)
+    # the symmetric interval, 2 +- 2.484, would have taken in a mean of 0 (no error at all) and lacked 4.5 to 7.2
+    assert not mean_within_ci([0.0] * 3, exact) and mean_within_ci([4.5] * 3, exact)
+    assert not mean_within_ci([0.5], [0.5]) and not mean_within_ci([0.5], [0.5, 0.6])  # nothing to lie within
 
 
-def test_bench_confidence_interval_matches_the_t_table():
-    from plm_highway.bench.models import _mean_ci, mean_within_ci
+def test_bench_confidence_intervals_respect_the_quantity():
+    import math
 
-    # mean 2, sample sd 1, n 3: half width t(0.975, 2) / sqrt(3) = 4.3027 / 1.7321 (t from tables)
-    figure = _mean_ci([1.0, 2.0, 3.0])
-    assert figure["mean"] == 2.0
-    assert figure["ci95_half_width"] == pytest.approx(4.3027 / 3**0.5, abs=1e-4)
-    assert _mean_ci([0.5])["ci95_half_width"] is None  # one seed: no interval, not a zero-width one
-    assert not mean_within_ci([0.5], [0.5])  # nothing to lie within
+    from plm_highway.bench.models import _mean_ci
+
+    # an MAE: the interval of the logarithms, exponentiated (never below 0)
+    figure = _mean_ci([1.0, 2.0, 3.0], "positive")
+    logs = [math.log(v) for v in (1.0, 2.0, 3.0)]
+    centre, sd = sum(logs) / 3, (sum((x - sum(logs) / 3) ** 2 for x in logs) / 2) ** 0.5
+    assert figure["mean"] == 2.0 and figure["n"] == 3 and figure["values"] == [1.0, 2.0, 3.0]
+    assert figure["low"] == pytest.approx(math.exp(centre - 4.3027 * sd / 3**0.5), rel=1e-4)
+    assert figure["high"] == pytest.approx(math.exp(centre + 4.3027 * sd / 3**0.5), rel=1e-4)
+    assert _mean_ci([0.01, 0.5, 1.2], "positive")["low"] > 0  # the symmetric one would reach below 0
+    # a paired difference, signed: mean 2, sample sd 1, n 3: half width t(0.975, 2) / sqrt(3) = 4.3027 / 1.7321
+    difference = _mean_ci([1.0, 2.0, 3.0], "linear")
+    assert (difference["low"], difference["high"]) == (pytest.approx(2 - 4.3027 / 3**0.5, abs=1e-4),
+                                                       pytest.approx(2 + 4.3027 / 3**0.5, abs=1e-4))
+    for scale in ("positive", "linear"):  # fewer than 3 seeds: no interval, not a zero-width or a huge one
+        assert _mean_ci([0.5, 0.7], scale)["low"] is None and _mean_ci([0.5], scale)["high"] is None
+
+
+def test_bench_closed_loop_table_prints_intervals_from_the_values_and_none_for_two_seeds():
+    from plm_highway.bench.models import format_closed_loop_table
+
+    def figure(values):  # as a result file holds it (the interval is recomputed from the values)
+        return {"mean": sum(values) / len(values), "values": values}
+
+    check = {"conditions": "ideal", "reference_forward_mae": figure([1.0, 2.0, 3.0]),
+             "fused_mae": figure([1.0, 2.0, 3.0]),
+             "fused_int8_mae": figure([1.0, 2.0, 3.5]), "int8_minus_fused_mae": figure([0.0, 0.0, 0.5])}
+    row = format_closed_loop_table({"closed_loop": {"default": check}})[2]
+    assert "| 2.00000 [0.45712, 7.22330] |" in row and "| yes |" in row
+    assert "0.16667 [-0.55" in row  # the paired difference: symmetric, below 0
+    two = {key: (figure(value["values"][:2]) if isinstance(value, dict) else value) for key, value in check.items()}
+    row = format_closed_loop_table({"closed_loop": {"default": two}})[2]
+    assert row.count("(n=2, no interval)") == 4 and "| no |" in row
 
 
 @pytest.mark.slow

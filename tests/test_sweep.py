@@ -18,7 +18,7 @@ from plm_highway.rollout.policies import make_policy
 from plm_highway.rollout.seeds import parse_seeds
 from plm_highway.sweep import SweepGrid, grid_from_mapping, load_grid, run_sweep
 from plm_highway.sweep import runner as sweep_runner
-from plm_highway.sweep.table import TABLE_COLUMNS, mean_and_half_width
+from plm_highway.sweep.table import TABLE_COLUMNS, error_bars, mean_and_interval
 
 EXPERT_GRID = dict(latencies=("const:0.1", "steps:0.0-0.35:1.0"), tracks=("test",), seeds=(0, 5),
                    policies=("expert",), max_steps=15)
@@ -127,12 +127,27 @@ def test_grid_files_yaml_and_json(tmp_path):
         load_grid(tmp_path / "missing.json")
 
 
-def test_the_figures_error_bars_are_hand_computed_t_intervals():
-    mean, half = mean_and_half_width([1.0, 2.0, float("nan"), 3.0])  # a run without a reference has no error
-    # t(0.975, 2) = 4.302653; sd = 1; n = 3
-    assert mean == 2.0 and half == pytest.approx(4.302653 / np.sqrt(3), rel=1e-6)
-    assert mean_and_half_width([4.0])[0] == 4.0 and np.isnan(mean_and_half_width([4.0])[1])
-    assert all(np.isnan(mean_and_half_width([float("nan")])))
+def test_the_figures_error_bars_are_hand_computed_log_scale_t_intervals():
+    mean, low, high = mean_and_interval([1.0, 2.0, float("nan"), 3.0])  # a run without a reference has no error
+    # logs 0, ln 2, ln 3: mean m, sd s; t(0.975, 2) = 4.302653; n = 3
+    logs = np.log([1.0, 2.0, 3.0])
+    half = 4.302653 * np.std(logs, ddof=1) / np.sqrt(3)
+    assert mean == 2.0
+    assert (low, high) == (pytest.approx(np.exp(logs.mean() - half), rel=1e-6),
+                           pytest.approx(np.exp(logs.mean() + half), rel=1e-6))
+    assert 0 < low < mean < high and high - mean > mean - low  # never below 0, longer upwards
+    # a wide spread: the symmetric interval would reach below 0, this one does not
+    spread = [0.01, 0.5, 1.2]
+    assert np.mean(spread) - 4.302653 * np.std(spread, ddof=1) / np.sqrt(3) < 0 < mean_and_interval(spread)[1]
+    for too_few_values in ([4.0], [4.0, 5.0]):  # fewer than 3 seeds: a point, no bar
+        point, low, high = mean_and_interval(too_few_values)
+        assert point == np.mean(too_few_values) and np.isnan(low) and np.isnan(high)
+    assert all(np.isnan(mean_and_interval([float("nan")])))
+
+
+def test_the_error_bars_are_the_intervals_ends_and_none_where_there_is_no_interval():
+    bars = error_bars([2.0, 4.0, 5.0], [1.5, float("nan"), 5.5], [3.0, float("nan"), 6.0])
+    assert bars.tolist() == [[0.5, 0.0, 0.0], [1.0, 0.0, 1.0]]
 
 
 # -- running -------------------------------------------------------------------------------------

@@ -60,7 +60,7 @@ import time
 import numpy as np
 from tqdm.auto import tqdm
 
-from plm_highway.metrics.intervals import mean_ci
+from plm_highway.metrics.intervals import interval_text, mean_ci
 
 THROUGHPUT_BLOCK_SAMPLES = 50
 BLOCK_FRAMES = 1  # frames per side and turn (batch size 1); the throughput's turns take 50 samples
@@ -409,9 +409,9 @@ def closed_loop_check(conditions: str = "ideal", latency: str = CLOSED_LOOP_LATE
         "seeds": list(range(seeds)),
         "max_steps": steps,
         "checkpoints": f"shipped {run_conditions.checkpoint_preset}",
-        **{f"{name}_mae": _mean_ci(values) for name, values in mae.items()},
-        "fused_minus_reference_mae": _mean_ci(np.subtract(mae["fused"], mae["reference_forward"])),
-        "int8_minus_fused_mae": _mean_ci(np.subtract(mae["fused_int8"], mae["fused"])),
+        **{f"{name}_mae": _mean_ci(values, "positive") for name, values in mae.items()},
+        "fused_minus_reference_mae": _mean_ci(np.subtract(mae["fused"], mae["reference_forward"]), "linear"),
+        "int8_minus_fused_mae": _mean_ci(np.subtract(mae["fused_int8"], mae["fused"]), "linear"),
         "int8_mean_within_fused_ci": mean_within_ci(mae["fused_int8"], mae["fused"]),
         "max_abs_steering_difference": largest_difference["fused"],
         "max_abs_steering_difference_int8": largest_difference["fused_int8"],
@@ -419,17 +419,37 @@ def closed_loop_check(conditions: str = "ideal", latency: str = CLOSED_LOOP_LATE
 
 
 def mean_within_ci(values, reference_values) -> bool:
-    """Whether the mean of ``values`` lies within the 95% CI of ``reference_values``' mean (False where that
-    interval is undefined: one reference value)."""
-    reference = _mean_ci(reference_values)
-    half_width = reference["ci95_half_width"]
-    return half_width is not None and bool(abs(float(np.mean(values)) - reference["mean"]) <= half_width)
+    """Whether the mean of ``values`` (steering MAEs, never negative) lies within the 95% CI of
+    ``reference_values``' mean, an interval on the log scale (False where that interval is undefined: fewer than 3
+    reference values)."""
+    reference = mean_ci(reference_values, scale="positive")
+    return reference.low is not None and bool(reference.low <= float(np.mean(values)) <= reference.high)
 
 
-def _mean_ci(values) -> dict:
-    """Mean, 95% Student-t half-width (None for a single value: no interval) and the values, for the JSON."""
-    estimate = mean_ci(values)
-    return {"mean": estimate.mean, "ci95_half_width": estimate.half_width, "values": list(estimate.values)}
+# The scale of each closed-loop figure's interval: the MAEs are errors (log scale), the paired differences signed.
+def _scale(key: str) -> str:
+    return "linear" if "_minus_" in key else "positive"
+
+
+def _mean_ci(values, scale: str) -> dict:
+    """Mean, 95% Student-t interval on ``scale`` (:func:`~plm_highway.metrics.intervals.mean_ci`; ``low``/``high``
+    None with fewer than 3 values: no interval) and the values, for the JSON."""
+    estimate = mean_ci(values, scale=scale)
+    return {**estimate.as_dict(), "values": list(estimate.values)}
+
+
+def _ci_text(check: dict, key: str) -> str:
+    """A closed-loop figure as ``mean [low, high]``, its interval computed from its values on its scale (so a
+    result file written before the intervals respected their quantity renders the same way), or ``mean (n=2, no
+    interval)``."""
+    estimate = mean_ci(check[key]["values"], scale=_scale(key))
+    return interval_text(estimate.mean, estimate.low, estimate.high, estimate.n, lambda value: f"{value:.5f}",
+                         short=True)
+
+
+def _within(check: dict) -> bool:
+    """Whether the int8 form's mean MAE lies within the exact fused form's CI (from the values, as :func:`_ci_text`)."""
+    return mean_within_ci(check["fused_int8_mae"]["values"], check["fused_mae"]["values"])
 
 
 def format_report(result: dict) -> str:
@@ -491,21 +511,20 @@ def format_report(result: dict) -> str:
     lines += ["", *format_summary(result)]
     for check in result.get("closed_loop", {}).values():
 
-        def ci(figure: dict) -> str:
-            half_width = figure["ci95_half_width"]
-            return f"{figure['mean']:.5f} +- {'(one seed)' if half_width is None else f'{half_width:.5f}'}"
+        def ci(key: str, check=check) -> str:
+            return _ci_text(check, key)
 
-        within = "within" if check["int8_mean_within_fused_ci"] else "OUTSIDE"
+        within = "within" if _within(check) else "OUTSIDE"
         lines += [
             "",
             f"closed loop ({check['checkpoints']} checkpoints, {check['conditions']} conditions, track "
             f"{check['track']}, {check['latency']}, seeds {check['seeds'][0]}-{check['seeds'][-1]}, "
             f"{check['max_steps'] or 'all'} steps), PLM-Net steering MAE vs the reference run "
-            f"(mean +- 95% CI over the seeds):",
-            f"  reference forward {ci(check['reference_forward_mae'])} | exact fused (before) "
-            f"{ci(check['fused_mae'])} | int8 TAPM (after) {ci(check['fused_int8_mae'])}",
-            f"  paired: exact fused - reference forward {ci(check['fused_minus_reference_mae'])}; int8 - exact "
-            f"{ci(check['int8_minus_fused_mae'])}; the int8 mean is {within} the exact form's CI",
+            f"(mean [95% CI] over the seeds; MAEs on the log scale, paired differences symmetric):",
+            f"  reference forward {ci('reference_forward_mae')} | exact fused (before) "
+            f"{ci('fused_mae')} | int8 TAPM (after) {ci('fused_int8_mae')}",
+            f"  paired: exact fused - reference forward {ci('fused_minus_reference_mae')}; int8 - exact "
+            f"{ci('int8_minus_fused_mae')}; the int8 mean is {within} the exact form's CI",
             f"  largest step difference from the reference forward: exact "
             f"{check['max_abs_steering_difference']:.2e}, int8 {check['max_abs_steering_difference_int8']:.2e}",
         ]
@@ -605,15 +624,12 @@ def format_runs(results: list[dict]) -> list[str]:
 def format_closed_loop_table(result: dict) -> list[str]:
     """The ``--closed-loop`` check of a result as a markdown table (what the README shows of it)."""
 
-    def ci(figure: dict) -> str:
-        return f"{figure['mean']:.5f} +- {figure['ci95_half_width']:.5f}"
-
     lines = ["| preset | reference forward | exact fused | int8 TAPM | int8 - exact, paired | within the CI? |",
              "|---|---|---|---|---|---|"]
     for preset, check in result["closed_loop"].items():
         lines.append(
-            f"| {preset} ({check['conditions']}) | {ci(check['reference_forward_mae'])} | {ci(check['fused_mae'])} | "
-            f"{ci(check['fused_int8_mae'])} | {ci(check['int8_minus_fused_mae'])} | "
-            f"{'yes' if check['int8_mean_within_fused_ci'] else 'no'} |"
+            f"| {preset} ({check['conditions']}) | {_ci_text(check, 'reference_forward_mae')} | "
+            f"{_ci_text(check, 'fused_mae')} | {_ci_text(check, 'fused_int8_mae')} | "
+            f"{_ci_text(check, 'int8_minus_fused_mae')} | {'yes' if _within(check) else 'no'} |"
         )
     return lines

@@ -115,8 +115,9 @@ def _module_tree(module: str):
 
 
 def static_defaults(module: str, function: str) -> dict:
-    """The literal keyword defaults of ``module.function``, read from its source: what :func:`defaults_of` gives,
-    without importing the library behind a command (``--help`` stays fast and imports no torch)."""
+    """The keyword defaults of ``module.function``, read from its source: what :func:`defaults_of` gives, without
+    importing the library behind a command (``--help`` stays fast and imports no torch). Only the defaults
+    :func:`static_fields` can read are there (a computed one, e.g. ``np.arange(...)``, is left out)."""
     import ast
 
     for node in _module_tree(module).body:
@@ -125,7 +126,8 @@ def static_defaults(module: str, function: str) -> dict:
             positional = [*args.posonlyargs, *args.args]
             pairs = list(zip(positional[len(positional) - len(args.defaults):], args.defaults))
             pairs += [(a, d) for a, d in zip(args.kwonlyargs, args.kw_defaults) if d is not None]
-            return {arg.arg: ast.literal_eval(default) for arg, default in pairs}
+            return {arg.arg: value for arg, default in pairs
+                    if (value := _static_eval(module, default, None)) is not _UNREADABLE}
     raise ValueError(f"{module}: no function {function}")
 
 
@@ -148,6 +150,85 @@ def static_names(module: str, name: str) -> tuple:
     if name not in assigned:
         raise ValueError(f"{module}: no module-level {name}")
     return names(assigned[name])
+
+
+def static_fields(module: str, cls: str) -> dict:
+    """The defaults of a dataclass's fields (``name: type = value``), read from ``module``'s source without
+    importing it: what ``defaults_of(cls)`` gives for the fields whose default :func:`static_value` can read
+    (a literal, arithmetic on literals, ``Path(...)`` of literals, an item of a literal dict, or a module-level
+    constant, also one imported from another module)."""
+    import ast
+
+    for node in _module_tree(module).body:
+        if isinstance(node, ast.ClassDef) and node.name == cls:
+            return {item.target.id: _static_eval(module, item.value) for item in node.body
+                    if isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name)
+                    and item.value is not None and not isinstance(item.value, ast.Call)}
+    raise ValueError(f"{module}: no class {cls}")
+
+
+def static_value(module: str, name: str):
+    """A module-level constant of ``module`` (see :func:`static_fields` for what can be read), without importing it."""
+    return _static_eval(module, _module_names(module)[name])
+
+
+def _module_names(module: str) -> dict:
+    """Module-level names: assigned ones to their value node, ``from plm_highway.X import NAME`` ones to
+    ``(X, NAME)``."""
+    import ast
+
+    found = {}
+    for node in _module_tree(module).body:
+        if isinstance(node, ast.Assign):
+            found.update({target.id: node.value for target in node.targets if isinstance(target, ast.Name)})
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and node.value is not None:
+            found[node.target.id] = node.value
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("plm_highway"):
+            found.update({alias.asname or alias.name: (node.module, alias.name) for alias in node.names})
+    return found
+
+
+_UNREADABLE = object()
+
+
+def _static_eval(module: str, node, unreadable=ValueError):
+    """The value of ``node``, an expression of ``module``; one it cannot read raises ``ValueError``, or with
+    ``unreadable=None`` gives :data:`_UNREADABLE`."""
+    import ast
+
+    if unreadable is None:
+        try:
+            return _static_eval(module, node)
+        except (ValueError, KeyError, TypeError, IndexError):
+            return _UNREADABLE
+    import operator
+
+    binary = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
+              ast.Pow: operator.pow, ast.FloorDiv: operator.floordiv}
+    if isinstance(node, ast.Constant):
+        return node.value
+    if isinstance(node, (ast.Tuple, ast.List)):
+        values = [_static_eval(module, item) for item in node.elts]
+        return tuple(values) if isinstance(node, ast.Tuple) else values
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
+        return -_static_eval(module, node.operand)
+    if isinstance(node, ast.BinOp) and type(node.op) in binary:
+        return binary[type(node.op)](_static_eval(module, node.left), _static_eval(module, node.right))
+    if isinstance(node, ast.Dict) and None not in node.keys:
+        return {_static_eval(module, key): _static_eval(module, value) for key, value in zip(node.keys, node.values)}
+    if isinstance(node, ast.Subscript):
+        return _static_eval(module, node.value)[_static_eval(module, node.slice)]
+    if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "Path" and not node.keywords:
+        from pathlib import Path
+
+        return Path(*(_static_eval(module, arg) for arg in node.args))
+    if isinstance(node, ast.Name):
+        target = _module_names(module).get(node.id)
+        if isinstance(target, tuple):
+            return static_value(*target)
+        if target is not None:
+            return _static_eval(module, target)
+    raise ValueError(f"{module}: {ast.unparse(node)!r} is not a constant that can be read without importing it")
 
 
 def defaults_of(function: Callable) -> dict:

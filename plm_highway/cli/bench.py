@@ -85,7 +85,13 @@ def run_lessons(args) -> int:
 
 
 def configure_metrics(parser) -> None:
-    from plm_highway.bench import metrics as bench
+    from types import SimpleNamespace
+
+    from plm_highway.cli._common import static_value
+
+    # Read from the library's source, not imported: the help page imports no scipy (tests/test_cli_help.py).
+    bench = SimpleNamespace(**{name: static_value("plm_highway.bench.metrics", name)
+                               for name in ("DEFAULT_POINTS", "DEFAULT_REPEAT", "DEFAULT_SEED")})
 
     parser.add_argument("--points", type=int, default=bench.DEFAULT_POINTS, help="points on the first curve")
     parser.add_argument("--json", metavar="OUT.json", help="also write the results to this JSON file")
@@ -117,7 +123,14 @@ def run_metrics(args) -> int:
 
 
 def configure_models(parser) -> None:
-    from plm_highway.bench import models as bench
+    from types import SimpleNamespace
+
+    from plm_highway.cli._common import static_names, static_value
+
+    # Read from the library's source, not imported: the help page imports no torch (tests/test_cli_help.py).
+    bench = SimpleNamespace(PRESETS=static_names("plm_highway.bench.models", "PRESETS"),
+                            WEIGHTS=static_names("plm_highway.bench.models", "WEIGHTS"),
+                            TRAIN_BATCH_SIZE=static_value("plm_highway.bench.models", "TRAIN_BATCH_SIZE"))
 
     parser.add_argument("--preset", choices=(*bench.PRESETS, "both"), default="both", help="model size preset(s) to time")
     parser.add_argument("--frames", type=int, default=500, help="timed frames per side and repeat (>= 500 for the report)")
@@ -241,10 +254,11 @@ def run_sweep(args) -> int:
 
 
 def configure_reproduce(parser) -> None:
-    from plm_highway.bench.sweep import bench_reproduce
-    from plm_highway.rollout.conditions import CONDITION_NAMES
+    from plm_highway.cli._common import static_defaults, static_names
 
-    d = defaults_of(bench_reproduce)
+    # Read from the library's source, not imported: the help page imports no scipy (tests/test_cli_help.py).
+    d = static_defaults("plm_highway.bench.sweep", "bench_reproduce")
+    CONDITION_NAMES = static_names("plm_highway.rollout.conditions", "CONDITION_NAMES")
     parser.add_argument("--seeds", type=bounded_int(1, 1000), default=d["seeds"], help="seeds per setting")
     parser.add_argument("--max-steps", type=bounded_int(1, 10_000_000), default=d["max_steps"],
                         help="stop each run after this many policy steps (a full run is ~1,400 on the test track)")

@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_overwrite, defaults_of, publish_figure_and_numbers
+from plm_highway.cli._common import Command, add_overwrite, publish_figure_and_numbers
 
 
 def configure(parser) -> None:
-    from plm_highway.evaluation.response import DEFAULT_OUT, SEGMENTS, bm_response
-    from plm_highway.rollout.conditions import CONDITION_NAMES
+    from plm_highway.cli._common import static_defaults, static_names, static_value
 
-    d = defaults_of(bm_response)
+    # Read from the library's source, not imported: the help page imports no simulator (tests/test_cli_help.py).
+    DEFAULT_OUT = static_value("plm_highway.evaluation.response", "DEFAULT_OUT")
+    SEGMENTS = static_names("plm_highway.evaluation.response", "SEGMENTS")
+    CONDITION_NAMES = static_names("plm_highway.rollout.conditions", "CONDITION_NAMES")
+    d = static_defaults("plm_highway.evaluation.response", "bm_response")
     parser.add_argument("--out", default=str(DEFAULT_OUT),
                         help="figure to write (PNG); its numbers go beside it with the suffix .json")
     parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],

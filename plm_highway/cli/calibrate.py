@@ -7,18 +7,28 @@ from plm_highway.cli._common import (
     add_overwrite,
     bounded_float,
     bounded_int,
-    defaults_of,
     publish_figure_and_numbers,
 )
 
 
 def configure(parser) -> None:
-    from plm_highway.envs.config import MAX_PROCESSING_DELAY_STEPS, MAX_STEERING_TIME_CONSTANT_S
-    from plm_highway.evaluation.calibration import DEFAULT_OUT, READINGS, CalibrationOptions
-    from plm_highway.rollout.conditions import CONDITION_NAMES, CONDITIONS, FRICTION_RANGE, SPEED_LOGICS
+    from types import SimpleNamespace
 
-    d = defaults_of(CalibrationOptions)
-    paper = CONDITIONS["paper"]
+    from plm_highway.cli._common import static_fields, static_names, static_value
+
+    # Read from the library's source, not imported: the help page imports no torch (tests/test_cli_help.py).
+    MAX_PROCESSING_DELAY_STEPS, MAX_STEERING_TIME_CONSTANT_S = (
+        static_value("plm_highway.envs.config", name)
+        for name in ("MAX_PROCESSING_DELAY_STEPS", "MAX_STEERING_TIME_CONSTANT_S"))
+    DEFAULT_OUT = static_value("plm_highway.evaluation.calibration", "DEFAULT_OUT")
+    READINGS = static_names("plm_highway.evaluation.calibration", "READINGS")
+    CONDITION_NAMES, SPEED_LOGICS = (static_names("plm_highway.rollout.conditions", name)
+                                     for name in ("CONDITION_NAMES", "SPEED_LOGICS"))
+    FRICTION_RANGE = static_value("plm_highway.rollout.conditions", "FRICTION_RANGE")
+    paper = SimpleNamespace(  # CONDITIONS["paper"]'s actuator, from the constants it is built of
+        processing_delay_steps=static_value("plm_highway.rollout.conditions", "PAPER_PROCESSING_DELAY_STEPS"),
+        steering_time_constant_s=static_value("plm_highway.rollout.conditions", "PAPER_STEERING_TIME_CONSTANT_S"))
+    d = static_fields("plm_highway.evaluation.calibration", "CalibrationOptions")
     parser.add_argument("--out", default=str(DEFAULT_OUT),
                         help="figure to write (PNG); its numbers go beside it with the suffix .json")
     parser.add_argument("--conditions", choices=CONDITION_NAMES, default=d["conditions"],

@@ -18,10 +18,14 @@ FIELD_HELP = {
 
 
 def configure(parser) -> None:
-    from plm_highway.data.collect import CAMERAS, DEMONSTRATORS, CollectConfig
-    from plm_highway.rollout.conditions import CONDITION_NAMES
+    from types import SimpleNamespace
 
-    defaults = CollectConfig()
+    from plm_highway.cli._common import static_fields, static_names
+
+    # Read from the library's source, not imported: the help page imports no simulator.
+    defaults = SimpleNamespace(**static_fields("plm_highway.data.collect", "CollectConfig"))
+    CAMERAS, DEMONSTRATORS = (static_names("plm_highway.data.collect", name) for name in ("CAMERAS", "DEMONSTRATORS"))
+    CONDITION_NAMES = static_names("plm_highway.rollout.conditions", "CONDITION_NAMES")
     parser.add_argument("--track", default="train", help="train, test, unseen or a track JSON path")
     parser.add_argument("--out", required=True, help="dataset directory to write (must not exist, or be an "
                                                      "earlier dataset with --overwrite)")

@@ -9,8 +9,11 @@ GROUP_HELP = ("model-based latency compensation: the delay-compensated lane-coor
 
 
 def configure_table3(parser) -> None:
-    from plm_highway.estimation.table3 import MAX_SEEDS, MEASUREMENTS
+    from plm_highway.cli._common import static_names, static_value
 
+    # Read from the library's source, not imported: the help page imports no scipy (tests/test_cli_help.py).
+    MAX_SEEDS = static_value("plm_highway.estimation.table3", "MAX_SEEDS")
+    MEASUREMENTS = static_names("plm_highway.estimation.table3", "MEASUREMENTS")
     parser.add_argument("--seeds", type=bounded_int(1, MAX_SEEDS), default=5,
                         help="scored seeds 0..N-1 (at least 5 for the report's confidence intervals)")
     parser.add_argument("--scenarios", default="1,2,3,4", help="comma-separated scenario numbers (default all four)")
@@ -46,10 +49,12 @@ def run_table3(args) -> int:
 
 
 def configure_compare(parser) -> None:
-    from plm_highway.cli._common import defaults_of
-    from plm_highway.evaluation.plm_vs_ekf import MAX_SEEDS, CompareConfig, compare
+    from plm_highway.cli._common import static_defaults, static_fields, static_value
 
-    d, c = defaults_of(compare), defaults_of(CompareConfig)
+    # Read from the library's source, not imported: the help page imports no scipy (tests/test_cli_help.py).
+    MAX_SEEDS = static_value("plm_highway.evaluation.plm_vs_ekf", "MAX_SEEDS")
+    d = static_defaults("plm_highway.evaluation.plm_vs_ekf", "compare")
+    c = static_fields("plm_highway.evaluation.plm_vs_ekf", "CompareConfig")
     parser.add_argument("--conditions", default="ideal,paper",
                         help="comma-separated conditions, each driven in full (ideal: this simulator's setup; paper: "
                              "the paper's loop, pipeline, camera, latency injection and checkpoints)")
@@ -101,9 +106,12 @@ def run_compare(args) -> int:
 
 
 def configure_latency(parser) -> None:
-    from plm_highway.evaluation.latency_estimation import LatencySuite
+    from types import SimpleNamespace
 
-    d = LatencySuite()
+    from plm_highway.cli._common import static_fields
+
+    # LatencySuite's defaults read from the library's source: the help page imports no scipy.
+    d = SimpleNamespace(**static_fields("plm_highway.evaluation.latency_estimation", "LatencySuite"))
     parser.add_argument("--out", default="figures/latency-estimation",
                         help="report directory: results.json, report.md (rendered from it) and the figures")
     parser.add_argument("--seeds", type=bounded_int(1, 100), default=len(d.seeds), help="seeds 0..N-1")

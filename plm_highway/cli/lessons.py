@@ -10,7 +10,12 @@ GROUP_HELP = "build, grade and illustrate the lessons (nbgrader)"
 
 
 def configure_build(parser) -> None:
-    from plm_highway.grading.notebooks import DEFAULT_FIGURES, DEFAULT_LESSONS, DEFAULT_SOLUTIONS
+    from plm_highway.cli._common import static_value
+
+    # Read from the library's source, not imported: the help page imports no nbformat (tests/test_cli_help.py).
+    DEFAULT_FIGURES, DEFAULT_LESSONS, DEFAULT_SOLUTIONS = (
+        static_value("plm_highway.grading.notebooks", name)
+        for name in ("DEFAULT_FIGURES", "DEFAULT_LESSONS", "DEFAULT_SOLUTIONS"))
 
     parser.add_argument("--solutions", default=DEFAULT_SOLUTIONS, help="folder of solution notebooks (nbgrader source)")
     parser.add_argument("--lessons", default=DEFAULT_LESSONS, help="folder the student notebooks are written to")
@@ -34,7 +39,10 @@ def run_build(args) -> int:
 
 
 def configure_grade(parser) -> None:
-    from plm_highway.grading.notebooks import DEFAULT_SOLUTIONS
+    from plm_highway.cli._common import static_value
+
+    # Read from the library's source, not imported: the help page imports no nbformat (tests/test_cli_help.py).
+    DEFAULT_SOLUTIONS = static_value("plm_highway.grading.notebooks", "DEFAULT_SOLUTIONS")
 
     parser.add_argument("submissions", metavar="SUBMISSIONS_DIR", help="folder of <student>/<lesson>.ipynb")
     parser.add_argument("--csv", required=True, help="scores table to write (student, lesson, score, ...)")
@@ -60,7 +68,10 @@ def run_grade(args) -> int:
 
 
 def configure_figures(parser) -> None:
-    from plm_highway.grading.notebooks import DEFAULT_FIGURES
+    from plm_highway.cli._common import static_value
+
+    # Read from the library's source, not imported: the help page imports no nbformat (tests/test_cli_help.py).
+    DEFAULT_FIGURES = static_value("plm_highway.grading.notebooks", "DEFAULT_FIGURES")
 
     parser.add_argument("--out", default=DEFAULT_FIGURES, help="folder the PNGs are written to")
     add_overwrite(parser)
@@ -77,7 +88,10 @@ def run_figures(args) -> int:
 
 
 def configure_timing(parser) -> None:
-    from plm_highway.grading.notebooks import DEFAULT_SOLUTIONS
+    from plm_highway.cli._common import static_value
+
+    # Read from the library's source, not imported: the help page imports no nbformat (tests/test_cli_help.py).
+    DEFAULT_SOLUTIONS = static_value("plm_highway.grading.notebooks", "DEFAULT_SOLUTIONS")
 
     parser.add_argument("--solutions", default=DEFAULT_SOLUTIONS, help="folder of solution notebooks")
     parser.add_argument("--fast", action="store_true", help="time the CI mode (PLM_FAST=1) instead of full mode")

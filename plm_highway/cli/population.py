@@ -11,11 +11,15 @@ DEFAULT_WORK = Path("runs/population")
 
 
 def configure(parser) -> None:
-    from plm_highway.population.plan import DEFAULT_SIM_SEEDS, MAX_PAIRS
-    from plm_highway.population.recipe import RECIPES
-    from plm_highway.population.remedies import REMEDIES
+    from plm_highway.cli._common import static_names, static_value
     from plm_highway.rollout.backends import BACKENDS, MAX_WORKERS, default_workers
-    from plm_highway.rollout.conditions import CONDITION_NAMES
+
+    # Read from the library's source, not imported: the help page imports no torch (tests/test_cli_help.py).
+    DEFAULT_SIM_SEEDS, MAX_PAIRS = (static_value("plm_highway.population.plan", name)
+                                    for name in ("DEFAULT_SIM_SEEDS", "MAX_PAIRS"))
+    RECIPES = static_names("plm_highway.population.recipe", "RECIPES")
+    REMEDIES = static_value("plm_highway.population.remedies", "REMEDIES")
+    CONDITION_NAMES = static_names("plm_highway.rollout.conditions", "CONDITION_NAMES")
 
     parser.add_argument("--pairs", type=bounded_int(1, MAX_PAIRS), required=True,
                         help="how many BM/TAPM pairs to train (pair k: data seed 1+k, training seeds k)")

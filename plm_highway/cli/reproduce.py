@@ -9,16 +9,18 @@ from plm_highway.cli._common import (
     add_seed,
     bounded_float,
     bounded_int,
-    defaults_of,
     device_of,
 )
 
 
 def configure(parser) -> None:
-    from plm_highway.evaluation.reproduce import ReproduceOptions
-    from plm_highway.rollout.conditions import CONDITION_NAMES, INJECTION_LATENCY_SOURCE, LATENCY_SOURCE_NAMES
+    from plm_highway.cli._common import static_fields, static_names
 
-    d = defaults_of(ReproduceOptions)
+    # Read from the library's source, not imported: the help page imports no torch (tests/test_cli_help.py).
+    d = static_fields("plm_highway.evaluation.reproduce", "ReproduceOptions")
+    CONDITION_NAMES, INJECTION_LATENCY_SOURCE, LATENCY_SOURCE_NAMES = (
+        static_names("plm_highway.rollout.conditions", name)
+        for name in ("CONDITION_NAMES", "INJECTION_LATENCY_SOURCE", "LATENCY_SOURCE_NAMES"))
     parser.add_argument("--out", help="output directory (default: figures/reproduce, figures/reproduce/TRACK for a "
                                       "track other than test, figures/reproduce-paper-conditions[/TRACK] under "
                                       "--conditions paper)")

@@ -33,9 +33,10 @@ def finite_nonzero(text: str) -> float:
 
 
 def configure_diagnose(parser) -> None:
-    from plm_highway.sim2real.workflow import diagnose_file
+    from plm_highway.cli._common import static_defaults
 
-    defaults = defaults_of(diagnose_file)
+    # Read from the library's source, not imported: the help page imports no scipy (tests/test_cli_help.py).
+    defaults = static_defaults("plm_highway.sim2real.workflow", "diagnose_file")
     parser.add_argument("recording", help="recording CSV (sidecar <stem>.json read when present); format and "
                                           "bounds: plm_highway/sim2real/README.md")
     parser.add_argument("--json", dest="json_path", metavar="OUT.json", help="write the diagnosis as JSON")
@@ -123,7 +124,9 @@ def run_make_recording(args) -> int:
 
 
 def configure_bench(parser) -> None:
-    from plm_highway.sim2real.benchmark import CASE_SETS
+    from plm_highway.cli._common import static_names
+
+    CASE_SETS = static_names("plm_highway.sim2real.benchmark", "CASE_SETS")  # from source: the help imports no scipy
 
     parser.add_argument("--cases", default="timing",
                         help=f"comma-separated: timing, match and/or case sets {', '.join(CASE_SETS)}")

@@ -2,19 +2,22 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_device, add_overwrite, bounded_int, defaults_of
+from plm_highway.cli._common import Command, add_device, add_overwrite, bounded_int
 
 
 def configure(parser) -> None:
     import argparse
 
-    from plm_highway.rollout.backends import BACKENDS, MAX_WORKERS, default_workers
-    from plm_highway.rollout.policies import POLICY_NAMES
-    from plm_highway.sweep.grid import MAX_STEPS, SweepGrid
-    from plm_highway.sweep.runner import run_sweep
+    from types import SimpleNamespace
 
-    grid = SweepGrid()
-    d = defaults_of(run_sweep)
+    from plm_highway.cli._common import static_defaults, static_fields, static_names, static_value
+    from plm_highway.rollout.backends import BACKENDS, MAX_WORKERS, default_workers
+
+    # Read from the library's source, not imported: the help page imports no simulator (tests/test_cli_help.py).
+    POLICY_NAMES = static_names("plm_highway.rollout.policies", "POLICY_NAMES")
+    MAX_STEPS = static_value("plm_highway.sweep.grid", "MAX_STEPS")
+    grid = SimpleNamespace(**static_fields("plm_highway.sweep.grid", "SweepGrid"))
+    d = static_defaults("plm_highway.sweep.runner", "run_sweep")
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="sweep directory: cells/, results.csv, figures/; run again to resume")
     parser.add_argument("--grid", metavar="FILE", help="grid from a YAML or JSON file (conditions, latencies, tracks, "

@@ -22,9 +22,12 @@ GROUP_HELP = "train the Base Model or the Timed Action Prediction Model"
 
 
 def _common_options(parser: argparse.ArgumentParser) -> None:
-    from plm_highway.training.train import TrainConfig
+    from types import SimpleNamespace
 
-    defaults = TrainConfig()
+    from plm_highway.cli._common import static_fields
+
+    # TrainConfig's defaults read from the library's source: the help page imports no torch.
+    defaults = SimpleNamespace(**static_fields("plm_highway.training.train", "TrainConfig"))
     parser.add_argument("--data", required=True, help="dataset directory written by 'plm-highway collect'")
     parser.add_argument("--out", required=True, help="checkpoint directory to write (model.pt + model.json)")
     parser.add_argument("--epochs", type=int, default=defaults.epochs,
@@ -53,8 +56,9 @@ def configure_bm(parser: argparse.ArgumentParser) -> None:
 
 
 def configure_tapm(parser: argparse.ArgumentParser) -> None:
-    from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S
+    from plm_highway.cli._common import static_value
 
+    DEFAULT_DELTA_GRID_S = static_value("plm_highway.models.tapm", "DEFAULT_DELTA_GRID_S")
     _common_options(parser)
     parser.add_argument("--bm", required=True, help="Base Model checkpoint (directory or .pt/.json file)")
     parser.add_argument("--delta-grid", default=",".join(f"{d:g}" for d in DEFAULT_DELTA_GRID_S),

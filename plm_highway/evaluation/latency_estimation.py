@@ -544,16 +544,35 @@ def records_summary(record: dict) -> dict:
     return record["summary"]
 
 
+def quantity_scale(name: str) -> str:
+    """The scale of a summarised score's 95% interval (:func:`~plm_highway.metrics.intervals.mean_ci`): an MAE
+    reduction (``reduction_*``) on the ratio's log scale, never above 100%; a share of ticks or of changes
+    (``*_fraction``) bounded on both sides, on the linear scale, clipped to [0, 1] (:func:`summary_interval`); every
+    other score (times, errors, MAEs, RMSs) never negative, on the log scale."""
+    if name.startswith("reduction_"):
+        return "reduction"
+    return "linear" if name.endswith("_fraction") else "positive"
+
+
+def summary_interval(name: str, values) -> dict | None:
+    """The mean of score ``name``'s defined values and its 95% interval on :func:`quantity_scale`'s scale (``low``
+    and ``high`` None with fewer than 3 values), as the results JSON holds it; None without a defined value."""
+    from plm_highway.metrics.intervals import mean_ci
+
+    values = [v for v in values if v is not None and math.isfinite(v)]
+    if not values:
+        return None
+    interval = mean_ci(values, scale=quantity_scale(name)).as_dict()
+    if name.endswith("_fraction") and interval["low"] is not None:  # a share: no interval reaches outside [0, 1]
+        interval.update(low=max(0.0, interval["low"]), high=min(1.0, interval["high"]))
+    return interval
+
+
 def summarise(results: Results) -> dict:
     """Per-run scores gathered by (conditions, track, setting, role, variant) and the targets' verdicts."""
-    from plm_highway.evaluation.protocol import mean_ci
-
     suite = results.suite
     by_key = {(s.conditions, s.track, s.seed, s.latency, s.role, s.variant): r for s, r in results.records}
-
-    def interval(values):
-        values = [v for v in values if v is not None and math.isfinite(v)]
-        return mean_ci(values).as_dict() if values else None
+    interval = summary_interval
 
     groups: dict[tuple, list[dict]] = {}
     for spec, record in results.records:
@@ -568,15 +587,15 @@ def summarise(results: Results) -> dict:
                  "per_seed": [{"seed": m["seed"], **m["estimate"]} for m in members]}
         for name in ("first_estimable_s", "lock_s", "estimable_fraction", "wrong_when_estimable_fraction",
                      "within_after_first_fraction", "median_error_after_first_s", "within_fraction"):
-            entry[name] = interval([value[name] for value in lock])
+            entry[name] = interval(name, [value[name] for value in lock])
         # Records are held as JSON reads them (drive_suite): a run that never locked has lock_s None.
         locks_s = [math.inf if value["lock_s"] is None else value["lock_s"] for value in lock]
         entry["locked_within_budget"] = int(sum(1 for lock_s in locks_s if lock_s <= LOCK_BUDGET_S))
         entry["locked"] = int(sum(1 for lock_s in locks_s if math.isfinite(lock_s)))
-        entry["offset_rms_m"] = interval([m["summary"]["lateral_offset_rms_m"] for m in members])
+        entry["offset_rms_m"] = interval("offset_rms_m", [m["summary"]["lateral_offset_rms_m"] for m in members])
         if any("steps" in m["estimate"] for m in members):
             steps = [m["estimate"]["steps"] for m in members]
-            entry["steps"] = {name: interval([value[name] for value in steps])
+            entry["steps"] = {name: interval(name, [value[name] for value in steps])
                               for name in ("recovered_within_budget_fraction", "median_recovery_s", "within_fraction")}
         quiet = [m["estimate"]["quiet"] for m in members]
         entry["quiet_ticks"] = int(sum(value["quiet_ticks"] for value in quiet))
@@ -585,7 +604,8 @@ def summarise(results: Results) -> dict:
         entry["estimable_when_quiet_fraction"] = (sum(value["estimable_when_quiet_fraction"] * value["quiet_ticks"]
                                                       for value in quiet) / max(entry["quiet_ticks"], 1))
         if any("stamped_error_final_s" in m["estimate"] for m in members):
-            entry["stamped_error_final_s"] = interval([m["estimate"].get("stamped_error_final_s") for m in members])
+            entry["stamped_error_final_s"] = interval("stamped_error_final_s",
+                                                      [m["estimate"].get("stamped_error_final_s") for m in members])
         if any("recording" in m for m in members):
             entry["recording"] = [{"seed": m["seed"], **m["recording"]} for m in members if "recording" in m]
         estimation.append(entry)
@@ -605,7 +625,7 @@ def summarise(results: Results) -> dict:
                     if name.startswith("left_road"):
                         entry[name] = int(sum(m[name] for _, m in per_seed))
                     else:
-                        entry[name] = interval([m[name] for _, m in per_seed])
+                        entry[name] = interval(name, [m[name] for _, m in per_seed])
                 mean = {name: entry[name]["mean"] for name in ("reduction_true_pct", "reduction_estimated_pct",
                                                                  "offset_rms_true_m", "offset_rms_estimated_m")
                         if entry.get(name)}

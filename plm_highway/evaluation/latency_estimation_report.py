@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 
 from plm_highway.io import directory_kind, json_text, save_figure_into, write_output
+from plm_highway.metrics.intervals import MIN_INTERVAL_VALUES, interval_text, too_few
 
 LATENCY_REPORT = directory_kind("latency-estimation-report", "a plm-highway latency-estimation report directory")
 FIGURES = ("traces.png", "mitigation.png")
@@ -27,15 +28,13 @@ def _kept(fraction) -> str:
 
 
 def _mean(interval, scale: float = 1.0, digits: int = 2, unit: str = "") -> str:
-    if not interval:
+    """``mean unit [low, high]`` (the interval as summarised: not symmetric off the linear scale), or without an
+    interval (fewer than 3 seeds) ``mean unit (n=2, no interval)``; "-" where there is no mean."""
+    if not interval or interval.get("mean") is None or not math.isfinite(interval["mean"]):
         return "-"
-    mean = interval["mean"] * scale
-    if not math.isfinite(mean):
-        return "-"
-    if interval.get("low") is None:
-        return f"{mean:.{digits}f}{unit}"
-    half = (interval["high"] - interval["low"]) / 2 * scale
-    return f"{mean:.{digits}f} ± {half:.{digits}f}{unit}"
+    low, high = (None if interval.get(end) is None else interval[end] * scale for end in ("low", "high"))
+    return interval_text(interval["mean"] * scale, low, high, interval.get("n", 0),
+                         lambda value: f"{value:.{digits}f}", unit, short=True)
 
 
 def _pct(interval) -> str:
@@ -84,8 +83,10 @@ def render_markdown(results: dict) -> str:
            "each run the whole scored track; ")
         + "the tolerance is one "
         "frame period of the loop (50 ms at the ideal conditions' 20 Hz, 33 ms at the paper conditions' 30 Hz); the "
-        "truth is the age of the frame the car got. Numbers are means over seeds ± the half-width of a 95% "
-        "Student-t interval. PLM-Net and the Base Model are "
+        "truth is the age of the frame the car got. Numbers are means over seeds [a 95% Student-t interval]: "
+        "times, errors, MAEs and RMSs on the log scale (never below 0), MAE reductions on the scale of the ratio "
+        "mitigated / baseline (never above 100%), shares on the linear scale within 0-100%; with fewer than "
+        f"{MIN_INTERVAL_VALUES} seeds, {too_few()} (no interval). PLM-Net and the Base Model are "
         + (f"the checkpoints in `{results['checkpoints']}`" if results.get("checkpoints", "shipped") != "shipped"
            else "the shipped checkpoints of each conditions' preset")
         + ": one trained BM/TAPM pair per preset, so the intervals are over simulator seeds, not over trainings "

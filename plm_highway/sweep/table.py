@@ -7,7 +7,8 @@ step by step over the common span, against the cell's reference (same condition,
 the BM, or the expert for the expert, without latency; see :class:`~plm_highway.sweep.grid.SweepCell`).
 
 Figures: per condition and track, the steering MAE and the offset RMS of each policy at each
-latency profile, mean over the seeds with a 95% t-interval (none for a single seed).
+latency profile, mean over the seeds with a 95% t-interval on the log scale (both are errors, never negative:
+:func:`~plm_highway.metrics.intervals.mean_ci` with ``scale="positive"``); no bar with fewer than 3 seeds.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.io import file_kind, pyplot, save_figure_into, unique_file_names
-from plm_highway.metrics.intervals import mean_ci
+from plm_highway.metrics.intervals import MIN_INTERVAL_VALUES, mean_ci, too_few
 from plm_highway.metrics.steering import common_span, steering_mae
 from plm_highway.sweep.grid import SweepCell, SweepGrid
 
@@ -51,14 +52,26 @@ def table_rows(cells: list[SweepCell], results: dict[SweepCell, dict]) -> list[d
     return rows
 
 
-def mean_and_half_width(values) -> tuple[float, float]:
-    """A figure's point and error bar: the mean over the values that are defined and the half-width of its 95%
-    Student-t interval (:func:`~plm_highway.metrics.intervals.mean_ci`); NaN where undefined (no value, or one)."""
+def mean_and_interval(values) -> tuple[float, float, float]:
+    """A figure's point and error bar of an error (never negative): the mean over the values that are defined and
+    its 95% Student-t interval on the log scale (:func:`~plm_highway.metrics.intervals.mean_ci`,
+    ``scale="positive"``), so the bar never reaches below 0; the interval is NaN with fewer than 3 defined values,
+    all three with none."""
     defined = [v for v in values if math.isfinite(v)]
     if not defined:
-        return math.nan, math.nan
-    estimate = mean_ci(defined)
-    return estimate.mean, math.nan if estimate.half_width is None else estimate.half_width
+        return math.nan, math.nan, math.nan
+    estimate = mean_ci(defined, scale="positive")
+    if estimate.low is None:
+        return estimate.mean, math.nan, math.nan
+    return estimate.mean, estimate.low, estimate.high
+
+
+def error_bars(means, lows, highs) -> np.ndarray:
+    """``errorbar``'s ``yerr`` (2 x N, below and above each mean) for intervals that need not be symmetric; no bar
+    (0) where the interval is undefined, and a bar never crossing its mean (with many strongly skewed seeds the
+    arithmetic mean can lie above the log-scale interval: the bar then ends at the mean)."""
+    means, lows, highs = (np.asarray(v, dtype=float) for v in (means, lows, highs))
+    return np.nan_to_num(np.vstack([np.maximum(means - lows, 0.0), np.maximum(highs - means, 0.0)]))
 
 
 def figure_names(grid: SweepGrid) -> list[tuple[str, str, str]]:
@@ -79,10 +92,10 @@ def save_figures(rows: list[dict], grid: SweepGrid, directory: Path) -> list[Pat
         fig, axes = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
         for policy in grid.policies:
             for ax, metric in zip(axes, ("steering_mae", "lateral_offset_rms_m")):
-                stats = [mean_and_half_width([r[metric] for r in rows if (r["condition"], r["track"], r["latency"],
-                                    r["policy"]) == (condition, track, latency, policy)]) for latency in latencies]
-                means, halves = zip(*stats)
-                ax.errorbar(range(len(latencies)), means, yerr=np.nan_to_num(halves), marker="o", capsize=3,
+                stats = [mean_and_interval([r[metric] for r in rows if (r["condition"], r["track"], r["latency"],
+                                  r["policy"]) == (condition, track, latency, policy)]) for latency in latencies]
+                means, lows, highs = zip(*stats)
+                ax.errorbar(range(len(latencies)), means, yerr=error_bars(means, lows, highs), marker="o", capsize=3,
                             label=policy)
         for ax, label in zip(axes, ("steering MAE vs no latency (normalised)", "lateral offset RMS [m]")):
             ax.set_xticks(range(len(latencies)), latencies, rotation=20)
@@ -90,7 +103,8 @@ def save_figures(rows: list[dict], grid: SweepGrid, directory: Path) -> list[Pat
             ax.set_ylabel(label)
             ax.grid(alpha=0.3)
             ax.legend(title="policy")
-        fig.suptitle(f"condition {condition}, track {track}: mean over {len(grid.seeds)} seed(s), 95% CI")
+        interval = "95% CI" if len(grid.seeds) >= MIN_INTERVAL_VALUES else too_few()
+        fig.suptitle(f"condition {condition}, track {track}: mean over {len(grid.seeds)} seed(s), {interval}")
         path = directory / name
         save_figure_into(fig, path)
         plt.close(fig)
