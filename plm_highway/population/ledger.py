@@ -27,6 +27,7 @@ from pathlib import Path
 from plm_highway._version import __version__
 from plm_highway.errors import BadInput
 from plm_highway.io import JSON_MARKER_KEY, file_kind, json_text, write_output
+from plm_highway.io.bounded import JsonLimits, load_json
 from plm_highway.population.plan import PopulationPlan, pair_name
 
 PAIR_RECORD = file_kind("population-pair", "a population's committed pair record")
@@ -97,12 +98,8 @@ def read_ledger(out: Path, plan: PopulationPlan) -> dict[int, dict]:
 
 
 def _read_record(path: Path) -> dict:
-    try:
-        if path.stat().st_size > MAX_RECORD_BYTES:
-            raise BadInput(f"{path}: larger than a pair record may be ({MAX_RECORD_BYTES:,} bytes)")
-        data = json.loads(path.read_text(encoding="utf-8"), object_pairs_hook=_no_duplicate_keys(path))
-    except (OSError, ValueError) as exc:
-        raise BadInput(f"{path}: not a readable {PAIR_RECORD.describe} ({exc})") from None
+    # The kit's bounded loader: size, depth and duplicate keys refused, naming the file.
+    data = load_json(path, JsonLimits(max_bytes=MAX_RECORD_BYTES), what=PAIR_RECORD.describe)
     if not isinstance(data, dict) or data.get(JSON_MARKER_KEY) != PAIR_RECORD.name:
         raise BadInput(f"{path}: not {PAIR_RECORD.describe}")
     if data.get("format") != RECORD_FORMAT:
@@ -112,17 +109,6 @@ def _read_record(path: Path) -> dict:
         raise BadInput(f"{path}: its contents were changed after plm-highway wrote it (record_sha256 does not "
                        "match); restore it from git, or remove it to have the pair made again")
     return data
-
-
-def _no_duplicate_keys(path: Path):
-    def hook(pairs):
-        keys = [key for key, _ in pairs]
-        duplicated = sorted({key for key in keys if keys.count(key) > 1})
-        if duplicated:
-            raise ValueError(f"duplicate key {duplicated[0]!r}")
-        return dict(pairs)
-
-    return hook
 
 
 def _differences(earlier: dict, now: dict) -> list[str]:
