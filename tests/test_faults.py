@@ -486,7 +486,9 @@ def test_a_target_that_appears_meanwhile_is_refused_without_advising_overwrite(t
         with write_output(path, OutputKindForTests.FILE, overwrite=True) as tmp:
             tmp.write_text("{}")
             write_json(path, {"other": "process"}, OutputKindForTests.FILE)  # another writer wins meanwhile
-    assert "--overwrite" not in str(refusal.value) and "another process" in str(refusal.value)
+    message = str(refusal.value)
+    assert "--overwrite" not in message and "another plm-highway wrote" in message
+    assert "while this run was working" in message
     assert json.loads(path.read_text())["other"] == "process"
 
 

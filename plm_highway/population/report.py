@@ -14,7 +14,7 @@ from pathlib import Path
 from plm_highway.errors import BadInput
 from plm_highway.evaluation.outcomes import OUTCOMES
 from plm_highway.evaluation.protocol import setting_label, setting_tag
-from plm_highway.io import directory_kind, json_text, pyplot, save_figure_into, write_csv_into, write_output
+from plm_highway.io import directory_kind, format_cell, json_text, pyplot, save_figure_into, write_csv_into, write_output
 from plm_highway.metrics.intervals import MIN_INTERVAL_VALUES, interval_text, too_few
 from plm_highway.population import analysis
 from plm_highway.population.plan import PopulationPlan, pair_name
@@ -99,7 +99,7 @@ def _spread(summaries: list[dict], key: str) -> dict | None:
 
 def publish_report(state, options) -> dict:
     """Write the report directory ``options.out`` in one publication; returns the analysis."""
-    rows = result_rows(state)
+    rows = _as_written(result_rows(state))
     if not rows:
         raise BadInput("population: no pair was trained and driven, so there is nothing to report (see the "
                        f"training records under {options.work}/pairs)")
@@ -508,6 +508,13 @@ def _command(recipe: dict, which: str) -> str:
 
     r = Recipe.from_dict(recipe)
     return r.collect_command(1) if which == "collect" else r.train_command(which, 0)
+
+
+def _as_written(rows: list[dict]) -> list[dict]:
+    """``rows`` as results.csv will hold them (floats to its digits), so that population.json's statistics are
+    exactly those a reader recomputes from the published results.csv."""
+    return [{key: (_parse(format_cell(value)) if isinstance(value, float) and key in RESULT_COLUMNS else value)
+             for key, value in row.items()} for row in rows]
 
 
 def read_results(path: Path) -> list[dict]:
