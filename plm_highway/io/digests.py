@@ -13,6 +13,8 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
+import sys
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
@@ -66,6 +68,19 @@ def content_digest(record: Mapping, *, ignore: Iterable[str] = ()) -> str:
     """The digest of a stored result without its own digest (and the keys in ``ignore``)."""
     skipped = {DIGEST_KEY, *ignore}
     return json_digest({key: value for key, value in record.items() if key not in skipped})
+
+
+def set_aside(path: Path, why: str, then: str = "run again") -> Path:
+    """Move a stored result that can no longer be used to ``NAME.edited`` (``-2``, ``-3``... when taken: a user's
+    edit is kept, never overwritten), say so on stderr naming ``why``, and return where it went."""
+    aside = candidate = Path(path).with_name(Path(path).name + ".edited")
+    number = 1
+    while os.path.lexists(candidate):
+        number += 1
+        candidate = aside.with_name(f"{aside.name}-{number}")
+    os.rename(path, candidate)
+    print(f"warning: {path}: {why}; moved to {candidate.name} and {then}", file=sys.stderr)
+    return candidate
 
 
 def kit_version() -> str:

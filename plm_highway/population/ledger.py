@@ -88,7 +88,7 @@ def read_ledger(out: Path, plan: PopulationPlan) -> dict[int, dict]:
             continue
         record = _read_record(path)
         if record.get("population_key") != key:
-            differs = _differences(record.get("made_from", {}), made_from(plan))
+            differs = differences(record.get("made_from", {}), plan)
             raise BadInput(f"{path}: this pair was made for another population ({', '.join(differs) or 'its key'} "
                            "differ); give another --out, or pass --restart to start the study afresh")
         if record.get("seeds") != asdict(seeds):
@@ -111,8 +111,10 @@ def _read_record(path: Path) -> dict:
     return data
 
 
-def _differences(earlier: dict, now: dict) -> list[str]:
-    now = json.loads(json_text(now))  # as it reads back from a record (tuples as lists)
+def differences(earlier: dict, plan: PopulationPlan) -> list[str]:
+    """The names of what ``plan``'s results would be made from that differs from ``earlier`` (a stored
+    :func:`made_from`): ``track_sha256`` when a track file's contents changed under the same path."""
+    now = json.loads(json_text(made_from(plan)))  # as it reads back from a file (tuples as lists)
     return [name for name in now if earlier.get(name) != now[name]]
 
 

@@ -14,9 +14,18 @@ from pathlib import Path
 from plm_highway.errors import BadInput
 from plm_highway.evaluation.outcomes import OUTCOMES
 from plm_highway.evaluation.protocol import setting_label, setting_tag
-from plm_highway.io import directory_kind, format_cell, json_text, pyplot, save_figure_into, write_csv_into, write_output
+from plm_highway.io import (
+    directory_kind,
+    format_cell,
+    json_text,
+    pyplot,
+    save_figure_into,
+    write_csv_into,
+    write_output,
+)
 from plm_highway.metrics.intervals import MIN_INTERVAL_VALUES, interval_text, too_few
 from plm_highway.population import analysis
+from plm_highway.population.ledger import made_from
 from plm_highway.population.plan import PopulationPlan, pair_name
 
 POPULATION_REPORT = directory_kind("population-report", "a plm-highway population report directory")
@@ -105,9 +114,9 @@ def publish_report(state, options) -> dict:
                        f"training records under {options.work}/pairs)")
     numbers = analyse(state.plan, state.trainings, rows)
     numbers["drift"] = drift_numbers(state)
-    document = {"plan": state.plan.as_dict(), "command": options.command, "trainings": {
-        str(p): t for p, t in sorted(state.trainings.items())},
-        "stages": {str(p): s for p, s in sorted(state.stages.items())}, **numbers}
+    document = {"plan": state.plan.as_dict(), "made_from": made_from(state.plan), "command": options.command,
+                "trainings": {str(p): t for p, t in sorted(state.trainings.items())},
+                "stages": {str(p): s for p, s in sorted(state.stages.items())}, **numbers}
     # The report's own files are replaced as a whole; the committed pair records (pairs/) stay.
     with write_output(options.out, POPULATION_REPORT, update=REPORT_FILES) as staged:
         write_csv_into(staged / "results.csv", RESULT_COLUMNS, [[r.get(c) for c in RESULT_COLUMNS] for r in rows])

@@ -17,6 +17,7 @@ Work is spread through the sweep backends (a local process pool, or Ray): pairs 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import sys
 from dataclasses import dataclass, field
@@ -24,6 +25,7 @@ from pathlib import Path
 
 from plm_highway.errors import BadInput
 from plm_highway.io import JSON_MARKER_KEY, check_target, directory_kind, file_kind, json_text, write_json, write_output
+from plm_highway.io.digests import DIGEST_KEY, content_digest, set_aside
 from plm_highway.models.checkpoints import CHECKPOINT
 from plm_highway.population.drift import run_bands
 from plm_highway.population.driving import DriveTask, drive_pair, read_traces, split_seeds
@@ -31,10 +33,11 @@ from plm_highway.population.layout import read_traces as read_work_traces
 from plm_highway.population.layout import remedy_dir, runs_path
 from plm_highway.population.ledger import (
     LEDGER_DIR,
+    differences,
     file_sha256,
     finite_or_nan,
+    made_from,
     new_record,
-    population_key,
     read_ledger,
     write_record,
 )
@@ -139,17 +142,20 @@ def _restart(options: RunOptions) -> None:
 
 def _check_same_study(options: RunOptions, plan: PopulationPlan) -> None:
     """A report of another population at ``options.out`` is replaced only with ``--overwrite`` (or ``--restart``);
-    one of this population (more pairs or remedies aside) is this run's to render again."""
+    one of this population (more pairs or remedies aside) is this run's to render again. What the report was made
+    from is compared as stored (track contents included), and what differs is named."""
     document = Path(options.out) / "population.json"
     if options.overwrite or options.restart or not document.is_file():
         return
     try:
-        earlier = PopulationPlan.from_dict(json.loads(document.read_text(encoding="utf-8"))["plan"])
-    except (OSError, ValueError, KeyError, TypeError, BadInput):
-        earlier = None
-    if earlier is None or population_key(earlier) != population_key(plan):
-        raise BadInput(f"--out {str(options.out)!r} holds the report of another population; pass --overwrite to "
-                       "replace it, or give another --out")
+        data = json.loads(document.read_text(encoding="utf-8"))
+        stored = data.get("made_from") or made_from(PopulationPlan.from_dict(data["plan"]))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, BadInput):
+        stored = None
+    differs = ["its plan"] if not isinstance(stored, dict) else differences(stored, plan)
+    if differs:
+        raise BadInput(f"--out {str(options.out)!r} holds the report of another population ({', '.join(differs)} "
+                       "differ); pass --overwrite to replace it, or give another --out")
 
 
 def record_complete(record: dict | None, plan: PopulationPlan) -> bool:
@@ -251,14 +257,18 @@ def open_work(work: Path, plan: PopulationPlan, restart: bool = False) -> Path:
         earlier = read_plan(work)
         _check_continues(work, earlier, plan)
         if earlier != plan:  # more pairs or remedies: on record before anything of theirs runs
-            write_json(work / "plan.json", plan.as_dict(), POPULATION_PLAN, overwrite=True)
+            write_json(work / "plan.json", _plan_document(plan), POPULATION_PLAN, overwrite=True)
         return work
     check_target(work, POPULATION_WORK, overwrite=restart)
     with write_output(work, POPULATION_WORK, overwrite=restart) as staged:
         (staged / "pairs").mkdir()
         (staged / "runs").mkdir()
-        (staged / "plan.json").write_text(json_text(plan.as_dict(), POPULATION_PLAN), encoding="utf-8")
+        (staged / "plan.json").write_text(json_text(_plan_document(plan), POPULATION_PLAN), encoding="utf-8")
     return work
+
+
+def _plan_document(plan: PopulationPlan) -> dict:
+    return {**plan.as_dict(), "made_from": made_from(plan)}
 
 
 def read_plan(work: Path) -> PopulationPlan:
@@ -266,8 +276,9 @@ def read_plan(work: Path) -> PopulationPlan:
 
 
 def _check_continues(work: Path, earlier: PopulationPlan, plan: PopulationPlan) -> None:
-    differs = [name for name in ("recipe", "conditions", "track", "settings", "sim_seeds", "max_steps")
-               if getattr(earlier, name) != getattr(plan, name)]
+    stored = _read_json(work / "plan.json", POPULATION_PLAN).get("made_from")
+    # What the work was made from as it was then (a track file edited since under the same path is seen).
+    differs = ["its plan's origin"] if not isinstance(stored, dict) else differences(stored, plan)
     if plan.pairs[:len(earlier.pairs)] != earlier.pairs:
         differs.append("pairs")
     if differs:
@@ -282,36 +293,116 @@ def _read_json(path: Path, kind) -> dict:
         raise BadInput(f"{path}: not a readable {kind.describe} ({exc})") from None
     if not isinstance(data, dict) or data.get(JSON_MARKER_KEY) != kind.name:
         raise BadInput(f"{path}: not {kind.describe}")
+    del data[JSON_MARKER_KEY]  # the file's kind, not its content: a record reads the same from any path
     return data
 
 
 def read_state(work: Path, plan: PopulationPlan) -> WorkState:
-    """What ``work`` already holds for ``plan``."""
+    """What ``work`` already holds for ``plan``: only what is still what the kit wrote and was made from the
+    checkpoints now there (anything else is moved aside by :func:`_read_sealed` and made again)."""
     state = WorkState(plan, work=work)
     for seeds in plan.pairs:
-        record = work / "pairs" / pair_name(seeds.pair) / "training.json"
-        if record.is_file():
-            state.trainings[seeds.pair] = _read_json(record, PAIR_TRAINING)
-        feedback = work / "pairs" / pair_name(seeds.pair) / "feedback.json"
-        if feedback.is_file():
-            state.feedback[seeds.pair] = _read_json(feedback, PAIR_FEEDBACK)["gains"]
+        pair = seeds.pair
+        training = _read_sealed(work / "pairs" / pair_name(pair) / "training.json", PAIR_TRAINING,
+                                lambda record, pair=pair: _made_these_checkpoints(work, pair, record))
+        if training is None:
+            continue
+        training.pop("checkpoints", None)
+        state.trainings[pair] = training
+        if not training.get("ok"):
+            continue
+        feedback = _read_sealed(work / "pairs" / pair_name(pair) / "feedback.json", PAIR_FEEDBACK)
+        if feedback is not None:
+            state.feedback[pair] = feedback["gains"]
+        checkpoints = file_sha256(pair_files(work, pair))
         for seed in plan.sim_seeds:
-            path = runs_path(work, seeds.pair, seed)
-            if path.is_file() and path.with_suffix(".npz").is_file():
-                state.runs[(seeds.pair, seed)] = _read_json(path, PAIR_RUNS)["rows"]
-                state.bands[(seeds.pair, seed)] = run_bands(read_work_traces(work, seeds.pair, seed))
+            runs = _read_runs(work, pair, seed, "", checkpoints)
+            if runs is not None:
+                state.runs[(pair, seed)] = runs
+                state.bands[(pair, seed)] = run_bands(read_work_traces(work, pair, seed))
         for remedy in plan.remedies:
-            record = remedy_dir(work, seeds.pair, remedy) / "training.json"
-            if record.is_file():
-                state.remedy_trainings[(remedy, seeds.pair)] = _read_json(record, PAIR_TRAINING)
+            record = _read_sealed(remedy_dir(work, pair, remedy) / "training.json", PAIR_TRAINING,
+                                  lambda made, pair=pair, remedy=remedy: _made_remedy(work, pair, remedy, made))
+            if record is None:
+                continue
+            record.pop("checkpoints", None)
+            state.remedy_trainings[(remedy, pair)] = record
+            if not record.get("ok"):
+                continue
+            remedy_checkpoints = file_sha256(pair_files(work, pair, remedy))
             for seed in plan.sim_seeds:
-                path = runs_path(work, seeds.pair, seed, remedy)
-                if path.is_file():
-                    state.remedy_runs[(remedy, seeds.pair, seed)] = _read_json(path, PAIR_RUNS)["rows"]
+                runs = _read_runs(work, pair, seed, remedy, remedy_checkpoints)
+                if runs is not None:
+                    state.remedy_runs[(remedy, pair, seed)] = runs
     return state
 
 
+def _made_these_checkpoints(work: Path, pair: int, training: dict) -> str | None:
+    """Why a training record no longer describes the pair's checkpoint files (None: it does)."""
+    if not training.get("ok"):
+        return None
+    if not _has_checkpoints(work, pair, training):
+        return "its checkpoints are missing"
+    if training.get("checkpoints") != file_sha256(pair_files(work, pair)):
+        return "the pair's checkpoint files are not the ones this training wrote"
+    return None
 
+
+def _made_remedy(work: Path, pair: int, remedy: str, training: dict) -> str | None:
+    """Why a remedy's training record no longer describes its TAPM file (None: it does)."""
+    if not training.get("ok"):
+        return None
+    tapm = remedy_dir(work, pair, remedy) / "tapm"
+    if not all((tapm / name).is_file() for name in ("model.pt", "model.json")):
+        return "its checkpoint is missing"
+    if training.get("checkpoints") != file_sha256({"tapm": {"model.pt": (tapm / "model.pt").read_bytes()}}):
+        return "the remedy's checkpoint file is not the one this training wrote"
+    return None
+
+
+def _read_runs(work: Path, pair: int, seed: int, remedy: str, checkpoints: dict[str, str]) -> list[dict] | None:
+    """One chunk's rows if they and their traces are as written and were driven with ``checkpoints``."""
+    path = runs_path(work, pair, seed, remedy)
+    traces = path.with_suffix(".npz")
+
+    def still_valid(record: dict) -> str | None:
+        if not traces.is_file() or record.get("traces_sha256") != _sha256(traces.read_bytes()):
+            return f"its traces {traces.name} are missing or not the ones it was written with"
+        if record.get("checkpoints") != checkpoints:
+            return "it was driven with other checkpoints than the pair's now"
+        return None
+
+    record = _read_sealed(path, PAIR_RUNS, still_valid)
+    return None if record is None else record["rows"]
+
+
+def _sealed(record: dict) -> dict:
+    """``record`` as strict JSON reads it back, with the digest of its content (an edit is seen)."""
+    record = json.loads(json_text(record))
+    return {**record, DIGEST_KEY: content_digest(record)}
+
+
+def _read_sealed(path: Path, kind, still_valid=None) -> dict | None:
+    """A work file's record (without its digest), or None: absent, or moved aside to ``NAME.edited`` (kept,
+    never overwritten) because its content no longer matches its digest or ``still_valid(record)`` says why it
+    no longer holds; then what it held is made again."""
+    if not path.is_file():
+        return None
+    record = _read_json(path, kind)
+    why = None
+    if record.get(DIGEST_KEY) != content_digest(record):
+        why = "its content does not match the digest it was written with (edited since, or written by an older kit)"
+    elif still_valid is not None:
+        why = still_valid(record)
+    if why is None:
+        del record[DIGEST_KEY]
+        return record
+    set_aside(path, why, "made again")
+    return None
+
+
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
 
 
 def _progress(total: int, done: int, desc: str, unit: str, enabled: bool):
@@ -337,7 +428,8 @@ def _write_training(work: Path, result: PairTraining) -> dict:
                 for name, data in files.items():
                     (staged / name).write_bytes(data)
     record = {"pair": result.pair, "ok": result.ok, "summary": result.summary, "error": result.error}
-    write_json(directory / "training.json", record, PAIR_TRAINING, overwrite=True)
+    made = {"checkpoints": file_sha256(result.files)} if result.ok else {}
+    write_json(directory / "training.json", _sealed({**record, **made}), PAIR_TRAINING, overwrite=True)
     return record
 
 
@@ -368,7 +460,8 @@ def _train_remedy_missing(work: Path, state: WorkState, remedy: str, backend, pr
                         (staged / name).write_bytes(data)
             record = {"pair": result.pair, "remedy": remedy, "ok": result.ok, "summary": result.summary,
                       "error": result.error}
-            write_json(directory / "training.json", record, PAIR_TRAINING, overwrite=True)
+            made = {"checkpoints": file_sha256(result.files)} if result.ok else {}
+            write_json(directory / "training.json", _sealed({**record, **made}), PAIR_TRAINING, overwrite=True)
             state.remedy_trainings[(remedy, result.pair)] = record
             bar.update(1)
     finally:
@@ -420,7 +513,9 @@ def _write_runs(work: Path, pair: int, seed: int, rows: list[dict], traces: byte
     path = runs_path(work, pair, seed, remedy)
     with write_output(path.with_suffix(".npz"), PAIR_TRACES, overwrite=True) as staged:
         staged.write_bytes(traces)
-    write_json(path, {"pair": pair, "seed": seed, "remedy": remedy, "rows": rows}, PAIR_RUNS, overwrite=True)
+    record = {"pair": pair, "seed": seed, "remedy": remedy, "rows": rows, "traces_sha256": _sha256(traces),
+              "checkpoints": file_sha256(pair_files(work, pair, remedy))}
+    write_json(path, _sealed(record), PAIR_RUNS, overwrite=True)
 
 
 def _measure_feedback_missing(work: Path, state: WorkState, progress: bool,
@@ -440,7 +535,7 @@ def _measure_feedback_missing(work: Path, state: WorkState, progress: bool,
         for pair in todo:
             with single_threaded_inference():
                 gains = posed_gains(work / "pairs" / pair_name(pair), plan.conditions, plan.track, latencies_s)
-            write_json(work / "pairs" / pair_name(pair) / "feedback.json", {"pair": pair, "gains": gains},
+            write_json(work / "pairs" / pair_name(pair) / "feedback.json", _sealed({"pair": pair, "gains": gains}),
                        PAIR_FEEDBACK, overwrite=True)
             state.feedback[pair] = gains
             bar.update(1)

@@ -37,7 +37,7 @@ from plm_highway.io import (
     write_json,
     write_output,
 )
-from plm_highway.io.digests import DIGEST_KEY, content_digest, json_digest
+from plm_highway.io.digests import DIGEST_KEY, content_digest, json_digest, set_aside
 from plm_highway.rollout.backends import make_backend
 from plm_highway.sweep.grid import SweepCell, SweepGrid
 from plm_highway.sweep.table import SWEEP_TABLE, TABLE_COLUMNS, cell_result, save_figures, table_rows
@@ -67,7 +67,6 @@ class ChunkJob:
 
 def run_chunk(job: ChunkJob) -> list[dict]:
     """Run the job's cells together; one result dict per cell (:func:`~plm_highway.sweep.table.cell_result`)."""
-    import os
 
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     from plm_highway.road.track import resolve_track
@@ -187,18 +186,8 @@ def _read_cell(out: Path, key: str, cell: SweepCell, settings: dict) -> dict | N
         why = "it was made from other inputs"
     if why is None:
         return record
-    aside = _unused_path(path.with_name(path.name + ".edited"))
-    os.rename(path, aside)
-    print(f"warning: {path}: {why}; moved to {aside.name} and run again", file=sys.stderr)
+    set_aside(path, why)
     return None
-
-
-def _unused_path(path: Path) -> Path:
-    candidate, number = path, 1
-    while os.path.lexists(candidate):
-        number += 1
-        candidate = path.with_name(f"{path.name}-{number}")
-    return candidate
 
 
 def _progress(total: int, done: int, enabled: bool):
