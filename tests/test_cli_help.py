@@ -88,10 +88,9 @@ def test_the_top_help_has_no_internal_labels():
 
 def test_the_help_read_from_source_equals_the_imported_library():
     from plm_highway.cli._common import defaults_of, static_defaults, static_names
+    from plm_highway.evaluation.demo import zigzag
     from plm_highway.evaluation.evaluate import evaluate
     from plm_highway.rollout import conditions, policies
-
-    from plm_highway.evaluation.demo import zigzag
 
     assert static_defaults("plm_highway.evaluation.evaluate", "evaluate") == defaults_of(evaluate)
     assert static_defaults("plm_highway.evaluation.demo", "zigzag") == defaults_of(zigzag)

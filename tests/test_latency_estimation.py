@@ -429,8 +429,9 @@ def test_the_run_cache_is_keyed_by_the_checkpoints_contents_and_a_cached_run_edi
         tmp_path, tmp_path_factory):
     import shutil
 
-    from plm_highway.evaluation.latency_estimation import drive_suite
     from tiny_models import other_tiny_checkpoints, tiny_checkpoints
+
+    from plm_highway.evaluation.latency_estimation import drive_suite
 
     suite = LatencySuite(conditions=("ideal",), tracks=("test",), seeds=(0,), constants_s=(0.15,), profiles=(),
                          mitigation_constants_s=(), mitigation_profiles=(), probe_settings=(), duration_s=1.0,

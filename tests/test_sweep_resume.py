@@ -10,9 +10,9 @@ import shutil
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from tiny_models import other_tiny_checkpoints, tiny_checkpoints
 
 from plm_highway.sweep import SweepGrid, run_sweep
-from tiny_models import other_tiny_checkpoints, tiny_checkpoints
 
 STEPS = 6
 

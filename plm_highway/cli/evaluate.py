@@ -52,7 +52,13 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    from plm_highway.evaluation.evaluate import EVALUATION_DIR, EVALUATION_JSON, evaluate, publish_results, summary_lines
+    from plm_highway.evaluation.evaluate import (
+        EVALUATION_DIR,
+        EVALUATION_JSON,
+        evaluate,
+        publish_results,
+        summary_lines,
+    )
     from plm_highway.io import check_target, json_text
     from plm_highway.rollout.policies import single_threaded_inference
 

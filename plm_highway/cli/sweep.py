@@ -7,7 +7,6 @@ from plm_highway.cli._common import Command, add_device, add_overwrite, bounded_
 
 def configure(parser) -> None:
     import argparse
-
     from types import SimpleNamespace
 
     from plm_highway.cli._common import static_defaults, static_fields, static_names, static_value

@@ -204,10 +204,8 @@ _POLICIES: dict = {}
 
 def _policy(name: str, conditions, checkpoints):
     """The model policies, loaded once per process (each run resets them)."""
-    from plm_highway.rollout.policies import make_policy
-
     from plm_highway.io.digests import json_digest
-    from plm_highway.rollout.policies import checkpoint_pair_sha256
+    from plm_highway.rollout.policies import checkpoint_pair_sha256, make_policy
 
     # by content: a pair retrained into the same directory while this process lives is another pair
     contents = json_digest(checkpoint_pair_sha256(checkpoints, conditions.checkpoint_preset))

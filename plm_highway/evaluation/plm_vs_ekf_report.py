@@ -7,7 +7,7 @@ from pathlib import Path
 
 from plm_highway.evaluation.outcomes import OUTCOMES
 from plm_highway.evaluation.plm_vs_ekf import CompareResult, markdown, plot_comparison
-from plm_highway.io import directory_kind, file_kind, json_text, write_csv_into, write_outputs
+from plm_highway.io import directory_kind, file_kind, json_text, load_json, write_csv_into, write_outputs
 
 COMPARE_JSON = file_kind("estimation-compare", "a PLM-Net vs EKF comparison JSON file")
 COMPARE_REPORT = directory_kind("estimation-compare-report", "a plm-highway PLM-Net vs EKF comparison directory")
@@ -49,14 +49,12 @@ def publish_comparison(results: list[CompareResult], json_path: str | os.PathLik
 
 def committed_comparison(path: str | os.PathLike | None = None) -> dict:
     """The comparison committed with the kit (``figures/estimation/compare/compare.json`` of this checkout)."""
-    import json
-
     checkout = Path(__file__).resolve().parents[2]  # plm_highway/evaluation/ -> the checkout
     path = checkout / DEFAULT_OUT / "compare.json" if path is None else Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no comparison there; make one with 'plm-highway estimate compare --out "
                                 f"{path.parent}'")
-    return json.loads(path.read_text(encoding="utf-8"))
+    return load_json(path, what="comparison result")
 
 
 def _mean(entry: dict, policy: str, metric: str) -> float | None:

@@ -26,7 +26,7 @@ from plm_highway.io import (
     write_csv_into,
     write_output,
 )
-from plm_highway.metrics.intervals import MIN_INTERVAL_VALUES, Estimate, interval_text, mean_ci
+from plm_highway.metrics.intervals import Estimate, interval_text, mean_ci
 from plm_highway.metrics.steering import ERROR_NAMES, reduction_pct
 from plm_highway.road.track import TrackSpec
 from plm_highway.rollout.conditions import (

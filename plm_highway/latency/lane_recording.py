@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.errors import BadInput
-from plm_highway.io.bounded import parse_float_text
 from plm_highway.io import write_csv_into
+from plm_highway.io.bounded import parse_float_text
 from plm_highway.latency.estimate import LatencyEstimatorConfig, estimate_stream
 
 LANE_COLUMNS = ("lane_offset", "lane_heading")

@@ -24,7 +24,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from plm_highway.errors import BadInput
-from plm_highway.io import JSON_MARKER_KEY, check_target, directory_kind, file_kind, json_text, write_json, write_output
+from plm_highway.io import (
+    JSON_MARKER_KEY,
+    check_target,
+    directory_kind,
+    file_kind,
+    json_text,
+    load_json,
+    write_json,
+    write_output,
+)
 from plm_highway.io.digests import DIGEST_KEY, content_digest, set_aside
 from plm_highway.models.checkpoints import CHECKPOINT
 from plm_highway.population.drift import run_bands
@@ -148,7 +157,7 @@ def _check_same_study(options: RunOptions, plan: PopulationPlan) -> None:
     if options.overwrite or options.restart or not document.is_file():
         return
     try:
-        data = json.loads(document.read_text(encoding="utf-8"))
+        data = load_json(document, what="population report")
         stored = data.get("made_from") or made_from(PopulationPlan.from_dict(data["plan"]))
     except (OSError, ValueError, KeyError, TypeError, AttributeError, BadInput):
         stored = None
@@ -288,8 +297,8 @@ def _check_continues(work: Path, earlier: PopulationPlan, plan: PopulationPlan) 
 
 def _read_json(path: Path, kind) -> dict:
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
+        data = load_json(path, what=kind.describe)
+    except (OSError, BadInput) as exc:
         raise BadInput(f"{path}: not a readable {kind.describe} ({exc})") from None
     if not isinstance(data, dict) or data.get(JSON_MARKER_KEY) != kind.name:
         raise BadInput(f"{path}: not {kind.describe}")

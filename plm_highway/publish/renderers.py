@@ -6,11 +6,11 @@ A renderer takes the project root and returns Markdown. It reads committed files
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from pathlib import Path
 
 from plm_highway.errors import BadInput
+from plm_highway.io import load_json
 from plm_highway.publish.blocks import MissingResult
 
 POPULATION = Path("figures/population/population.json")
@@ -35,8 +35,8 @@ def _json(root: Path, relative: Path) -> dict:
     if not path.exists():
         raise MissingResult(relative)
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
+        return load_json(path, what="committed result file")
+    except (OSError, BadInput) as exc:
         raise BadInput(f"{relative}: the committed result file a generated block needs is unreadable ({exc})") from None
 
 
