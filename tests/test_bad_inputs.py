@@ -607,6 +607,11 @@ CASES = [
       {"ds": Copy("ds", edit_json("manifest.json", lambda d: d["camera"].update(height_px=160, width_px=160)))}),
     c("ds-manifest-pitch-out-of-range", TRAIN, ["manifest.json", "'camera.pitch_deg' = 600"],
       {"ds": Copy("ds", edit_json("manifest.json", lambda d: d["camera"].update(pitch_deg=600)))}),
+    c("ds-manifest-pitch-edited-in-range", TRAIN, ["manifest.json", "edited after plm-highway wrote it"],
+      {"ds": Copy("ds", edit_json("manifest.json", lambda d: d["camera"].update(pitch_deg=d["camera"]["pitch_deg"]
+                                                                                   + 3.0)))}),
+    c("ds-manifest-without-digest", TRAIN, ["manifest.json", "no content digest"],
+      {"ds": Copy("ds", edit_json("manifest.json", lambda d: d.__delitem__("content_sha256")))}),
     c("trace-million-columns", f"{EVAL} --latency trace:trace.csv", ["trace.csv", "row 2", "64 columns"],
       trace_rows("t,latency_s\n" + "0" + "," * 1_000_000 + "\n"), timeout_s=10),
     c("sidecar-nested-30k", DIAG, ["r.json", "nested"],

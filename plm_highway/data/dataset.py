@@ -33,6 +33,7 @@ import numpy as np
 
 from plm_highway.errors import BadInput
 from plm_highway.io import JsonLimits, directory_kind, load_json, parse_json, read_bounded, write_output
+from plm_highway.io.digests import DIGEST_KEY, content_digest
 
 FORMAT = "plm_highway.dataset/1"
 MAX_MANIFEST_BYTES = 4 * 1024 * 1024
@@ -80,8 +81,11 @@ def write_dataset(out_dir: str | Path, frames: np.ndarray, steps: dict[str, np.n
     frames = np.asarray(frames)
     _check_frames(frames.dtype, frames.shape, "frames")
     columns = _validated_columns(steps, len(frames), source="steps")
+    manifest = {key: value for key, value in manifest.items() if key != DIGEST_KEY}
     manifest = {**manifest, "format": FORMAT}
     manifest["counts"] = {"samples": int(len(frames)), "episodes": int(len(np.unique(columns["episode_id"])))}
+    manifest = json.loads(json.dumps(manifest))  # as it reads back, so its digest is the one a reader computes
+    manifest[DIGEST_KEY] = content_digest(manifest)
     out_dir = Path(out_dir)
     with write_output(out_dir, DATASET, overwrite=overwrite) as tmp:
         np.save(tmp / "frames.npy", frames)
@@ -109,7 +113,17 @@ def read_dataset(data_dir: str | Path, mmap: bool = True) -> Dataset:
     steps = _validated_columns(steps, len(frames), source=str(steps_path))
     _check_counts(manifest_path, manifest, frames, steps)
     _check_against_manifest(manifest_path, manifest, frames, steps)
+    _check_digest(manifest_path, manifest)
     return Dataset(manifest=manifest, frames=frames, steps=steps)
+
+
+def _check_digest(path: Path, manifest: dict) -> None:
+    """A setting the data cannot show (a camera pitch within its range) is still the collector's: the manifest
+    carries the digest of its content, so an edit by hand is refused rather than trained on."""
+    if manifest.get(DIGEST_KEY) != content_digest(manifest):
+        why = "has no content digest" if DIGEST_KEY not in manifest else "was edited after plm-highway wrote it"
+        raise BadInput(f"{path}: {why} ({DIGEST_KEY} does not match its fields); its settings may not describe "
+                       "the frames, so it is not trained on: collect the dataset again")
 
 
 def _read_manifest(path: Path) -> dict:
