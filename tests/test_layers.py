@@ -91,3 +91,35 @@ def test_a_violation_breaks_the_contracts(package_copy, module, statement, broke
         path.write_text(original, encoding="utf-8")
     assert result.returncode == 1, result.stdout + result.stderr
     assert "BROKEN" in result.stdout and broken in result.stdout
+
+
+def local_reimports(source: str) -> list[tuple[int, str]]:
+    """(line, module) of each import inside a function of a module ``source`` already imports at its top."""
+    import ast
+
+    tree = ast.parse(source)
+    top = {alias.name for node in tree.body if isinstance(node, ast.Import) for alias in node.names}
+    top |= {node.module for node in tree.body if isinstance(node, ast.ImportFrom) and node.module}
+    found = []
+    for function in ast.walk(tree):
+        if not isinstance(function, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        for node in ast.walk(function):
+            if isinstance(node, ast.Import):
+                found += [(node.lineno, alias.name) for alias in node.names if alias.name in top]
+            elif isinstance(node, ast.ImportFrom) and node.module in top:
+                found.append((node.lineno, node.module))
+    return found
+
+
+def test_the_reimport_finder_finds_one():
+    source = "import json\nfrom a.b import c\n\ndef f():\n    import json\n    from a.b import d\n    import os\n"
+    assert local_reimports(source) == [(5, "json"), (6, "a.b")]
+
+
+def test_no_function_imports_again_what_its_module_imports_at_the_top():
+    """A function-local import is for lazy loading (a heavy library the help pages must not import); one of a
+    module the file imports at its top anyway only hides the file's dependencies."""
+    found = [f"{path.relative_to(REPO)}:{line} {module}" for path in sorted((REPO / "plm_highway").rglob("*.py"))
+             for line, module in local_reimports(path.read_text(encoding="utf-8"))]
+    assert not found, found

@@ -17,7 +17,7 @@ import importlib
 import sys
 import traceback
 
-from plm_highway.cli._common import Command
+from plm_highway.cli._common import Command, strict_float, strict_int
 from plm_highway.errors import BadInput
 
 EXIT_OK, EXIT_BUG, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -82,8 +82,6 @@ def _ascii_digits_only(parse):
     full-width digits as numbers that no reader of the command line would take them for."""
 
     if parse is int or parse is float:  # Python's own would read '1_0' as 10: the kit's strict parsers instead
-        from plm_highway.cli._common import strict_float, strict_int
-
         def any_float(text: str) -> float:  # nan and inf read, as float() reads them: range checks name them
             return strict_float(text, non_finite=True)
 

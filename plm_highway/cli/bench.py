@@ -10,6 +10,9 @@ from plm_highway.cli._common import (
     bounded_int,
     defaults_of,
     device_of,
+    static_defaults,
+    static_names,
+    static_value,
 )
 
 GROUP_HELP = "benchmarks: both sides of a comparison in one run, and their ratio"
@@ -87,7 +90,6 @@ def run_lessons(args) -> int:
 def configure_metrics(parser) -> None:
     from types import SimpleNamespace
 
-    from plm_highway.cli._common import static_value
 
     # Read from the library's source, not imported: the help page imports no scipy (tests/test_cli_help.py).
     bench = SimpleNamespace(**{name: static_value("plm_highway.bench.metrics", name)
@@ -125,7 +127,6 @@ def run_metrics(args) -> int:
 def configure_models(parser) -> None:
     from types import SimpleNamespace
 
-    from plm_highway.cli._common import static_names, static_value
 
     # Read from the library's source, not imported: the help page imports no torch (tests/test_cli_help.py).
     bench = SimpleNamespace(PRESETS=static_names("plm_highway.bench.models", "PRESETS"),
@@ -254,8 +255,6 @@ def run_sweep(args) -> int:
 
 
 def configure_reproduce(parser) -> None:
-    from plm_highway.cli._common import static_defaults, static_names
-
     # Read from the library's source, not imported: the help page imports no scipy (tests/test_cli_help.py).
     d = static_defaults("plm_highway.bench.sweep", "bench_reproduce")
     CONDITION_NAMES = static_names("plm_highway.rollout.conditions", "CONDITION_NAMES")

@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_overwrite, publish_figure_and_numbers
+from plm_highway.cli._common import (
+    Command,
+    add_overwrite,
+    publish_figure_and_numbers,
+    static_defaults,
+    static_names,
+    static_value,
+)
 
 
 def configure(parser) -> None:
-    from plm_highway.cli._common import static_defaults, static_names, static_value
-
     # Read from the library's source, not imported: the help page imports no simulator (tests/test_cli_help.py).
     DEFAULT_OUT = static_value("plm_highway.evaluation.response", "DEFAULT_OUT")
     SEGMENTS = static_names("plm_highway.evaluation.response", "SEGMENTS")

@@ -8,13 +8,15 @@ from plm_highway.cli._common import (
     bounded_float,
     bounded_int,
     publish_figure_and_numbers,
+    static_fields,
+    static_names,
+    static_value,
 )
 
 
 def configure(parser) -> None:
     from types import SimpleNamespace
 
-    from plm_highway.cli._common import static_fields, static_names, static_value
 
     # Read from the library's source, not imported: the help page imports no torch (tests/test_cli_help.py).
     MAX_PROCESSING_DELAY_STEPS, MAX_STEERING_TIME_CONSTANT_S = (

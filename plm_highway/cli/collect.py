@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from plm_highway.cli._common import Command, add_overwrite
+from plm_highway.cli._common import Command, add_overwrite, static_fields, static_names
 
 FIELD_HELP = {
     "episodes": "number of episodes (1 to 100,000)",
@@ -20,7 +20,6 @@ FIELD_HELP = {
 def configure(parser) -> None:
     from types import SimpleNamespace
 
-    from plm_highway.cli._common import static_fields, static_names
 
     # Read from the library's source, not imported: the help page imports no simulator.
     defaults = SimpleNamespace(**static_fields("plm_highway.data.collect", "CollectConfig"))

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_overwrite, add_seed
+from plm_highway.cli._common import Command, add_overwrite, add_seed, static_defaults
 
 GROUP_HELP = "quick demonstrations"
 
 
 def configure_zigzag(parser) -> None:
-    from plm_highway.cli._common import static_defaults
-
     # Read from the library's source, not imported: the help page stays fast (tests/test_cli_help.py).
     d = static_defaults("plm_highway.evaluation.demo", "zigzag")
     parser.add_argument("--latency", default=d["latency"], help="a profile spec, or seconds (e.g. 0.25)")

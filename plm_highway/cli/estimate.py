@@ -2,15 +2,22 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_overwrite, bounded_float, bounded_int
+from plm_highway.cli._common import (
+    Command,
+    add_overwrite,
+    bounded_float,
+    bounded_int,
+    static_defaults,
+    static_fields,
+    static_names,
+    static_value,
+)
 
 GROUP_HELP = ("model-based latency compensation: the delay-compensated lane-coordinate EKF (Kim, Kang and Ahn, "
               "Sensors 2025)")
 
 
 def configure_table3(parser) -> None:
-    from plm_highway.cli._common import static_names, static_value
-
     # Read from the library's source, not imported: the help page imports no scipy (tests/test_cli_help.py).
     MAX_SEEDS = static_value("plm_highway.estimation.table3", "MAX_SEEDS")
     MEASUREMENTS = static_names("plm_highway.estimation.table3", "MEASUREMENTS")
@@ -49,8 +56,6 @@ def run_table3(args) -> int:
 
 
 def configure_compare(parser) -> None:
-    from plm_highway.cli._common import static_defaults, static_fields, static_value
-
     # Read from the library's source, not imported: the help page imports no scipy (tests/test_cli_help.py).
     MAX_SEEDS = static_value("plm_highway.evaluation.plm_vs_ekf", "MAX_SEEDS")
     d = static_defaults("plm_highway.evaluation.plm_vs_ekf", "compare")
@@ -108,7 +113,6 @@ def run_compare(args) -> int:
 def configure_latency(parser) -> None:
     from types import SimpleNamespace
 
-    from plm_highway.cli._common import static_fields
 
     # LatencySuite's defaults read from the library's source: the help page imports no scipy.
     d = SimpleNamespace(**static_fields("plm_highway.evaluation.latency_estimation", "LatencySuite"))

@@ -4,14 +4,21 @@ from __future__ import annotations
 
 import sys
 
-from plm_highway.cli._common import Command, add_device, add_overwrite, add_seed, bounded_int, device_of
+from plm_highway.cli._common import (
+    Command,
+    add_device,
+    add_overwrite,
+    add_seed,
+    bounded_int,
+    device_of,
+    static_defaults,
+    static_names,
+)
 
 MAX_STEPS = 10_000_000
 
 
 def configure(parser) -> None:
-    from plm_highway.cli._common import static_defaults, static_names
-
     # Read from the library's source, not imported: the help page stays fast (tests/test_cli_help.py).
     d = static_defaults("plm_highway.evaluation.evaluate", "evaluate")
     CONDITION_NAMES, INJECTION_LATENCY_SOURCE, LATENCY_SOURCE_NAMES = (

@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import sys
 
-from plm_highway.cli._common import Command, add_overwrite
+from plm_highway.cli._common import Command, add_overwrite, static_value
 
 GROUP_HELP = "build, grade and illustrate the lessons (nbgrader)"
 
 
 def configure_build(parser) -> None:
-    from plm_highway.cli._common import static_value
-
     # Read from the library's source, not imported: the help page imports no nbformat (tests/test_cli_help.py).
     DEFAULT_FIGURES, DEFAULT_LESSONS, DEFAULT_SOLUTIONS = (
         static_value("plm_highway.grading.notebooks", name)
@@ -39,8 +37,6 @@ def run_build(args) -> int:
 
 
 def configure_grade(parser) -> None:
-    from plm_highway.cli._common import static_value
-
     # Read from the library's source, not imported: the help page imports no nbformat (tests/test_cli_help.py).
     DEFAULT_SOLUTIONS = static_value("plm_highway.grading.notebooks", "DEFAULT_SOLUTIONS")
 
@@ -68,8 +64,6 @@ def run_grade(args) -> int:
 
 
 def configure_figures(parser) -> None:
-    from plm_highway.cli._common import static_value
-
     # Read from the library's source, not imported: the help page imports no nbformat (tests/test_cli_help.py).
     DEFAULT_FIGURES = static_value("plm_highway.grading.notebooks", "DEFAULT_FIGURES")
 
@@ -88,8 +82,6 @@ def run_figures(args) -> int:
 
 
 def configure_timing(parser) -> None:
-    from plm_highway.cli._common import static_value
-
     # Read from the library's source, not imported: the help page imports no nbformat (tests/test_cli_help.py).
     DEFAULT_SOLUTIONS = static_value("plm_highway.grading.notebooks", "DEFAULT_SOLUTIONS")
 

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from plm_highway.cli._common import Command, add_device, bounded_int
+from plm_highway.cli._common import Command, add_device, bounded_int, static_names, static_value
 
 DEFAULT_OUT = {"paper": Path("figures/population"), "ideal": Path("figures/population-ideal")}
 DEFAULT_WORK = Path("runs/population")
 
 
 def configure(parser) -> None:
-    from plm_highway.cli._common import static_names, static_value
     from plm_highway.rollout.backends import BACKENDS, MAX_WORKERS, default_workers
 
     # Read from the library's source, not imported: the help page imports no torch (tests/test_cli_help.py).

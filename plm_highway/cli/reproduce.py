@@ -10,12 +10,12 @@ from plm_highway.cli._common import (
     bounded_float,
     bounded_int,
     device_of,
+    static_fields,
+    static_names,
 )
 
 
 def configure(parser) -> None:
-    from plm_highway.cli._common import static_fields, static_names
-
     # Read from the library's source, not imported: the help page imports no torch (tests/test_cli_help.py).
     d = static_fields("plm_highway.evaluation.reproduce", "ReproduceOptions")
     CONDITION_NAMES, INJECTION_LATENCY_SOURCE, LATENCY_SOURCE_NAMES = (

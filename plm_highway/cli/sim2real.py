@@ -10,7 +10,17 @@ from __future__ import annotations
 import argparse
 import math
 
-from plm_highway.cli._common import Command, add_overwrite, add_seed, bounded_float, bounded_int, defaults_of
+from plm_highway.cli._common import (
+    Command,
+    add_overwrite,
+    add_seed,
+    bounded_float,
+    bounded_int,
+    defaults_of,
+    static_defaults,
+    static_names,
+    strict_float,
+)
 
 GROUP_HELP = "find where a simulator and a recording disagree, and why"
 
@@ -24,7 +34,6 @@ MIN_BLOCK_S = 1.0
 
 def finite_nonzero(text: str) -> float:
     """An argparse type: a finite, non-zero number (a scale factor)."""
-    from plm_highway.cli._common import strict_float
 
     value = strict_float(text, non_finite=True)
     if not math.isfinite(value) or value == 0:
@@ -33,8 +42,6 @@ def finite_nonzero(text: str) -> float:
 
 
 def configure_diagnose(parser) -> None:
-    from plm_highway.cli._common import static_defaults
-
     # Read from the library's source, not imported: the help page imports no scipy (tests/test_cli_help.py).
     defaults = static_defaults("plm_highway.sim2real.workflow", "diagnose_file")
     parser.add_argument("recording", help="recording CSV (sidecar <stem>.json read when present); format and "
@@ -124,8 +131,6 @@ def run_make_recording(args) -> int:
 
 
 def configure_bench(parser) -> None:
-    from plm_highway.cli._common import static_names
-
     CASE_SETS = static_names("plm_highway.sim2real.benchmark", "CASE_SETS")  # from source: the help imports no scipy
 
     parser.add_argument("--cases", default="timing",

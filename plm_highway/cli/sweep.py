@@ -2,14 +2,22 @@
 
 from __future__ import annotations
 
-from plm_highway.cli._common import Command, add_device, add_overwrite, bounded_int
+from plm_highway.cli._common import (
+    Command,
+    add_device,
+    add_overwrite,
+    bounded_int,
+    static_defaults,
+    static_fields,
+    static_names,
+    static_value,
+)
 
 
 def configure(parser) -> None:
     import argparse
     from types import SimpleNamespace
 
-    from plm_highway.cli._common import static_defaults, static_fields, static_names, static_value
     from plm_highway.rollout.backends import BACKENDS, MAX_WORKERS, default_workers
 
     # Read from the library's source, not imported: the help page imports no simulator (tests/test_cli_help.py).

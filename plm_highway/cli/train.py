@@ -14,7 +14,7 @@ import argparse
 import json
 import os
 
-from plm_highway.cli._common import Command, add_device, add_overwrite, device_of
+from plm_highway.cli._common import Command, add_device, add_overwrite, device_of, static_fields, static_value
 from plm_highway.errors import BadInput
 
 PRESET_CHOICES = ("default", "paper")
@@ -24,7 +24,6 @@ GROUP_HELP = "train the Base Model or the Timed Action Prediction Model"
 def _common_options(parser: argparse.ArgumentParser) -> None:
     from types import SimpleNamespace
 
-    from plm_highway.cli._common import static_fields
 
     # TrainConfig's defaults read from the library's source: the help page imports no torch.
     defaults = SimpleNamespace(**static_fields("plm_highway.training.train", "TrainConfig"))
@@ -56,8 +55,6 @@ def configure_bm(parser: argparse.ArgumentParser) -> None:
 
 
 def configure_tapm(parser: argparse.ArgumentParser) -> None:
-    from plm_highway.cli._common import static_value
-
     DEFAULT_DELTA_GRID_S = static_value("plm_highway.models.tapm", "DEFAULT_DELTA_GRID_S")
     _common_options(parser)
     parser.add_argument("--bm", required=True, help="Base Model checkpoint (directory or .pt/.json file)")

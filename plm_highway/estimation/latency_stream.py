@@ -28,7 +28,7 @@ the fast sensors and, later, the camera both see. It buys identifiability with l
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gymnasium
 import numpy as np
@@ -184,8 +184,6 @@ class LatencyEstimateWrapper(gymnasium.Wrapper):
             shift_s = env_sensor_shift_s(base.config)
         config = self.estimation.estimator
         if not math.isclose(config.fast_sensor_shift_s, shift_s):
-            from dataclasses import replace
-
             config = replace(config, fast_sensor_shift_s=shift_s)
         detector = LaneDetector(base.camera_config, LaneDetectorConfig(lane_width_m=base.track.lane_width_m))
         estimation = self.estimation

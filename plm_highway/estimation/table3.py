@@ -51,7 +51,7 @@ from plm_highway.estimation.scenarios import (
     simulate_truth,
 )
 from plm_highway.estimation.sensors import CameraTiming, ImuConfig, LaneMeasurementNoise, SteeringSensorConfig
-from plm_highway.metrics.intervals import Estimate, mean_ci
+from plm_highway.metrics.intervals import Estimate, interval_text, mean_ci
 
 VARIANTS = ("camera", "ekf", "ekf_dc")  # the paper's three columns
 REPORTED = (*VARIANTS, "camera_held", "camera_lag")
@@ -374,8 +374,6 @@ def table3(seeds: int | tuple[int, ...] = 5, config: SimulationConfig = Simulati
 
 
 def _ci_cell(interval: Estimate) -> str:
-    from plm_highway.metrics.intervals import interval_text
-
     return interval_text(interval.mean, interval.low, interval.high, interval.n, short=True)
 
 

@@ -10,7 +10,7 @@ import math
 import os
 from pathlib import Path
 
-from plm_highway.io import directory_kind, json_text, save_figure_into, write_output
+from plm_highway.io import directory_kind, json_text, pyplot, save_figure_into, write_output
 from plm_highway.metrics.intervals import MIN_INTERVAL_VALUES, interval_text, too_few
 
 LATENCY_REPORT = directory_kind("latency-estimation-report", "a plm-highway latency-estimation report directory")
@@ -285,7 +285,6 @@ def mitigation_figure(results: dict, plt):
 
 def write_latency_report(results: dict, out: str | os.PathLike, overwrite: bool = False) -> list[Path]:
     """``results.json``, ``report.md`` (from the results alone) and the figures, published together."""
-    from plm_highway.io import pyplot
 
     plt = pyplot()
     with write_output(out, LATENCY_REPORT, overwrite=overwrite) as staged:

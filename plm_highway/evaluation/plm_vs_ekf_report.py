@@ -6,7 +6,7 @@ import os
 from pathlib import Path
 
 from plm_highway.evaluation.outcomes import OUTCOMES
-from plm_highway.evaluation.plm_vs_ekf import CompareResult, markdown, plot_comparison
+from plm_highway.evaluation.plm_vs_ekf import CompareResult, markdown, plot_comparison, setting_name
 from plm_highway.io import directory_kind, file_kind, json_text, load_json, write_csv_into, write_outputs
 
 COMPARE_JSON = file_kind("estimation-compare", "a PLM-Net vs EKF comparison JSON file")
@@ -86,7 +86,6 @@ def who_wins_lines(data: dict) -> list[str]:
     """One plain sentence per conditions and latency setting: which answer steers closer to the reference and
     which keeps closer to the lane centre (paired 95 % intervals), what delay compensation buys the EKF, and who
     left the road; then a count over the settings with latency."""
-    from plm_highway.evaluation.plm_vs_ekf import setting_name
 
     lines, tally = [], {}
     for report in data["reports"]:
@@ -127,7 +126,6 @@ def _tally(counts: dict) -> str:
 def readme_table(data: dict) -> str:
     """Means over seeds per conditions and setting (steering MAE in the paper's unit, offset RMS [m]), the
     paired winner EKF vs PLM-Net on each, and the runs that left the road."""
-    from plm_highway.evaluation.plm_vs_ekf import setting_name
 
     lines = ["| conditions | setting | steering MAE: BM / PLM-Net / EKF, no comp. / EKF | offset RMS [m]: BM / PLM-Net / "
              "EKF, no comp. / EKF | better (paired): steering / offset | left the road: BM / PLM-Net / EKF |",

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import jinja2
 
+from plm_highway.evaluation import figures, protocol
 from plm_highway.evaluation import paper_results as paper
-from plm_highway.evaluation import protocol
 from plm_highway.evaluation.protocol import is_constant, paper_key, setting_label, setting_tag
 from plm_highway.evaluation.trajectory import METRIC_LABELS, METRICS, PARTS, RESAMPLE_SPACING_M, representative_segment
 from plm_highway.io import (
@@ -821,7 +821,6 @@ def write_tables_csv(r: Reproduction, directory: Path) -> None:
 
 def setting_figures(logs: dict, track_spec: TrackSpec, spec: str, directory: Path, prefix: str, track_name: str
                     ) -> dict[str, str]:
-    from plm_highway.evaluation import figures
 
     label = setting_label(spec)
     key = paper_key(spec)
@@ -847,7 +846,6 @@ def setting_figures(logs: dict, track_spec: TrackSpec, spec: str, directory: Pat
 
 def write_report(r: Reproduction, main: dict, others: dict, out: Path, overwrite: bool = False) -> None:
     """Render every file into a staged directory, published as ``out`` in one step."""
-    from plm_highway.evaluation import figures
     from plm_highway.evaluation.sweep import write_sweep_csv
 
     with write_output(out, REPRODUCE_REPORT, overwrite=overwrite) as tmp:

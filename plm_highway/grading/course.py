@@ -35,7 +35,7 @@ from pathlib import Path
 
 import nbformat
 
-from plm_highway.io import file_kind
+from plm_highway.io import file_kind, write_csv
 
 BEGIN_SOLUTION = "### BEGIN SOLUTION"
 END_SOLUTION = "### END SOLUTION"
@@ -366,6 +366,5 @@ def solution_sources(solutions_dir: Path) -> dict[str, str]:
 
 def write_scores_csv(scores: list[LessonScore], path: Path, overwrite: bool = False) -> None:
     """Write the scores; an existing file is replaced only with ``overwrite`` and only if it is a scores table."""
-    from plm_highway.io import write_csv
 
     write_csv(path, SCORE_COLUMNS, [score.row() for score in scores], SCORES_CSV, overwrite=overwrite)

@@ -55,7 +55,7 @@ from dataclasses import dataclass, field
 from fnmatch import fnmatchcase
 from pathlib import Path
 
-from plm_highway.errors import OutputRefused
+from plm_highway.errors import BadInput, OutputRefused
 from plm_highway.io.manifest import (
     MARKER_NAME,
     ancestors,
@@ -133,7 +133,6 @@ def file_kind(name: str, describe: str, csv_header: Sequence[str] | None = None,
 
 
 def _json_marker_kind(path: Path, max_bytes: int = 64 << 20) -> str | None:
-    from plm_highway.errors import BadInput
     from plm_highway.io.bounded import JsonLimits, load_json
 
     try:

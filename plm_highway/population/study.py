@@ -36,7 +36,7 @@ from plm_highway.io import (
 )
 from plm_highway.io.digests import DIGEST_KEY, content_digest, set_aside
 from plm_highway.models.checkpoints import CHECKPOINT
-from plm_highway.population.drift import run_bands
+from plm_highway.population.drift import posed_gains, run_bands
 from plm_highway.population.driving import DriveTask, drive_pair, read_traces, split_seeds
 from plm_highway.population.layout import read_traces as read_work_traces
 from plm_highway.population.layout import remedy_dir, runs_path
@@ -532,7 +532,6 @@ def _measure_feedback_missing(work: Path, state: WorkState, progress: bool,
     """Posed feedback gains (:func:`~plm_highway.population.drift.posed_gains`) of every trained pair that has none
     yet: cheap (a few camera frames per pair), so they run here, after the driving."""
     from plm_highway.evaluation.protocol import constant_latency_s
-    from plm_highway.population.drift import posed_gains
     from plm_highway.rollout.policies import single_threaded_inference
 
     plan = state.plan

@@ -45,6 +45,7 @@ from plm_highway.rollout.policies import (
     SHIPPED_PRESET,
     VisionPolicy,
     biased,
+    checkpoint_pair_sha256,
     make_policy,
     single_threaded_inference,
 )
@@ -289,7 +290,6 @@ def worker_policy(name: str, checkpoints: str | None, preset: str, device: str =
 
 def _pair_contents(checkpoints: str | None, preset: str) -> str:
     from plm_highway.io.digests import json_digest
-    from plm_highway.rollout.policies import checkpoint_pair_sha256
 
     return json_digest(checkpoint_pair_sha256(checkpoints, preset))
 

@@ -1,7 +1,6 @@
 """A sweep grid: conditions x latency profiles x tracks x seeds x policies, and its cells.
 
 A grid comes from the command line or a small YAML/JSON file (Hydra-style lists of values)::
-
     conditions:            # name -> env settings; default: one condition "default" with none
       default: {}
       pitch8: {camera: {pitch_deg: 8}}
@@ -30,8 +29,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from plm_highway.errors import BadInput
-from plm_highway.io.bounded import JsonLimits
-from plm_highway.rollout.policies import POLICY_NAMES
+from plm_highway.io.bounded import JsonLimits, decode_utf8, parse_json, parse_yaml, read_bounded
+from plm_highway.rollout.policies import POLICY_NAMES, checkpoint_pair_sha256
 from plm_highway.rollout.seeds import parse_seeds
 
 REFERENCE_LATENCY = "const:0"
@@ -112,7 +111,6 @@ class SweepGrid:
         Read once per sweep: a file changed since the last run gives its cells other keys, so they run again."""
         from plm_highway.io.digests import file_sha256, kit_version
         from plm_highway.road.track import track_sha256
-        from plm_highway.rollout.policies import checkpoint_pair_sha256
 
         traces = {}
         for spec in self.latencies + (REFERENCE_LATENCY,):
@@ -236,7 +234,6 @@ def _refuse_merged(raw: list, names: list[str], where: str) -> None:
 def load_grid(path: str | Path) -> SweepGrid:
     """A grid from a YAML (.yaml/.yml) or JSON file, read within :data:`GRID_LIMITS` (aliases counted
     after expansion, no key twice, no integer longer than 20 digits)."""
-    from plm_highway.io.bounded import decode_utf8, parse_json, parse_yaml, read_bounded
 
     path = Path(path)
     source = f"--grid {str(path)!r}"

@@ -158,7 +158,6 @@ def _publish_set(out: Path, grid: SweepGrid, rows: list[dict]) -> list[Path]:
 def cell_record(cell: SweepCell, settings: dict, result: dict) -> dict:
     """What a cell's file holds: the cell, what its run was made from, its result, and the digest of all that
     (:data:`~plm_highway.io.digests.DIGEST_KEY`), as strict JSON reads it back."""
-    import json
 
     record = json.loads(json_text({"cell": asdict(cell), "inputs": settings, **result}))
     record[DIGEST_KEY] = content_digest(record)
