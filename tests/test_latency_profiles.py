@@ -335,3 +335,22 @@ def test_unreadable_trace_is_a_value_error(tmp_path, monkeypatch):
     with pytest.raises(ValueError) as excinfo:
         parse_profile(f"trace:{path}")
     assert str(path) in str(excinfo.value) and "cannot be read (Permission denied)" in str(excinfo.value)
+
+
+@settings(max_examples=40, deadline=None)
+@given(base_s=st.floats(0.0, 0.5), jitter_s=st.floats(0.0, 0.1), period_s=st.floats(0.01, 1.0),
+       times=st.lists(st.floats(0.0, 30.0), min_size=1, max_size=20), seed=st.integers(0, 2**31))
+def test_a_jittered_profile_stays_within_its_jitter_and_is_one_realisation_per_seed(base_s, jitter_s, period_s,
+                                                                                     times, seed):
+    def profile():
+        made = latency_profiles.JitteredProfile(f"const:{base_s!r}", jitter_s, period_s)
+        made.reset(np.random.default_rng(seed))
+        return made
+
+    forward, backward = profile(), profile()
+    ahead = [forward.latency_s(t) for t in sorted(times)]
+    behind = [backward.latency_s(t) for t in sorted(times, reverse=True)][::-1]
+    assert ahead == behind  # the draws do not depend on the order the times are asked in
+    for latency_s in ahead:
+        assert max(0.0, base_s - jitter_s) - 1e-12 <= latency_s <= base_s + jitter_s + 1e-12
+    assert forward.max_latency_s == pytest.approx(base_s + jitter_s)

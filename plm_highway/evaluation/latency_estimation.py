@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.errors import BadInput
-from plm_highway.latency.profiles import LatencyProfile, parse_profile
+from plm_highway.latency.profiles import JitteredProfile, LatencyProfile, parse_profile
 from plm_highway.latency.scoring import lock_metrics, quiet_metrics, quiet_ticks, step_metrics
 
 ROLES = ("reference", "baseline", "true", "estimated")
@@ -151,32 +151,6 @@ def plan(suite: LatencySuite) -> list[RunSpec]:
 # ----------------------------------------------------------------------------------------------------------------
 # one run
 # ----------------------------------------------------------------------------------------------------------------
-
-
-class JitteredProfile(LatencyProfile):
-    """A latency profile plus a uniform jitter of +-``jitter_s``, redrawn every ``period_s`` (seeded at reset)."""
-
-    def __init__(self, base: str, jitter_s: float, period_s: float):
-        self.base = parse_profile(base)
-        self.jitter_s, self.period_s = jitter_s, period_s
-        self.spec = f"{self.base.spec} +- {jitter_s:g} s every {period_s:g} s"
-        self._draws: list[float] = []
-        self._rng: np.random.Generator | None = None
-
-    def reset(self, rng: np.random.Generator) -> None:
-        self.base.reset(rng)
-        self._rng = np.random.default_rng(rng.integers(0, 2**32, size=2))
-        self._draws = []
-
-    def latency_s(self, t_s: float) -> float:
-        index = int(math.floor(max(t_s, 0.0) / self.period_s + 1e-9))
-        while len(self._draws) <= index:  # drawn in index order whatever is asked: a realisation per seed
-            self._draws.append(float(self._rng.uniform(-self.jitter_s, self.jitter_s)))
-        return max(0.0, self.base.latency_s(t_s) + self._draws[index])
-
-    @property
-    def max_latency_s(self) -> float:
-        return self.base.max_latency_s + self.jitter_s
 
 
 def run_conditions(spec: RunSpec):
