@@ -94,12 +94,12 @@ def fake_posed_gains(checkpoints, conditions_name, track, latencies_s, *args, **
 
 @pytest.fixture
 def fakes(monkeypatch):
-    from plm_highway.population import drift, training
+    from plm_highway.population import study, training
     from plm_highway.rollout import cells
 
     monkeypatch.setattr(training, "_make_pair", fake_make_pair)
     monkeypatch.setattr(cells, "run_cells", fake_run_cells)
-    monkeypatch.setattr(drift, "posed_gains", fake_posed_gains)
+    monkeypatch.setattr(study, "posed_gains", fake_posed_gains)
 
 
 def track_text(radius_m: float) -> str:

@@ -114,7 +114,7 @@ def _read_record(path: Path) -> dict:
 def differences(earlier: dict, plan: PopulationPlan) -> list[str]:
     """The names of what ``plan``'s results would be made from that differs from ``earlier`` (a stored
     :func:`made_from`): ``track_sha256`` when a track file's contents changed under the same path."""
-    now = json.loads(json_text(made_from(plan)))  # as it reads back from a file (tuples as lists)
+    earlier, now = (json.loads(json_text(side)) for side in (earlier, made_from(plan)))  # as a file reads back
     return [name for name in now if earlier.get(name) != now[name]]
 
 
