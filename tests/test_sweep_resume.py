@@ -105,7 +105,7 @@ def test_one_relative_track_name_in_two_directories_is_two_tracks(tmp_path, monk
     monkeypatch.chdir(tmp_path / "b")
     grid = grid()
     again = run_sweep(grid, tmp_path / "out", workers=0, progress=False)
-    fresh = run_sweep(grid, tmp_path / "fresh", workers=0, progress=False)
+    run_sweep(grid, tmp_path / "fresh", workers=0, progress=False)
     assert table(tmp_path / "fresh") != before  # the two tracks drive differently: a reused row would show
     assert again["ran"] == 2 and table(tmp_path / "out") == table(tmp_path / "fresh")
 

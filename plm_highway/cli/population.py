@@ -51,7 +51,8 @@ def configure(parser) -> None:
                         help="envs stepped together per worker (one batched forward pass per step)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     parser.add_argument("--report-only", action="store_true",
-                        help="render the report from the pairs committed under --out; train and drive nothing")
+                        help="render the report from the pairs committed under --out; train and drive nothing "
+                             "(no --work is made or read)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace an earlier population report at --out (never anything else)")
     parser.add_argument("--restart", action="store_true",

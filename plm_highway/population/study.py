@@ -118,8 +118,11 @@ def run_population(plan: PopulationPlan, options: RunOptions) -> dict:
     if options.restart:
         _restart(options)
     records = read_ledger(options.out, plan)
-    work = open_work(options.work, plan, options.restart)
-    state = read_state(work, plan)
+    if options.report_only:  # the committed pairs alone: no work directory is made or read
+        work, state = Path(options.work), WorkState(plan, work=Path(options.work))
+    else:
+        work = open_work(options.work, plan, options.restart)
+        state = read_state(work, plan)
     for record in records.values():
         adopt(state, record)
     todo = [seeds for seeds in plan.pairs if not record_complete(records.get(seeds.pair), plan)]
