@@ -244,8 +244,10 @@ def _finish_pair(work: Path, state: WorkState, record: dict, backend, options: R
 
 
 def _has_checkpoints(work: Path, pair: int, training: dict) -> bool:
-    if not training.get("ok"):
-        return True  # a failed training has none to look for
+    return not training.get("ok") or _has_checkpoint_files(work, pair)  # a failed training has none to look for
+
+
+def _has_checkpoint_files(work: Path, pair: int) -> bool:
     directory = work / "pairs" / pair_name(pair)
     return all((directory / model / name).is_file() for model in ("bm", "tapm") for name in ("model.pt", "model.json"))
 
@@ -315,8 +317,9 @@ def read_state(work: Path, plan: PopulationPlan) -> WorkState:
     state = WorkState(plan, work=work)
     for seeds in plan.pairs:
         pair = seeds.pair
+        checkpoints = file_sha256(pair_files(work, pair)) if _has_checkpoint_files(work, pair) else None
         training = _read_sealed(work / "pairs" / pair_name(pair) / "training.json", PAIR_TRAINING,
-                                lambda record, pair=pair: _made_these_checkpoints(work, pair, record))
+                                lambda record, made=checkpoints: _made_these_checkpoints(record, made))
         if training is None:
             continue
         training.pop("checkpoints", None)
@@ -326,7 +329,6 @@ def read_state(work: Path, plan: PopulationPlan) -> WorkState:
         feedback = _read_sealed(work / "pairs" / pair_name(pair) / "feedback.json", PAIR_FEEDBACK)
         if feedback is not None:
             state.feedback[pair] = feedback["gains"]
-        checkpoints = file_sha256(pair_files(work, pair))
         for seed in plan.sim_seeds:
             runs = _read_runs(work, pair, seed, "", checkpoints)
             if runs is not None:
@@ -349,13 +351,14 @@ def read_state(work: Path, plan: PopulationPlan) -> WorkState:
     return state
 
 
-def _made_these_checkpoints(work: Path, pair: int, training: dict) -> str | None:
-    """Why a training record no longer describes the pair's checkpoint files (None: it does)."""
+def _made_these_checkpoints(training: dict, checkpoints: dict[str, str] | None) -> str | None:
+    """Why a training record no longer describes the pair's checkpoint files (their hashes ``checkpoints``, None
+    when they are missing); None: it does."""
     if not training.get("ok"):
         return None
-    if not _has_checkpoints(work, pair, training):
+    if checkpoints is None:
         return "its checkpoints are missing"
-    if training.get("checkpoints") != file_sha256(pair_files(work, pair)):
+    if training.get("checkpoints") != checkpoints:
         return "the pair's checkpoint files are not the ones this training wrote"
     return None
 
@@ -496,11 +499,12 @@ def _drive_missing(work: Path, state: WorkState, backend, options: RunOptions, r
     total = len(trained) * len(plan.sim_seeds) * runs_per_chunk
     bar = _progress(total, total - len(todo) * runs_per_chunk, f"population: drive{' ' + remedy if remedy else ''}",
                     "run", options.progress)
-    files = {}
+    files, hashes = {}, {}
     tasks = []
     chunks = max(1, options.workers or 1)
     for pair in dict.fromkeys(pair for pair, _ in todo):
         files[pair] = pair_files(work, pair, remedy)
+        hashes[pair] = file_sha256(files[pair])
         missing = [seed for p, seed in todo if p == pair]
         # A pair's runs split evenly over the workers: whole seeds per task, as many tasks as workers.
         for seeds in split_seeds(missing, chunks):
@@ -510,7 +514,7 @@ def _drive_missing(work: Path, state: WorkState, backend, options: RunOptions, r
         for _, result in backend.map_unordered(drive_pair, tasks):
             state.drive_cpu_s[result.pair] = state.drive_cpu_s.get(result.pair, 0.0) + result.cpu_s
             for seed, rows in result.rows.items():
-                _write_runs(work, result.pair, seed, rows, result.traces[seed], result.remedy)
+                _write_runs(work, result.pair, seed, rows, result.traces[seed], hashes[result.pair], result.remedy)
                 if remedy:
                     state.remedy_runs[(remedy, result.pair, seed)] = rows
                 else:
@@ -521,12 +525,13 @@ def _drive_missing(work: Path, state: WorkState, backend, options: RunOptions, r
         bar.close()
 
 
-def _write_runs(work: Path, pair: int, seed: int, rows: list[dict], traces: bytes, remedy: str = "") -> None:
+def _write_runs(work: Path, pair: int, seed: int, rows: list[dict], traces: bytes, checkpoints: dict[str, str],
+                remedy: str = "") -> None:
     path = runs_path(work, pair, seed, remedy)
     with write_output(path.with_suffix(".npz"), PAIR_TRACES, overwrite=True) as staged:
         staged.write_bytes(traces)
     record = {"pair": pair, "seed": seed, "remedy": remedy, "rows": rows, "traces_sha256": _sha256(traces),
-              "checkpoints": file_sha256(pair_files(work, pair, remedy))}
+              "checkpoints": checkpoints}
     write_json(path, _sealed(record), PAIR_RUNS, overwrite=True)
 
 
