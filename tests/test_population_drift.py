@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from plm_highway.population.drift import drift_summary, offset_bands, slope
+from plm_highway.mitigation.posing import slope
+from plm_highway.population.drift import drift_summary, offset_bands
 
 
 def test_offset_bands_separate_a_slow_swing_from_a_fast_weave():

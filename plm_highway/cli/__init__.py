@@ -23,7 +23,7 @@ from plm_highway.errors import BadInput
 EXIT_OK, EXIT_BUG, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 # Adapter modules in the order their commands are listed; a group module lists sub-commands.
-ADAPTERS = ("demo", "collect", "train", "evaluate", "reproduce", "calibrate", "bm_response", "sweep", "population", "estimate", "bench", "sim2real", "lessons", "docs")
+ADAPTERS = ("demo", "collect", "train", "evaluate", "reproduce", "calibrate", "bm_response", "sweep", "population", "mitigations", "estimate", "bench", "sim2real", "lessons", "docs")
 
 
 def _adapter(name: str):

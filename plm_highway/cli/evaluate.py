@@ -29,7 +29,9 @@ def configure(parser) -> None:
     parser.add_argument("--latency", default=d["latency"],
                         help="latency profile, e.g. const:0.2 or steps:0.0-0.35:1.0")
     parser.add_argument("--policy", choices=POLICY_NAMES, default=d["policy"],
-                        help="plm: reference + BM baseline + PLM-Net; bm: the first two; expert: the expert twice; "
+                        help="plm: reference + BM baseline + PLM-Net; bm-warp, bm-smith: the same with the BM and a "
+                             "plug-in mitigation instead of PLM-Net (docs: mitigations); bm: the first two; expert: "
+                             "the expert twice; "
                              "ekf: the EKF lane keeper without latency, without and with delay compensation, its LQR "
                              "designed for the conditions' loop, actuator and processing delay")
     parser.add_argument("--checkpoints", help="directory with bm/ and tapm/ checkpoints (default: the shipped pair)")

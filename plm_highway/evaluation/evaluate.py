@@ -2,7 +2,8 @@
 
 - ``reference``: the policy without latency;
 - ``baseline``: the same policy fed the delayed observations;
-- ``mitigated`` (``--policy plm``): PLM-Net fed the delayed observations and told their age.
+- ``mitigated`` (``--policy plm``): PLM-Net fed the delayed observations and told their age; (``--policy bm-warp``
+  or ``bm-smith``) the BM with a plug-in mitigation (:mod:`plm_highway.mitigation`) told the same age.
 
 With ``--policy ekf`` the three runs are the model-based policy's own (seed paper 004): the EKF
 lane keeper without latency, fusing each late frame as if it were current (no delay
@@ -39,7 +40,7 @@ from plm_highway.rollout.conditions import (
     with_injection,
     with_latency_source,
 )
-from plm_highway.rollout.policies import make_policy
+from plm_highway.rollout.policies import MITIGATED_POLICIES, make_policy
 from plm_highway.rollout.seeds import parse_seeds
 
 COMBINED_COLUMNS = ("steering", "latency_s", "observation_age_s", "x_m", "y_m", "lateral_offset_m", "segment")
@@ -99,9 +100,13 @@ def summary_lines(result: dict) -> list[str]:
     if steering.get("mae_reduction_pct") is not None:
         baseline, mitigated = result["runs"]["baseline"], result["runs"]["mitigated"]
         offset_change = 100.0 * (1.0 - mitigated["lateral_offset_rms_m"] / baseline["lateral_offset_rms_m"])
-        lines.append(f"reduction by PLM-Net against the baseline: steering MAE {steering['mae_reduction_pct']:.1f}%, "
+        who = "PLM-Net" if result["policy"] == "plm" else result["policy"]
+        lines.append(f"reduction by {who} against the baseline: steering MAE {steering['mae_reduction_pct']:.1f}%, "
                      f"lateral-offset RMS {offset_change:.1f}% (negative: higher)")
     return lines
+
+
+MITIGATING_POLICIES = ("plm", *MITIGATED_POLICIES)  # policies evaluated as the "mitigated" run beside the BM
 
 
 def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps=None, checkpoints=None,
@@ -150,8 +155,9 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
     base_policy = "expert" if policy == "expert" else "bm"
     policies = {"reference": make_policy(base_policy, checkpoints, device=device),
                 "baseline": make_policy(base_policy, checkpoints, device=device)}
-    if policy == "plm":
-        policies["mitigated"] = make_policy("plm", checkpoints, latency_source=chosen.latency_source, device=device)
+    if policy in MITIGATING_POLICIES:
+        policies["mitigated"] = make_policy(policy, checkpoints, latency_source=chosen.latency_source, device=device,
+                                            seed=seed, conditions=chosen)
     logs = {}
     for name, run_policy in policies.items():
         logs[name] = drive(name, run_policy, track_spec, "const:0" if name == "reference" else profile, seed,
@@ -204,7 +210,8 @@ def _evaluate_seeds(track_label: str, track_spec: TrackSpec, latency_spec: str, 
     if policy == "plm":
         policies["plm"] = make_policy("plm", checkpoints, latency_source=chosen.latency_source,
                                       preset=chosen.checkpoint_preset, device=device)
-        roles["mitigated"] = "plm"
+    if policy in MITIGATING_POLICIES:  # a plug-in mitigation is made per run by the runner (its state is the run's)
+        roles["mitigated"] = policy
     driven = {"reference": "const:0", "baseline": baseline_latency(latency_spec, chosen), "mitigated": latency_spec}
     cells = [Cell(role, who, driven[role], seed, setting=latency_spec) for seed in seeds for role, who in roles.items()]
     # Batched (one forward pass per model and step); batch-invariant models: each run is its one-env run.
@@ -214,9 +221,10 @@ def _evaluate_seeds(track_label: str, track_spec: TrackSpec, latency_spec: str, 
     first = compare_runs(per_seed_logs[0], track_spec, latency_spec, policy, seeds[0], track_label)
     first["seeds"] = seeds
     first["per_seed"] = [{"seed": seed, "runs": {name: log.summary() for name, log in seed_logs.items()},
-                          **({"steering": protocol.steering_over_common_span(seed_logs)} if policy == "plm" else {})}
+                          **({"steering": protocol.steering_over_common_span(seed_logs)}
+                             if policy in MITIGATING_POLICIES else {})}
                          for seed, seed_logs in zip(seeds, per_seed_logs)]
-    if policy == "plm":
+    if policy in MITIGATING_POLICIES:
         first["over_seeds"] = {"steering": protocol.estimates_as_dict(
             protocol.aggregate_steering([entry["steering"] for entry in first["per_seed"]]))}
     return first, per_seed_logs[0]

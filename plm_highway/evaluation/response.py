@@ -26,7 +26,7 @@ from plm_highway.errors import BadInput
 from plm_highway.evaluation.protocol import PAPER_TRACK
 from plm_highway.expert.controller import ExpertParams, expert_steering
 from plm_highway.io import file_kind, pyplot, write_figure_and_numbers
-from plm_highway.models.config_checks import check_choice
+from plm_highway.road.geometry import SEGMENT_TITLES, longest_segment_middle_m
 from plm_highway.rollout.conditions import CONDITIONS, Conditions
 
 OFFSETS_M = tuple(round(float(x), 2) for x in np.arange(-5.0, 5.001, 0.5))
@@ -42,23 +42,6 @@ def demonstrator_law(conditions: Conditions) -> ExpertParams:
     driver = make_demonstrator(conditions.demonstrator, conditions.policy_frequency_hz, np.random.default_rng(0),
                                conditions.max_steering_rad)
     return driver.tracking
-
-
-SEGMENTS = ("straight", "left", "right")  # where the car can be posed: the middle of the longest of that kind
-SEGMENT_TITLES = {"straight": "straight", "left": "left turn", "right": "right turn"}
-
-
-def longest_segment_middle_m(track, segment: str = "straight") -> float:
-    """Arc length [m] at the middle of the track's longest ``segment`` (straight, left or right arc)."""
-    check_choice("--segment", segment, SEGMENTS)
-    arc_m, best = 0.0, None
-    for part in track.segments:
-        if part.direction == segment and (best is None or part.length_m > best[1]):
-            best = (arc_m + 0.5 * part.length_m, part.length_m)
-        arc_m += part.length_m
-    if best is None:
-        raise BadInput(f"track {track.name!r} has no {SEGMENT_TITLES[segment]} segment to pose the car on")
-    return best[0]
 
 
 def bm_response(track: str = PAPER_TRACK, conditions: str = "paper", checkpoints=None,

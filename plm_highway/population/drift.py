@@ -23,9 +23,9 @@ from collections.abc import Sequence
 import numpy as np
 from scipy import signal
 
+from plm_highway.mitigation.posing import POSE_HEADINGS_RAD, POSE_OFFSETS_M, gains_from_answers, posed_frames
+
 DRIFT_CUTOFF_HZ = 0.25  # periods above 4 s count as drift (the latency weave is 0.6-1.2 s)
-POSE_OFFSETS_M = (-1.0, -0.5, 0.0, 0.5, 1.0)  # inside the lane: what the demonstrations covered
-POSE_HEADINGS_RAD = (-0.04, -0.02, 0.0, 0.02, 0.04)
 FILTER_ORDER = 2
 
 
@@ -47,22 +47,13 @@ def offset_bands(t_s: np.ndarray, offset_m: np.ndarray, cutoff_hz: float = DRIFT
             "rms_m": total}
 
 
-def slope(x: Sequence[float], y: Sequence[float]) -> float:
-    """Least-squares slope of ``y`` on ``x`` (with an intercept)."""
-    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
-    return float(np.polyfit(x, y, 1)[0])
-
-
 def posed_gains(checkpoints, conditions_name: str, track: str, latencies_s: Sequence[float],
                 offsets_m: Sequence[float] = POSE_OFFSETS_M, headings_rad: Sequence[float] = POSE_HEADINGS_RAD
                 ) -> dict:
     """Feedback gains of the BM (no latency), of PLM-Net told each of ``latencies_s`` and of the demonstrator's law,
     from posed camera frames (see the module docstring): ``{"bm": {...}, "plm@0.25": {...}, "law": {...}}`` with
     ``offset_gain_per_m`` and ``heading_gain_per_rad``."""
-    import gymnasium
-
-    from plm_highway.envs import ENV_ID
-    from plm_highway.evaluation.response import demonstrator_law, longest_segment_middle_m
+    from plm_highway.evaluation.response import demonstrator_law
     from plm_highway.expert.controller import expert_steering
     from plm_highway.models.checkpoints import load_base_model, load_plm_net
     from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
@@ -74,27 +65,14 @@ def posed_gains(checkpoints, conditions_name: str, track: str, latencies_s: Sequ
     bm = BaseModelPolicy(load_base_model(bm_path), batch_invariant=True)
     plm = PLMNetPolicy(load_plm_net(bm_path, tapm_path), batch_invariant=True)
     law = demonstrator_law(conditions)
-    env = gymnasium.make(ENV_ID, config=dict(conditions.env_config(), track=track, camera=conditions.camera))
-    try:
-        env.reset(seed=0)
-        arc_m = longest_segment_middle_m(env.unwrapped.track, "straight")
-        poses = {"offset": [(o, 0.0) for o in offsets_m], "heading": [(0.0, h) for h in headings_rad]}
-        answers: dict[str, dict[str, list[float]]] = {}
-        for sweep, sweep_poses in poses.items():
-            for offset_m, heading_rad in sweep_poses:
-                frame, info = env.reset(options={"start_arc_length_m": arc_m, "start_offset_m": offset_m,
-                                                 "start_heading_error_rad": heading_rad})
-                frame = np.array(frame)
-                steer = {"bm": bm(frame, info["speed_mps"], 0.0), "law": float(expert_steering(info, law))}
-                for latency_s in latencies_s:
-                    steer[f"plm@{latency_s:g}"] = plm(frame, info["speed_mps"], latency_s)
-                for who, value in steer.items():
-                    answers.setdefault(who, {}).setdefault(sweep, []).append(float(value))
-    finally:
-        env.close()
-    return {who: {"offset_gain_per_m": slope(offsets_m, sweeps["offset"]),
-                  "heading_gain_per_rad": slope(headings_rad, sweeps["heading"])}
-            for who, sweeps in answers.items()}
+    answers: dict[str, dict[str, list[float]]] = {}
+    for sweep, frame, info in posed_frames(conditions.env_config(), track, conditions.camera, offsets_m, headings_rad):
+        steer = {"bm": bm(frame, info["speed_mps"], 0.0), "law": float(expert_steering(info, law))}
+        for latency_s in latencies_s:
+            steer[f"plm@{latency_s:g}"] = plm(frame, info["speed_mps"], latency_s)
+        for who, value in steer.items():
+            answers.setdefault(who, {}).setdefault(sweep, []).append(float(value))
+    return {who: gains_from_answers(sweeps, offsets_m, headings_rad) for who, sweeps in answers.items()}
 
 
 def run_bands(traces: dict[str, dict[str, np.ndarray]]) -> dict[str, dict]:

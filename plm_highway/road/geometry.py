@@ -142,3 +142,21 @@ def reference_pose_at(track: TrackSpec, s_m: float) -> tuple[float, float, float
         s_m -= seg.length_m
         pose = advance_pose(pose, seg)
     return pose
+
+
+SEGMENTS = ("straight", "left", "right")  # where the car can be posed: the middle of the longest of that kind
+SEGMENT_TITLES = {"straight": "straight", "left": "left turn", "right": "right turn"}
+
+
+def longest_segment_middle_m(track, segment: str = "straight") -> float:
+    """Arc length [m] at the middle of the track's longest ``segment`` (straight, left or right arc)."""
+    if not isinstance(segment, str) or segment not in SEGMENTS:
+        raise BadInput(f"--segment: {segment!r} is not one of {list(SEGMENTS)}")
+    arc_m, best = 0.0, None
+    for part in track.segments:
+        if part.direction == segment and (best is None or part.length_m > best[1]):
+            best = (arc_m + 0.5 * part.length_m, part.length_m)
+        arc_m += part.length_m
+    if best is None:
+        raise BadInput(f"track {track.name!r} has no {SEGMENT_TITLES[segment]} segment to pose the car on")
+    return best[0]

@@ -169,7 +169,7 @@ def _steer_and_step(runs: list[_Run], batch_invariant: bool) -> None:
         # The same latency (and float32 rounding) as VisionPolicy.__call__ gives the model per frame.
         latencies_s = np.asarray([max(0.0, run.info[run.policy.info_key] + run.policy.latency_bias_s)
                                   for run in group], dtype=np.float32)
-        frames = np.stack([run.frame() for run in group])
+        frames = np.stack([run.policy.model_input(run.frame(), run.info) for run in group])
         speeds_mps = np.asarray([run.info["speed_mps"] for run in group])
         if batch_invariant and not model.batch_invariant:  # a caller's policy object, left as it was
             model = copy.copy(model)
@@ -177,7 +177,7 @@ def _steer_and_step(runs: list[_Run], batch_invariant: bool) -> None:
         actions = model.steer_batch(frames, speeds_mps, latencies_s)
         above_grid = latencies_s > np.float32(model.max_latency_s)
         for run, action, clamped in zip(group, actions, above_grid):
-            steering[id(run)] = float(action)
+            steering[id(run)] = run.policy.output(float(action), run.info)
             run.clamped_steps += int(clamped)
     for run in runs:
         run.record(steering[id(run)])

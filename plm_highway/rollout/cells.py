@@ -41,19 +41,22 @@ from plm_highway.rollout.batched import drive_batched
 from plm_highway.rollout.closed_loop import Policy, RunCell, RunLog, drive_cell, make_env
 from plm_highway.rollout.conditions import Conditions, scored_steps, start_perturbation
 from plm_highway.rollout.policies import (
+    MITIGATED_POLICIES,
     POLICY_NAMES,
     SHIPPED_PRESET,
     VisionPolicy,
     biased,
     checkpoint_pair_sha256,
     make_policy,
+    run_plant,
     single_threaded_inference,
 )
 
 DEFAULT_BATCH_SIZE = 32
 MAX_BATCH_SIZE = 4096
 MAX_THREADS = 64
-MODEL_POLICIES = ("bm", "plm")  # loaded once per process and shared by the runs; the others are made per run
+# loaded once per process and shared by the runs; the others are made per run
+MODEL_POLICIES = ("bm", "plm", *MITIGATED_POLICIES)
 ROLES = ("reference", "baseline", "mitigated")
 
 
@@ -197,7 +200,18 @@ def _policy_for(cell: RunCell, models: Mapping[str, VisionPolicy]) -> Policy:
     if not isinstance(cell.policy, str):
         return cell.policy
     if cell.policy in MODEL_POLICIES:
-        return VisionPolicy(models[cell.policy].model_policy, cell.latency_bias_s, cell.latency_source)
+        mitigation = None
+        if cell.policy in MITIGATED_POLICIES:  # a per-run object: the run's camera, its own sensor noise
+            from plm_highway.mitigation import make_mitigation
+
+            mitigation = make_mitigation(MITIGATED_POLICIES[cell.policy], cell.camera, cell.seed,
+                                         models[cell.policy].model_policy, cell.env_config)
+        return VisionPolicy(models[cell.policy].model_policy, cell.latency_bias_s, cell.latency_source, mitigation)
+    if cell.policy == "ekf":  # its plant is the run's (camera, loop, actuator, car)
+        from plm_highway.estimation.policy import ekf_policy
+
+        return ekf_policy(latency_bias_s=cell.latency_bias_s, seed=cell.seed, latency_source=cell.latency_source,
+                          **run_plant(cell.camera, cell.env_config))
     return make_policy(cell.policy, latency_bias_s=cell.latency_bias_s, seed=cell.seed)
 
 

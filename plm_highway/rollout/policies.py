@@ -1,6 +1,7 @@
 """Policies by name, for the command line: ``expert``, ``bm`` (Base Model), ``plm`` (PLM-Net), ``ekf``
 (the model-based alternative: :class:`plm_highway.estimation.policy.EkfLaneKeepingPolicy`, the
-delay-compensated lane EKF of seed paper 004 and a controller on its state; no checkpoints).
+delay-compensated lane EKF and a controller on its state; no checkpoints), and the frozen BM with a plug-in
+mitigation (:data:`MITIGATED_POLICIES`, :mod:`plm_highway.mitigation`): ``bm-warp``, ``bm-smith``.
 
 Model policies load a checkpoint pair (Base Model + TAPM). ``--checkpoints DIR`` accepts the two
 layouts the project writes: ``DIR/bm/`` + ``DIR/tapm/`` (each ``model.pt`` + ``model.json``, as
@@ -20,7 +21,9 @@ from plm_highway.expert import ExpertPolicy
 from plm_highway.rollout.closed_loop import Policy
 from plm_highway.rollout.conditions import Conditions
 
-POLICY_NAMES = ("expert", "bm", "plm", "ekf")
+POLICY_NAMES = ("expert", "bm", "plm", "ekf", "bm-warp", "bm-smith")
+# Policies that are the frozen BM with a plug-in mitigation (plm_highway.mitigation), by the mitigation's name.
+MITIGATED_POLICIES = {"bm-warp": "warp", "bm-smith": "smith"}
 # What PLM-Net is told -> the info key it reads; "estimated" is the latency estimated from the stream
 # (plm_highway.estimation.latency_stream, added to info by the run's LatencyEstimateWrapper).
 LATENCY_SOURCES = {"measured": "observation_age_s", "requested": "latency_s", "estimated": "latency_estimate_s"}
@@ -36,16 +39,34 @@ class VisionPolicy:
     latency estimate; clipped at 0).
     """
 
-    def __init__(self, model_policy, latency_bias_s: float = 0.0, latency_source: str = "measured"):
+    def __init__(self, model_policy, latency_bias_s: float = 0.0, latency_source: str = "measured", mitigation=None):
         if latency_source not in LATENCY_SOURCES:
             raise ValueError(f"latency_source {latency_source!r}: expected one of {list(LATENCY_SOURCES)}")
         self.model_policy = model_policy
         self.latency_bias_s = latency_bias_s
         self.latency_source = latency_source
         self.info_key = LATENCY_SOURCES[latency_source]
+        # A plug-in mitigation of this run (plm_highway.mitigation): what the model sees and what is issued.
+        self.mitigation = mitigation
 
     def reset(self) -> None:
         self.model_policy.reset()
+        if self.mitigation is not None:
+            self.mitigation.reset()
+
+    def latency_s(self, info) -> float:
+        """The frame's age as this policy is told it."""
+        return max(0.0, info[self.info_key] + self.latency_bias_s)
+
+    def model_input(self, frame, info):
+        """The frame the model is given (the mitigation's, if any)."""
+        if self.mitigation is None:
+            return frame
+        return self.mitigation.model_input(frame, info, self.latency_s(info))
+
+    def output(self, steering: float, info) -> float:
+        """The steering issued for the model's ``steering``."""
+        return steering if self.mitigation is None else float(self.mitigation.output(steering, info))
 
     @property
     def clamped_count(self) -> int:
@@ -53,8 +74,8 @@ class VisionPolicy:
         return int(getattr(self.model_policy, "clamped_latency_count", 0))
 
     def __call__(self, frame, info) -> float:
-        latency_s = max(0.0, info[self.info_key] + self.latency_bias_s)
-        return float(self.model_policy(frame, info["speed_mps"], latency_s))
+        steering = float(self.model_policy(self.model_input(frame, info), info["speed_mps"], self.latency_s(info)))
+        return self.output(steering, info)
 
 
 @contextlib.contextmanager
@@ -125,14 +146,21 @@ def ekf_plant(conditions) -> dict:
     """What the EKF lane keeper must know of ``conditions`` (a :class:`~plm_highway.rollout.conditions.Conditions`):
     the camera, the steering range, the loop period, the actuator's lag and the processing delay (its LQR's
     plant), and the car of the conditions' vehicle model as a linear single-track car (its estimator's model)."""
+    return run_plant(conditions.camera, conditions.env_config())
+
+
+def run_plant(camera: dict | None, env_config: dict | None) -> dict:
+    """:func:`ekf_plant` from what a run holds (a :class:`~plm_highway.rollout.closed_loop.RunCell`'s ``camera`` and
+    ``env_config``; the env's defaults for what they leave out)."""
     from plm_highway.camera.pinhole import CameraConfig
     from plm_highway.estimation.lateral_control import LoopTiming, single_track_equivalent
     from plm_highway.vehicle.models import checked_params, vehicle_model
 
-    params = checked_params(vehicle_model(conditions.vehicle_model), conditions.vehicle_params)
-    return {"camera": CameraConfig.from_dict(conditions.camera or {}), "max_steering_rad": conditions.max_steering_rad,
-            "timing": LoopTiming(1.0 / conditions.policy_frequency_hz, conditions.steering_time_constant_s,
-                                 conditions.processing_delay_steps),
+    config = env_config or {}
+    params = checked_params(vehicle_model(config.get("vehicle_model", "kinematic")), config.get("vehicle_params") or {})
+    return {"camera": CameraConfig.from_dict(camera or {}), "max_steering_rad": config.get("max_steering_rad", 0.2),
+            "timing": LoopTiming(1.0 / config.get("policy_frequency", 20), config.get("steering_time_constant_s", 0.0),
+                                 config.get("processing_delay_steps", 0)),
             "vehicle": single_track_equivalent(params)}
 
 
@@ -166,10 +194,22 @@ def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, lat
     bm_path, tapm_path = checkpoint_pair(checkpoint_dir, preset)
     # Batch-invariant kernels: a run's result does not depend on which runs shared its batch (or on
     # running alone), so batched, pooled and one-env runs of one seed give the same numbers.
-    if name == "bm":
+    if name == "bm" or name in MITIGATED_POLICIES:
         model = checkpoints.load_base_model(bm_path, device)
         check_preset(model.config, bm_path, checkpoint_dir, preset)
-        return VisionPolicy(inference.BaseModelPolicy(model, batch_invariant=True))
+        model_policy = inference.BaseModelPolicy(model, batch_invariant=True)
+        mitigation = None
+        if name in MITIGATED_POLICIES:
+            from plm_highway.mitigation import make_mitigation
+            from plm_highway.rollout.conditions import CONDITIONS
+
+            # without conditions: those the preset's checkpoints are meant for (their camera is the one they see)
+            conditions = conditions or next(c for c in CONDITIONS.values() if c.checkpoint_preset == preset)
+            camera, env_config = conditions.camera, conditions.env_config()
+            mitigation = make_mitigation(MITIGATED_POLICIES[name], camera, seed, model_policy, env_config)
+        if mitigation is None:
+            return VisionPolicy(model_policy)
+        return VisionPolicy(model_policy, latency_bias_s, latency_source, mitigation)
     net = checkpoints.load_plm_net(bm_path, tapm_path, device)
     check_preset(net.bm.config, bm_path, checkpoint_dir, preset)
     return VisionPolicy(inference.PLMNetPolicy(net, batch_invariant=True), latency_bias_s, latency_source)
