@@ -110,6 +110,7 @@ def test_the_defaults_other_help_pages_read_from_source_equal_the_imported_libra
     from plm_highway.evaluation import calibration, reproduce, response
     from plm_highway.models import tapm
     from plm_highway.population import plan, recipe, remedies
+    from plm_highway.road import geometry
     from plm_highway.rollout import conditions, policies
     from plm_highway.sweep import grid, runner
     from plm_highway.training import train
@@ -136,7 +137,7 @@ def test_the_defaults_other_help_pages_read_from_source_equal_the_imported_libra
         assert static_value(module.__name__, name) == getattr(module, name), name
     assert isinstance(static_value(calibration.__name__, "DEFAULT_OUT"), Path)
     for module, name in ((collect, "CAMERAS"), (collect, "DEMONSTRATORS"), (calibration, "READINGS"),
-                         (conditions, "SPEED_LOGICS"), (response, "SEGMENTS"), (recipe, "RECIPES"),
+                         (conditions, "SPEED_LOGICS"), (geometry, "SEGMENTS"), (recipe, "RECIPES"),
                          (policies, "POLICY_NAMES")):
         assert static_names(module.__name__, name) == tuple(getattr(module, name)), name
     from plm_highway.bench import metrics as bench_metrics

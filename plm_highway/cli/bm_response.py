@@ -15,7 +15,7 @@ from plm_highway.cli._common import (
 def configure(parser) -> None:
     # Read from the library's source, not imported: the help page imports no simulator (tests/test_cli_help.py).
     DEFAULT_OUT = static_value("plm_highway.evaluation.response", "DEFAULT_OUT")
-    SEGMENTS = static_names("plm_highway.evaluation.response", "SEGMENTS")
+    SEGMENTS = static_names("plm_highway.road.geometry", "SEGMENTS")
     CONDITION_NAMES = static_names("plm_highway.rollout.conditions", "CONDITION_NAMES")
     d = static_defaults("plm_highway.evaluation.response", "bm_response")
     parser.add_argument("--out", default=str(DEFAULT_OUT),

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.errors import BadInput
-from plm_highway.io import JSON_MARKER_KEY, directory_kind, file_kind, json_text, write_output
+from plm_highway.io import JSON_MARKER_KEY, directory_kind, file_kind, json_text, write_csv_into, write_output
 from plm_highway.io.bounded import JsonLimits, load_json
 from plm_highway.io.digests import kit_version
 from plm_highway.population.analysis import spread
@@ -421,8 +421,6 @@ def render(out: Path, records: list[dict]) -> dict:
     rows = [[row.get(c) for c in RESULT_COLUMNS] for r in records for row in r["rows"]]
     with write_output(out, MITIGATION_REPORT, update=["mitigations.json", "results.csv", "report.md"]) as staged:
         (staged / "mitigations.json").write_text(json_text(summary), encoding="utf-8")
-        from plm_highway.io import write_csv_into
-
         write_csv_into(staged / "results.csv", RESULT_COLUMNS, rows)
         (staged / "report.md").write_text(report_text(summary), encoding="utf-8")
     return summary
@@ -513,3 +511,51 @@ def headline(summary: dict) -> list[str]:
                 f"{'recommended' if checks['recommended'] else 'not recommended'}, aim "
                 f"{'met' if checks['aim_met'] else 'not met'}")
     return lines
+
+
+def _runs_on_road(entry: dict, policy: str, settings: Sequence[str]) -> tuple[int, int]:
+    """(runs that left the road, runs) of ``policy`` over ``settings``."""
+    chosen = [entry["settings"][s][policy] for s in settings if policy in entry["settings"].get(s, {})]
+    return sum(c["left_road"] for c in chosen), sum(c["runs"] for c in chosen)
+
+
+def outcome_sentences(summary: dict) -> list[str]:
+    """Per group, one sentence: each design's runs off the road at the aim's settings and lane at 0.25 s beside
+    PLM-Net's and the EKF lane keeper's, and its verdict."""
+    lines = []
+    for group, entry in summary["summary"].items():
+        aim = [s for s in AIM_SETTINGS if s in entry["settings"]]
+        at = entry["settings"].get("const:0.25", {})
+        off_plm, runs_plm = _runs_on_road(entry, "plm", aim)
+        off_ekf, runs_ekf = _runs_on_road(entry, "ekf", aim)
+        parts = []
+        for design in DESIGNS:
+            off, runs = _runs_on_road(entry, design, aim)
+            checks = entry["verdicts"][design]
+            parts.append(f"`{design}` left the road in {off} of {runs} runs, lane-offset RMS at 0.25 s "
+                         f"{_interval((at.get(design) or {}).get('offset_rms_m'))} m "
+                         f"({'recommended' if checks['recommended'] else 'not recommended'}; the aim "
+                         f"{'met' if checks['aim_met'] else 'not met'})")
+        where = "population pairs (paper recipe and conditions)" if group == "population" else \
+            "seeds with the shipped default pair (ideal conditions)"
+        lines.append(f"{entry['units']} {where}, at {', '.join(aim)}: " + "; ".join(parts) +
+                     f"; PLM-Net left the road in {off_plm} of {runs_plm} runs "
+                     f"({_interval((at.get('plm') or {}).get('offset_rms_m'))} m at 0.25 s), the EKF lane keeper "
+                     f"in {off_ekf} of {runs_ekf} ({_interval((at.get('ekf') or {}).get('offset_rms_m'))} m).")
+    return lines
+
+
+def aim_table(summary: dict) -> str:
+    """Markdown: per group and aim setting, every policy's lane-offset RMS, runs off the road and steering MAE."""
+    out = []
+    for group, entry in summary["summary"].items():
+        out += [f"**{GROUP_TITLES[group]}** ({entry['units']} {entry['unit']}s; 95% intervals over "
+                f"{entry['unit']}s)", "",
+                "| setting | policy | lane-offset RMS [m] | left the road | steering MAE (paper unit) |",
+                "|---|---|---|---|---|"]
+        for setting in (s for s in AIM_SETTINGS if s in entry["settings"]):
+            for policy, s in entry["settings"][setting].items():
+                out.append(f"| {setting} | {POLICY_TITLES[policy]} | {_interval(s['offset_rms_m'])} | "
+                           f"{s['left_road']} of {s['runs']} | {_interval(s['steering_mae_paper'], '{:.4f}')} |")
+        out.append("")
+    return "\n".join(out).rstrip("\n")

@@ -22,6 +22,7 @@ BENCH_MODELS_SHIPPED = tuple(Path(f"figures/bench/models-cpu-{n}.json") for n in
 BENCH_MODELS_RANDOM = (Path("figures/bench/models-cpu-random.json"),)
 BENCH_MODELS_CLOSED_LOOP = Path("figures/bench/models-cpu-closed-loop.json")
 SIM2REAL_BENCH = Path("figures/bench/sim2real.json")
+MITIGATIONS = Path("figures/mitigations/mitigations.json")
 # The sim2real page's worked examples: ``plm-highway sim2real diagnose ... --json`` on the recordings its commands make.
 SIM2REAL_EXAMPLES = {"sim2real-worked-example": Path("figures/sim2real/worked-example/rec-diagnosis.json"),
                      "sim2real-small-car": Path("figures/sim2real/worked-example/small-diagnosis.json"),
@@ -104,6 +105,21 @@ def population_status(root: Path) -> str:
     for name, remedy in sorted(document.get("remedies", {}).items()):
         lines.append(f"- Remedy `{name}`: **{remedy['decision']}** ({remedy['decision_rule']}).")
     return "\n".join(lines)
+
+
+def mitigations_outcome(root: Path) -> str:
+    """The plug-in mitigations' outcome in one sentence per group (README)."""
+    from plm_highway.population.mitigations import outcome_sentences
+
+    return "\n".join(f"> {line}" for line in outcome_sentences(_json(root, MITIGATIONS))) + (
+        f"\n>\n> From [{MITIGATIONS.parent}/report.md]({MITIGATIONS.parent}/report.md).")
+
+
+def mitigations_table(root: Path) -> str:
+    """The designs beside the BM, PLM-Net and the EKF lane keeper at the aim's settings, per group (docs)."""
+    from plm_highway.population.mitigations import aim_table
+
+    return aim_table(_json(root, MITIGATIONS))
 
 
 def estimation_table3(root: Path) -> str:
@@ -231,6 +247,8 @@ def sim2real_bench(root: Path) -> str:
 RENDERERS: dict[str, Callable[[Path], str]] = {
     "population-headline": population_headline,
     "population-status": population_status,
+    "mitigations-outcome": mitigations_outcome,
+    "mitigations-table": mitigations_table,
     "quickstart-shipped-pair": quickstart_shipped_pair,
     "estimation-table3": estimation_table3,
     "plm-vs-ekf-table": plm_vs_ekf_table,

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from plm_highway.expert import ExpertPolicy
 from plm_highway.rollout.closed_loop import Policy
-from plm_highway.rollout.conditions import Conditions
+from plm_highway.rollout.conditions import CONDITIONS, Conditions
 
 POLICY_NAMES = ("expert", "bm", "plm", "ekf", "bm-warp", "bm-smith")
 # Policies that are the frozen BM with a plug-in mitigation (plm_highway.mitigation), by the mitigation's name.
@@ -201,8 +201,6 @@ def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, lat
         mitigation = None
         if name in MITIGATED_POLICIES:
             from plm_highway.mitigation import make_mitigation
-            from plm_highway.rollout.conditions import CONDITIONS
-
             # without conditions: those the preset's checkpoints are meant for (their camera is the one they see)
             conditions = conditions or next(c for c in CONDITIONS.values() if c.checkpoint_preset == preset)
             camera, env_config = conditions.camera, conditions.env_config()
