@@ -214,3 +214,32 @@ def test_the_ekf_drives_under_paper_conditions_with_their_plant(tmp_path):
     result = json.loads(out.read_text())
     assert result["conditions"] == "paper" and set(result["runs"]) == {"reference", "baseline", "mitigated"}
     assert all(run["steps"] == 12 for run in result["runs"].values())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("policy", ["bm-warp", "bm-smith"])
+def test_a_plug_in_mitigation_is_evaluated_as_the_mitigated_run(policy, tmp_path, capsys):
+    out = tmp_path / "m.json"
+    assert cli.main(["evaluate", "--policy", policy, "--latency", "const:0.25", "--max-steps", "60",
+                     "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["policy"] == policy and set(result["runs"]) == {"reference", "baseline", "mitigated"}
+    screen = capsys.readouterr().out
+    assert f"reduction by {policy} against the baseline" in screen
+    # the mitigated run is not the BM's: it steered on other input
+    assert result["steering"]["mitigated"]["mae"] != result["steering"]["baseline"]["mae"]
+
+
+def test_the_ekf_named_in_a_run_takes_that_run_s_plant():
+    from plm_highway.road.track import load_track
+    from plm_highway.rollout.cells import Cell, _policy_for, runs_under
+    from plm_highway.rollout.conditions import CONDITIONS
+    from plm_highway.rollout.policies import ekf_plant
+
+    conditions = CONDITIONS["paper"]
+    [run] = runs_under([Cell("mitigated", "ekf", "const:0.2", 1)], load_track("test"), conditions, None, 5)
+    policy = _policy_for(run, {})
+    plant = ekf_plant(conditions)
+    assert policy.controller.timing == plant["timing"]
+    assert policy.config.camera == plant["camera"] and policy.config.max_steering_rad == plant["max_steering_rad"]
+    assert policy.config.latency_source == conditions.latency_source  # told the frame's age as PLM-Net is

@@ -30,6 +30,7 @@ from pathlib import Path
 
 from plm_highway.errors import BadInput
 from plm_highway.io.bounded import JsonLimits, decode_utf8, parse_json, parse_yaml, read_bounded
+from plm_highway.rollout.cells import MODEL_POLICIES  # the policies whose runs read the checkpoints
 from plm_highway.rollout.policies import POLICY_NAMES, checkpoint_pair_sha256
 from plm_highway.rollout.seeds import parse_seeds
 
@@ -41,7 +42,6 @@ MAX_GRID_FILE_BYTES = 1 << 20
 GRID_LIMITS = JsonLimits(max_bytes=MAX_GRID_FILE_BYTES, max_depth=16, max_nodes=200_000, max_int_digits=20,
                          max_expanded_chars=4 << 20)
 CONDITION_KEYS = ("camera", "env_config")
-MODEL_POLICIES = ("bm", "plm")  # the policies whose runs read the checkpoints
 GRID_KEYS = ("conditions", "latencies", "tracks", "seeds", "policies", "max_steps")
 
 
