@@ -118,3 +118,54 @@ def test_the_latency_sweep_driven_one_at_a_time_equals_it_driven_batched():
     assert one_at_a_time == together
     by_policy = {(row["policy"], row["latency_s"]): row["steering_mae"] for row in together["rows"]}
     assert by_policy[("plm_bias+0.05", 0.2)] != by_policy[("plm", 0.2)]  # the bias reached PLM-Net
+
+
+def test_a_pool_s_workers_end_when_the_process_that_made_them_is_killed(tmp_path):
+    """A parent killed by a signal it cannot catch leaves no worker driving runs for nobody."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    pids = tmp_path / "pids"
+    script = f"""
+import os, time
+from plm_highway.rollout.backends import worker_pool
+if __name__ == "__main__":
+    pool = worker_pool(2)
+    workers = [pool.submit(os.getpid).result() for _ in range(4)]
+    open({str(pids)!r}, "w").write(" ".join(map(str, set(workers))))
+    pool.submit(time.sleep, 600)
+    time.sleep(600)
+"""
+    parent = subprocess.Popen([sys.executable, "-c", script])
+    try:
+        deadline = time.monotonic() + 120
+        while not (pids.exists() and pids.read_text()) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        workers = [int(p) for p in pids.read_text().split()]
+        assert workers and all(_alive(pid) for pid in workers)
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+        deadline = time.monotonic() + 20
+        while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not any(_alive(pid) for pid in workers)
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+
+
+def _alive(pid: int) -> bool:
+    import os
+
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # a zombie (ended, not yet reaped) is not driving anything
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False

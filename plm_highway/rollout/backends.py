@@ -24,8 +24,33 @@ def default_workers() -> int:
 
 
 def worker_pool(workers: int) -> ProcessPoolExecutor:
-    """A pool of ``workers`` spawned processes (no torch state is forked)."""
-    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+    """A pool of ``workers`` spawned processes (no torch state is forked) that end with the process that made them."""
+    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=end_with_parent)
+
+
+PARENT_POLL_S = 1.0
+
+
+def end_with_parent() -> None:
+    """End this worker soon after the process that made it is gone (a daemon thread watches the parent's pid).
+
+    A worker in the middle of a chunk otherwise outlives a parent ended by a signal it cannot catch (``kill``, an
+    out-of-memory kill) and drives its runs to the end, for nobody, on cores others need. Polling the parent's pid
+    (not the kernel's parent-death signal, which fires when the spawning *thread* ends) works whichever thread
+    started the pool.
+    """
+    import threading
+    import time
+
+    parent = os.getppid()
+
+    def watch() -> None:
+        while True:
+            time.sleep(PARENT_POLL_S)
+            if os.getppid() != parent:  # re-parented: the parent died
+                os._exit(1)
+
+    threading.Thread(target=watch, name="end-with-parent", daemon=True).start()
 
 
 class _Backend:
