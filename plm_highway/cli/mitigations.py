@@ -37,8 +37,10 @@ def run(args) -> int:
     if args.report_only:  # the committed parts as they are: no checkpoints needed (a fresh clone has none)
         summary = study.render(args.out, study.committed_parts(args.out))
     else:
-        parts = [] if args.pairs == 0 else study.population_parts(args.population, args.work, args.pairs)
-        parts.append(study.shipped_part(range(args.shipped_seeds)))
+        # the shipped pair first: the cheapest part, and the only one a fresh clone can drive without a population
+        parts = [study.shipped_part(range(args.shipped_seeds))]
+        if args.pairs != 0:
+            parts += study.population_parts(args.population, args.work, args.pairs)
         with local_workers(args.workers) as backend:
             summary = study.run_study(parts, args.out, backend, args.batch_size, not args.no_progress)
     for line in study.headline(summary):
