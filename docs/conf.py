@@ -29,7 +29,8 @@ html_title = "plm-highway"
 exclude_patterns = ["_build", "Thumbs.db", ".DS_Store"]
 # A report page includes its committed report; one whose report is not committed yet is left out of the site
 # (the index lists the reports by glob, so nothing points at it).
-REPORTS = {"reports/population.md": ROOT / "figures/population/report.md"}
+REPORTS = {"reports/population.md": ROOT / "figures/population/report.md",
+           "reports/mitigations.md": ROOT / "figures/mitigations/report.md"}
 exclude_patterns += [page for page, report in REPORTS.items() if not report.is_file()]
 autodoc_default_options = {"members": True, "undoc-members": False, "show-inheritance": False}
 autodoc_member_order = "bysource"
