@@ -448,12 +448,17 @@ def trainings_section(plan: dict, trainings: dict, stages: dict) -> list[str]:
         load = f"{min(loads):.1f}-{max(loads):.1f}" if loads else "n/a"
         driving = stages.get(pair_text, {})
         drive_s = driving.get("driving", {}).get("wall_s")
-        drive = f"{_minutes(drive_s)} ({driving.get('workers', 'n/a')})" if drive_s is not None else "n/a"
+        # under a second: the runs were on record from an earlier, interrupted run (nothing was timed)
+        drive = (f"{_minutes(drive_s)} ({driving.get('workers', 'n/a')})" if drive_s is not None
+                 and drive_s >= UNTIMED_DRIVE_S else "n/a")
         lines.append(f"| {pair_name(int(pair_text))}{status} | {seeds['data_seed']} | {seeds['bm_seed']} / "
                      f"{seeds['tapm_seed']} | {_f(summary.get('bm_best_val_loss'), 4)} | "
                      f"{_f(summary.get('tapm_best_val_loss'), 4)} | {' | '.join(cells)} | "
                      f"{_minutes(summary.get('seconds'))} ({_minutes(cpu_s)}) | {load} | {drive} |")
     return lines
+
+
+UNTIMED_DRIVE_S = 1.0  # a pair's driving "took" less: its runs were all on record, nothing was driven or timed
 
 
 def _minutes(seconds) -> str:

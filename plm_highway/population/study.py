@@ -218,7 +218,9 @@ def _finish_pair(work: Path, state: WorkState, record: dict, backend, options: R
     times = StageTimes()
     state.drive_cpu_s[pair] = 0.0
     with times.stage("driving"):
-        _drive_missing(work, state, backend, options, pairs=(pair,))
+        driven = _drive_missing(work, state, backend, options, pairs=(pair,))
+    if not driven:  # every run was on record (driven by an earlier, interrupted run): this run timed nothing
+        del times.stages["driving"]
     with times.stage("feedback"):
         _measure_feedback_missing(work, state, options.progress, pairs=(pair,))
     record["runs"] = [row for seed in plan.sim_seeds for row in state.runs[(pair, seed)]]
@@ -484,7 +486,8 @@ def _train_remedy_missing(work: Path, state: WorkState, remedy: str, backend, pr
 
 
 def _drive_missing(work: Path, state: WorkState, backend, options: RunOptions, remedy: str = "",
-                   pairs: tuple[int, ...] | None = None) -> None:
+                   pairs: tuple[int, ...] | None = None) -> int:
+    """Drive every run of ``pairs`` (all) not on record; how many seeds' chunks were driven."""
     plan = state.plan
     if remedy:
         trained = [s.pair for s in plan.pairs if state.remedy_trainings.get((remedy, s.pair), {}).get("ok")]
@@ -523,6 +526,7 @@ def _drive_missing(work: Path, state: WorkState, backend, options: RunOptions, r
                 bar.update(len(rows))
     finally:
         bar.close()
+    return len(todo)
 
 
 def _write_runs(work: Path, pair: int, seed: int, rows: list[dict], traces: bytes, checkpoints: dict[str, str],

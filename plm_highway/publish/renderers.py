@@ -75,6 +75,8 @@ def population_status(root: Path) -> str:
     load), and the remedies' decisions."""
     import statistics
 
+    from plm_highway.population.report import UNTIMED_DRIVE_S
+
     document = _json(root, POPULATION)
     plan = document["plan"]
     trainings = document["trainings"]
@@ -93,8 +95,10 @@ def population_status(root: Path) -> str:
         text = f"pair {pair}: {summary['seconds'] / 60:.1f} min"
         if split:
             text += f" ({split}; load {min(loads):.1f}-{max(loads):.1f})" if loads else f" ({split})"
-        if drive is not None:
+        if drive is not None and drive >= UNTIMED_DRIVE_S:
             text += f", driving {drive / 60:.1f} min on {stages_of[pair].get('workers')} workers"
+        elif drive is not None:
+            text += ", driving not timed (its runs were on record from an interrupted run)"
         per_pair.append(text)
     lines = [f"- Pairs: {document['pairs_planned']} planned, {len(document['pairs_trained'])} trained, "
              f"{len(document['pairs_failed'])} failed, {len(document['pairs_driven'])} driven "
