@@ -439,6 +439,7 @@ def _interval(entry: dict | None, fmt: str = "{:.3f}") -> str:
     return f"{mean} [{fmt.format(entry['ci_low'])}, {fmt.format(entry['ci_high'])}]"
 
 
+GAIN_NAMES = {"law": "the demonstrator's law (no latency)"}
 GROUP_TITLES = {"population": "Population pairs, paper recipe and conditions",
                 "shipped": "The shipped default pair, ideal conditions"}
 
@@ -473,7 +474,7 @@ def report_text(summary: dict) -> str:
         lines += ["### Posed gains over the BM's (mean over the parts; PLM-Net's from the population's own measurement)", "",
                   "| who | lane-offset gain | heading gain |", "|---|---|---|"]
         for who, ratios in entry["gains"].items():
-            lines.append(f"| {who} | {ratios.get('offset_gain_per_m', math.nan):.2f} | "
+            lines.append(f"| {GAIN_NAMES.get(who, who)} | {ratios.get('offset_gain_per_m', math.nan):.2f} | "
                          f"{ratios.get('heading_gain_per_rad', math.nan):.2f} |")
         lines += ["", "### Verdicts", ""]
         for design, checks in entry["verdicts"].items():
