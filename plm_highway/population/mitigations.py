@@ -450,7 +450,9 @@ def report_text(summary: dict) -> str:
              "Each keeps the pair's BM frozen and uses only the late frame, its age, the car's speed and yaw-rate "
              "sensor (noise and bias added) and, for `bm-smith`, the BM's posed gains measured on the train track.",
              "Intervals: 95% over pairs (population; each pair its mean over seeds) or over seeds (shipped pair); "
-             "positive quantities on the log scale, paired differences (design minus PLM-Net) on the linear scale.",
+             "positive quantities on the log scale, paired differences (design minus PLM-Net) on the linear scale. "
+             "The EKF lane keeper uses no trained model: its runs are the same for every pair (an interval of zero "
+             "width over pairs), and the spread of its ratio comes from the designs'.",
              ""]
     for group, entry in summary["summary"].items():
         lines += [f"## {GROUP_TITLES[group]} ({entry['units']} {entry['unit']}s)", ""]
