@@ -526,6 +526,21 @@ def _runs_on_road(entry: dict, policy: str, settings: Sequence[str]) -> tuple[in
     return sum(c["left_road"] for c in chosen), sum(c["runs"] for c in chosen)
 
 
+WHY_NOT = {"on_road": "it left the road at {}", "offset_lower_than_plm": "its lower lane offset than PLM-Net's is not "
+           "shown (interval of the paired difference below 0) at {}", "mae_not_higher_than_plm": "its steering MAE is "
+           "above PLM-Net's at {}"}
+
+
+def why_not(checks: dict) -> str:
+    """The recommendation's failed checks, in words, with the settings where each failed."""
+    reasons = []
+    for check, text in WHY_NOT.items():
+        failed = [setting for setting, s in checks["settings"].items() if not s[check]]
+        if failed:
+            reasons.append(text.format(", ".join(failed)))
+    return "; ".join(reasons) or "no setting judged"
+
+
 def outcome_sentences(summary: dict) -> list[str]:
     """Per group, one sentence: each design's runs off the road at the aim's settings and lane at 0.25 s beside
     PLM-Net's and the EKF lane keeper's, and its verdict."""
@@ -541,8 +556,8 @@ def outcome_sentences(summary: dict) -> list[str]:
             checks = entry["verdicts"][design]
             parts.append(f"`{design}` left the road in {off} of {runs} runs, lane-offset RMS at 0.25 s "
                          f"{_interval((at.get(design) or {}).get('offset_rms_m'))} m "
-                         f"({'recommended' if checks['recommended'] else 'not recommended'}; the aim "
-                         f"{'met' if checks['aim_met'] else 'not met'})")
+                         f"({'recommended' if checks['recommended'] else 'not recommended: ' + why_not(checks)}; "
+                         f"the aim {'met' if checks['aim_met'] else 'not met'})")
         where = "population pairs (paper recipe and conditions)" if group == "population" else \
             "seeds with the shipped default pair (ideal conditions)"
         lines.append(f"{entry['units']} {where}, at {', '.join(aim)}: " + "; ".join(parts) +
