@@ -345,6 +345,14 @@ def summarise(records: list[dict]) -> dict:
                     summary["offset_rms_over_ekf"] = None if found is None else found.as_dict()
                 per_policy[policy] = summary
             entry["settings"][setting] = per_policy
+        entry["per_unit"] = {
+            "names": [part if seed is None else f"seed {seed}" for part, seed in units],
+            "settings": {setting: {policy: {
+                "offset_rms_m": values(policy, setting, "offset_rms_m"),
+                "left_road": [sum(bool(r["left_road"]) for r in rows if r["part"] == part and r["policy"] == policy
+                                  and r["setting"] == setting and (seed is None or r["seed"] == seed))
+                              for part, seed in units]}
+                for policy in POLICIES} for setting in settings}}
         entry["gains"] = gain_ratios(parts)
         entry["verdicts"] = {design: verdict(entry, design) for design in DESIGNS}
         out[group] = entry
@@ -472,6 +480,17 @@ def report_text(summary: dict) -> str:
                     lines.append(f"| {POLICY_TITLES[design]} | {_interval(s['offset_rms_m_minus_plm'])} | "
                                  f"{_interval(s['steering_mae_paper_minus_plm'], '{:.4f}')} | "
                                  f"{_interval(s['offset_rms_over_ekf'], '{:.2f}')} |")
+            lines.append("")
+        per_unit = entry.get("per_unit")
+        if per_unit and entry["unit"] == "pair":
+            lines += ["### Per pair: lane-offset RMS [m] (mean over seeds) and runs that left the road", "",
+                      "| setting | pair | " + " | ".join(POLICY_TITLES[p] for p in POLICIES) + " |",
+                      "|---|---|" + "---|" * len(POLICIES)]
+            for setting, by_policy in per_unit["settings"].items():
+                for k, name in enumerate(per_unit["names"]):
+                    cells = [f"{by_policy[p]['offset_rms_m'][k]:.3f} ({by_policy[p]['left_road'][k]} off)"
+                             for p in POLICIES]
+                    lines.append(f"| {setting} | {name} | " + " | ".join(cells) + " |")
             lines.append("")
         lines += ["### Posed gains over the BM's (mean over the parts; PLM-Net's from the population's own measurement)", "",
                   "| who | lane-offset gain | heading gain |", "|---|---|---|"]
