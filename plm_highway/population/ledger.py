@@ -86,7 +86,7 @@ def read_ledger(out: Path, plan: PopulationPlan) -> dict[int, dict]:
         path = record_path(out, seeds.pair)
         if not path.is_file():
             continue
-        record = _read_record(path)
+        record = read_record(path)
         if record.get("population_key") != key:
             differs = differences(record.get("made_from", {}), plan)
             raise BadInput(f"{path}: this pair was made for another population ({', '.join(differs) or 'its key'} "
@@ -97,7 +97,7 @@ def read_ledger(out: Path, plan: PopulationPlan) -> dict[int, dict]:
     return records
 
 
-def _read_record(path: Path) -> dict:
+def read_record(path: Path) -> dict:
     # The kit's bounded loader: size, depth and duplicate keys refused, naming the file.
     data = load_json(path, JsonLimits(max_bytes=MAX_RECORD_BYTES), what=PAIR_RECORD.describe)
     if not isinstance(data, dict) or data.get(JSON_MARKER_KEY) != PAIR_RECORD.name:

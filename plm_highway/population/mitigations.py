@@ -21,6 +21,7 @@ hashes, the settings, seeds, designs and the source of the mitigation code); oth
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -33,7 +34,7 @@ from plm_highway.io import JSON_MARKER_KEY, directory_kind, file_kind, json_text
 from plm_highway.io.bounded import JsonLimits, load_json
 from plm_highway.io.digests import kit_version
 from plm_highway.population.analysis import spread
-from plm_highway.population.ledger import LEDGER_DIR, _read_record, file_sha256, sealed
+from plm_highway.population.ledger import LEDGER_DIR, file_sha256, read_record, sealed
 
 DESIGNS = ("bm-warp", "bm-smith")  # the plug-in mitigations judged (plm_highway.mitigation)
 COMPARED = ("bm", "plm", "ekf")  # what they are judged beside
@@ -96,7 +97,7 @@ def population_parts(population_out: Path, work: Path, pairs: int | None = None)
                        "'plm-highway population' first")
     parts = []
     for path in paths[:pairs]:
-        record = _read_record(path)
+        record = read_record(path)
         pair = int(record["pair"])
         directory = Path(work) / "pairs" / f"pair-{pair:02d}"
         checked_checkpoints(directory, record, path)
@@ -275,8 +276,7 @@ def _read_sealed_part(path: Path) -> dict:
 
 
 def json_roundtrip(value):
-    import json
-
+    """``value`` as its JSON file reads back (tuples as lists, keys as strings)."""
     return json.loads(json_text(value))
 
 
