@@ -226,16 +226,25 @@ def fabricated_results(never_locked: bool = False, true_worse: bool = False, non
         if spec.role in ("estimated", "baseline"):
             lock = {"first_estimable_s": 1.5, "lock_s": float(rng.uniform(1.0, 3.0)), "estimable_fraction": 0.6,
                     "wrong_when_estimable_fraction": 0.01, "within_after_first_fraction": 0.95,
-                    "median_error_after_first_s": 0.01, "p90_error_after_first_s": 0.03, "within_fraction": 0.8}
+                    "median_error_after_first_s": 0.01, "p90_error_after_first_s": 0.03, "within_fraction": 0.8,
+                    "claims": 300, "wrong_claims": 3}
             if none_locked or (never_locked and spec.seed == 1):
                 lock.update(first_estimable_s=None, lock_s=None, within_after_first_fraction=None,
-                            median_error_after_first_s=None, p90_error_after_first_s=None)
-            record["estimate"] = {"frame_s": 0.05, "lock": lock, "quiet": {"quiet_ticks": 10,
-                                                                           "estimable_when_quiet_fraction": 0.0,
-                                                                           "wrong_when_quiet_fraction": 0.0}}
+                            median_error_after_first_s=None, p90_error_after_first_s=None, claims=0, wrong_claims=0)
+            record["estimate"] = {"frame_s": 0.05, "lock": lock, "changing_fraction": 0.1,
+                                  "quiet": {"quiet_ticks": 10, "estimable_when_quiet_fraction": 0.0,
+                                            "wrong_when_quiet_fraction": 0.0}}
+            baseline_lock = {**lock, "claims": 50 if spec.seed == 0 else 0, "wrong_claims": 10 if spec.seed == 0 else 0,
+                             "first_estimable_s": 16.0 if spec.seed == 0 else None}
+            record["baselines"] = {"scaled": {"frame_s": 0.05, "lock": baseline_lock, "changing_fraction": 0.0,
+                                              "windows_accepted": 40},
+                                   "published": {"frame_s": 0.05, "lock": {**lock, "claims": 0, "wrong_claims": 0},
+                                                 "changing_fraction": 0.0, "windows_accepted": 0}}
             if not spec.latency.startswith("const:"):
                 record["estimate"]["steps"] = {"changes": 3, "recovered_within_budget_fraction": 2 / 3,
                                                "median_recovery_s": 0.8, "never_recovered": 0, "within_fraction": 0.7}
+                record["estimate"]["claim_steps"] = {"steps": 3, "steps_judged": 2, "stopped": 2, "answered": 1,
+                                                     "handled": 1}
         records.append((spec, record))
     synthetic = {"straight_without_steering": {"ticks": 100, "estimable_fraction": 0.0, "wrong_when_estimable": 0,
                                                "final_held_s": 0.175},
@@ -258,6 +267,16 @@ def test_the_report_holds_the_numbers_of_its_results():
         assert f"{100 * m['kept_reduction_fraction']:.0f}%" in row
     constant = next(e for e in results["estimation"] if e["role"] == "estimated" and e["setting"] == "const:0.25")
     assert f"{constant['locked_within_budget']} of {len(constant['seeds'])}" in report
+    # claims pooled over the seeds' runs, the baseline's beside them on the same row
+    assert constant["claims"] == 600 and constant["wrong_claims"] == 6
+    row = next(line for line in report.splitlines() if line.startswith("| ideal | test | `const:0.25` | PLM-Net told"))
+    assert "| 6 of 600 (1.0%) |" in row and "| 10 of 50 (20.0%) |" in row and row.endswith("| no claim |")
+    assert "| 16.0 s (n=1, no interval), 1 of 2 runs claimed |" in row
+    target = next(t for t in results["targets"] if t["target"].startswith("const:0.25, ideal, test, estimated:"))
+    assert target["met"] and target["detail"] == "6 of 600 claims wrong (1.0%)"
+    steps = next(t for t in results["targets"] if t["target"].startswith("frames:9-21:60@30, ideal, test, estimated:")
+                 and "step" in t["target"])
+    assert not steps["met"] and steps["detail"].startswith("2 of 4 steps handled")
 
 
 def test_a_run_that_never_locked_and_a_mitigation_without_reduction_are_reported_not_crashed():

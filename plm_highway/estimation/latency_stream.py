@@ -12,7 +12,9 @@ estimate is judged against).
 - ``latency_estimate_s``: the latency a consumer should use now (the newest estimable estimate, the step
   detector's, or the prior before any evidence; :attr:`~plm_highway.latency.estimate.LatencyEstimate.held_s`);
 - ``latency_estimate_std_s``: the standard deviation of the window's estimate (inf while the cost is flat);
-- ``latency_estimable``: whether the recent driving carried enough information for a fresh estimate.
+- ``latency_estimable``: whether the estimate is claimed now (its interval within a frame, and it has held still);
+- ``latency_changing``: not claimed because the latency has just stepped or the newest samples disagree with the
+  last claim (``latency_estimate_s`` may then be stale); neither flag: the driving carried too little information.
 
 PLM-Net told the estimate reads ``latency_estimate_s`` (``latency_source="estimated"``); so does the EKF
 policy, which re-stamps each camera measurement by it. The frame the observer measures is the one the
@@ -45,7 +47,8 @@ from plm_highway.latency.estimate import (
 INFO_ESTIMATE = "latency_estimate_s"
 INFO_STD = "latency_estimate_std_s"
 INFO_ESTIMABLE = "latency_estimable"
-ESTIMATE_KEYS = (INFO_ESTIMATE, INFO_STD, INFO_ESTIMABLE)
+INFO_CHANGING = "latency_changing"
+ESTIMATE_KEYS = (INFO_ESTIMATE, INFO_STD, INFO_ESTIMABLE, INFO_CHANGING)
 # With ``record``: what the estimator was given at the tick (after the stream's impairments), for writing a
 # recording of the stream without capture timestamps.
 STREAM_KEYS = ("stream_time_s", "stream_yaw_rate_radps", "stream_speed_mps", "stream_steer_rad",
@@ -118,7 +121,7 @@ class CameraLatencyObserver:
 def estimate_info(estimate: LatencyEstimate) -> dict:
     """The ``info`` entries of one estimate (plain floats and a bool, for the logs)."""
     return {INFO_ESTIMATE: float(estimate.held_s), INFO_STD: float(estimate.std_s),
-            INFO_ESTIMABLE: bool(estimate.estimable)}
+            INFO_ESTIMABLE: bool(estimate.estimable), INFO_CHANGING: estimate.state == "changing"}
 
 
 @dataclass(frozen=True)

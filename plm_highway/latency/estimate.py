@@ -34,6 +34,13 @@ view (its single parabola spans two segments), with a bias that lasts a second. 
 pull of such samples and the noise is re-estimated from every window's own residuals, so a window that fits
 badly at every lag carries little weight.
 
+**Claims.** An estimate is *claimed* ("estimated") only when it is sure (its standard deviation at most half a
+frame, so +-2 sigma spans one frame; no far lag nearly as good), the window and its newest samples agree with it, and
+it has held within half a frame for the last ``settle_s``. After a step, or while the newest samples fit another lag
+(a split of the window at a recent onset, judged at chi-square 95%), the estimator says "changing" until a new value
+has held still; on too little information, "not estimable". Speed is traded for claims that are right: a deployed
+lag learner (openpilot's, :mod:`plm_highway.latency.correlation`) makes the same trade on a scale of minutes.
+
 **Steps in the latency.** The samples of the window belong to latency segments. Every new sample, the
 current segment is split at a few recent onsets: the older part keeps the current estimate, the newer part
 takes the candidate lag, the lane stays one (it does not change when the latency does). When the best split
@@ -105,6 +112,30 @@ class LatencyEstimatorConfig:
     doubt_threshold: float = 3.0
     change_min_s: float = 0.05
     min_segment_samples: int = 4
+    # A claim must have held still: over the last settle_s the evidence's estimate estimable at every sample and
+    # within half a frame of the claim, and the window's own best lag within window_steady_frames frames of it (the
+    # spread check of a deployed lag learner, on seconds rather than minutes). A step not yet caught shows as a
+    # drift of either and stops the claim. 2 s and 1 frame: chosen on the test track's streams (paper and ideal
+    # conditions, constant and time-varying, BM and PLM-Net driving) against 1 s and 1.5 s, 1.5 frames: the
+    # shortest settling that left no run with a majority of wrong claims.
+    settle_s: float = 2.0
+    # The newest samples of the window, fitted at their own lag while the older ones keep the claim: a recent part
+    # that fits a lag more than a frame away better by this much (negative log-likelihood; 1.92 = chi2(1) at 0.95 / 2,
+    # the claim lies outside the recent samples' 95% confidence set) stops a claim; by change_threshold (below) it
+    # says "changing" before the step test is sure.
+    recent_threshold: float = 1.92
+    # The window must confirm a claim on its own: the claim inside the window's 95% confidence set (cost within
+    # recent_threshold of its minimum), and that set no wider than confirm_frames frames either side of the claim.
+    # The evidence adds up a minute as if the latency held still; the window says whether it still does.
+    confirm_frames: float = 2.0
+    # ... and so must the newest recent_s of it, fitted at its own lag while the older samples keep the claim (a step
+    # within the window shows there first; the whole window, fitted at one lag, averages over it).
+    recent_s: float = 1.0
+    recent_confirms: bool = True
+    window_steady_frames: float = 1.0
+    # "changing" is said from a sign of a change (a step detected, or the newest samples fitting another lag clearly
+    # better) until a new claim, for at most this long (then "not estimable": the sign is old news).
+    change_hold_s: float = 5.0
     # What a consumer is told before the first estimate: the middle of the paper's time-varying range [0, 0.35] s,
     # the smallest worst-case error with no evidence at all.
     prior_latency_s: float = 0.175
@@ -125,7 +156,9 @@ class LatencyEstimatorConfig:
             ("max_std_frames", 0.01, 100.0), ("far_lag_s", 0.0, 10.0), ("far_cost_margin", 0.0, 1e3),
             ("min_offset_noise_m", 1e-5, 10.0), ("min_heading_noise_rad", 1e-6, 1.0),
             ("change_threshold", 0.0, 1e4), ("doubt_threshold", 0.0, 1e4), ("change_min_s", 0.0, 10.0),
-            ("prior_latency_s", 0.0, 10.0), ("fast_sensor_shift_s", -1.0, 1.0),
+            ("prior_latency_s", 0.0, 10.0), ("fast_sensor_shift_s", -1.0, 1.0), ("settle_s", 0.0, 60.0),
+            ("recent_threshold", 0.0, 1e4), ("confirm_frames", 0.0, 1e3), ("recent_s", 0.0, 30.0),
+            ("window_steady_frames", 0.0, 1e3), ("change_hold_s", 0.0, 600.0),
         )
         for name, low, high in checks:
             value = getattr(self, name)
@@ -168,14 +201,34 @@ class LaneSample(NamedTuple):
     heading_rad: float  # dpsi: car heading minus lane heading
 
 
-class LatencyEstimate(NamedTuple):
-    """The estimator's answer at one tick."""
+STATES = ("estimated", "changing", "not estimable")  # what an estimate claims (LatencyEstimate.state)
+INTERVAL_SIGMAS = 2.0  # an estimate's interval: +-2 standard deviations (about 95%)
 
-    latency_s: float  # the window's best lag (NaN until a window has been fitted)
+
+class LatencyEstimate(NamedTuple):
+    """The estimator's answer at one tick.
+
+    ``state``: "estimated" (``latency_s`` is claimed: its interval lies within a frame of it and it has held still),
+    "changing" (the latency has stepped or the newest samples disagree with the last claim, and no new value has held
+    still yet) or "not estimable" (the driving carried too little information yet). Whatever the state, ``held_s`` is
+    the newest estimate sure enough to use (claimed, or settling after a step) or the prior.
+    """
+
+    latency_s: float  # the evidence's best lag (NaN until a window has been fitted)
     std_s: float  # its standard deviation (inf when the cost has no curvature)
-    estimable: bool  # whether latency_s is trustworthy now (else "not estimable yet")
-    held_s: float  # what a consumer should use now: the newest estimable estimate, the change detector's, or the prior
+    estimable: bool  # state == "estimated"
+    held_s: float  # what a consumer should use now: the newest sure estimate (claimed or settling), or the prior
     samples: int  # camera samples in the window behind latency_s
+    state: str = "not estimable"
+
+    @property
+    def interval_s(self) -> tuple[float, float]:
+        """``latency_s`` +- 2 standard deviations, clipped at 0 (a latency is never negative); (nan, nan) without
+        an estimate."""
+        if not math.isfinite(self.latency_s) or not math.isfinite(self.std_s):
+            return (math.nan, math.nan)
+        half = INTERVAL_SIGMAS * self.std_s
+        return (max(self.latency_s - half, 0.0), self.latency_s + half)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -384,6 +437,10 @@ class LatencyEstimator:
         self.held_s = self.config.prior_latency_s
         self.last = LatencyEstimate(math.nan, math.inf, False, self.held_s, 0)
         self.changes_detected = 0
+        # (arrival s, the evidence's estimate or NaN if not estimable, the window's own best lag s)
+        self._judged: deque[tuple[float, float, float]] = deque()
+        self._changed_s = -math.inf  # when a step or the newest samples last said the latency changed
+        self._recent_gain = 0.0  # the newest samples' best gain at a lag over a frame away (split tests)
 
     def lateral_velocity_mps(self, steer_rad: float, speed_mps: float) -> float:
         """The body lateral velocity the vehicle model settles to at this steering and speed."""
@@ -410,7 +467,7 @@ class LatencyEstimator:
             self._forget(time_s)
             self.last = self._estimate()
         elif early:  # nothing to align yet: no fresh estimate
-            self.last = self.last._replace(estimable=False, held_s=self.held_s)
+            self.last = self.last._replace(estimable=False, held_s=self.held_s, state="not estimable")
         else:  # a dropped frame: the estimate stands
             self.last = self.last._replace(held_s=self.held_s)
         return self.last
@@ -438,24 +495,87 @@ class LatencyEstimator:
         config = self.config
         samples = len(self._samples)
         if samples < config.min_samples:
-            return LatencyEstimate(math.nan, math.inf, False, self.held_s, samples)
+            return LatencyEstimate(math.nan, math.inf, False, self.held_s, samples, self._unclaimed())
         _, _, assigned = self._arrays()
         if np.isnan(assigned).sum() < config.min_segment_samples:  # too few since the last step: keep its guess
-            return LatencyEstimate(math.nan, math.inf, False, self.held_s, samples)
+            return LatencyEstimate(math.nan, math.inf, False, self.held_s, samples, "changing")
         costs, fit, discount = self._window_costs()
         self._noise = robust_noise(fit.residuals, (config.min_heading_noise_rad, config.min_offset_noise_m))
+        self._recent_gain = 0.0
         if self._step_detected(costs, discount):
+            self._changed_s = self._samples[-1][0]
+            self._judged.clear()
             return self._estimate()
         self._evidence += (costs - costs.min()) / samples
         estimate = self._judge(self._evidence, samples)
-        # The window contradicting the evidence (a step not yet proven, or a window the lane model does not fit):
-        # the evidence is not claimed until they agree again.
+        time_s = self._samples[-1][0]
+        window_best_s = float(self.lags_s[int(np.argmin(costs))])
+        self._judged.append((time_s, estimate.latency_s if estimate.estimable else math.nan, window_best_s))
+        while len(self._judged) > 1 and self._judged[1][0] <= time_s - config.settle_s + 1e-9:
+            self._judged.popleft()
+        # The window contradicting the evidence (a step not yet proven, or a window the lane model does not fit), or
+        # its newest samples contradicting it: the latency may be changing.
         current = int(np.argmin(self._evidence))
-        if float(costs[current] - costs.min()) >= config.doubt_threshold:
-            estimate = estimate._replace(estimable=False)
+        if self._recent_gain >= config.change_threshold:
+            self._changed_s = time_s
+        if float(costs[current] - costs.min()) >= config.doubt_threshold or self._recent_gain >= config.recent_threshold:
+            return estimate._replace(estimable=False, held_s=self.held_s, state=self._unclaimed())
         if estimate.estimable:
+            # Sure enough to be used (a consumer is better served by it than by a value from before a step), not yet
+            # sure enough to be claimed until it has held still.
             self.held_s = estimate.latency_s
-        return estimate._replace(held_s=self.held_s)
+            if (self._settled(estimate.latency_s, time_s) and self._confirms(costs, estimate.latency_s)
+                    and self._recent_agrees(estimate.latency_s, discount)):
+                self._changed_s = -math.inf
+                return estimate._replace(held_s=self.held_s, state="estimated")
+        return estimate._replace(estimable=False, held_s=self.held_s, state=self._unclaimed())
+
+    def _confirms(self, costs: np.ndarray, latency_s: float) -> bool:
+        """Whether the window's own cost curve confirms ``latency_s`` (``confirm_frames``)."""
+        config = self.config
+        plausible = self.lags_s[costs - costs.min() <= config.recent_threshold]
+        claim = int(np.argmin(np.abs(self.lags_s - latency_s)))
+        reach_s = config.confirm_frames * self._frame_period_s() + self.config.lag_step_s / 2
+        return bool(costs[claim] - costs.min() <= config.recent_threshold
+                    and np.max(np.abs(plausible - latency_s)) <= reach_s)
+
+    def _recent_agrees(self, latency_s: float, discount: float) -> bool:
+        """Whether the newest ``recent_s`` of the window, fitted at its own lag (the older samples of the current
+        segment at ``latency_s``), agree with ``latency_s``: no other lag a frame away fits them clearly better
+        and (``recent_confirms``) their own curve confirms it."""
+        config = self.config
+        arrivals, _, assigned = self._arrays()
+        scanned = np.flatnonzero(np.isnan(assigned))
+        older = scanned[arrivals[scanned] < arrivals[-1] - config.recent_s + 1e-9]
+        if not older.size or len(scanned) - older.size < config.min_segment_samples:
+            return True  # the whole segment is recent: the window's own test stands for it
+        split = assigned.copy()
+        split[older] = latency_s
+        costs = self._window_costs(split)[1].costs * discount
+        best = int(np.argmin(costs))
+        gain = float(costs[int(np.argmin(np.abs(self.lags_s - latency_s)))] - costs[best])
+        if (float(self.lags_s[best]) - latency_s) ** 2 > self._frame_period_s() ** 2 + 1e-12 \
+                and gain >= config.recent_threshold:
+            if gain >= config.change_threshold:
+                self._changed_s = arrivals[-1]
+            return False
+        return not config.recent_confirms or self._confirms(costs, latency_s)
+
+    def _unclaimed(self) -> str:
+        """"changing" from a sign of a change until a claim, for at most ``change_hold_s``; else "not estimable"."""
+        recent = self._samples and self._samples[-1][0] - self._changed_s <= self.config.change_hold_s + 1e-9
+        return "changing" if recent else "not estimable"
+
+    def _settled(self, latency_s: float, time_s: float) -> bool:
+        """Whether the evidence's estimate was estimable and within half a frame of ``latency_s`` at every sample of
+        the last ``settle_s`` (and the record reaches back that far)."""
+        if not self._judged or self._judged[0][0] > time_s - self.config.settle_s + 1e-9:
+            return False
+        values = np.array([value for _, value, _ in self._judged])
+        windows = np.array([window for _, _, window in self._judged])
+        frame_s = self._frame_period_s()
+        return bool(np.all(np.isfinite(values)) and np.max(np.abs(values - latency_s)) <= 0.5 * frame_s + 1e-9
+                    and np.max(np.abs(windows - latency_s)) <= self.config.window_steady_frames * frame_s + 1e-9)
 
     def _judge(self, costs: np.ndarray, samples: int) -> LatencyEstimate:
         config = self.config
@@ -495,6 +615,9 @@ class LatencyEstimator:
             split[scanned[scanned < onset]] = current_s
             split_costs, split_fit, _ = self._window_costs(split)
             gain = (stay - float(split_fit.costs.min())) * discount
+            moved_s = abs(float(self.lags_s[split_fit.best]) - current_s)
+            if moved_s > self._frame_period_s() + 1e-9:
+                self._recent_gain = max(self._recent_gain, gain)
             if gain > best_gain and self._overrules(split_costs, current_s):
                 best_gain, best_onset = gain, onset
         if best_onset is None or best_gain < config.change_threshold:
@@ -542,7 +665,7 @@ def estimate_stream(time_s, yaw_rate_radps, speed_mps, steer_rad, lane_offset_m,
                     vehicle_params=None) -> dict[str, np.ndarray]:
     """Run the estimator over a whole log (arrays of one length; lane values NaN where no frame arrived).
 
-    Returns arrays ``latency_s``, ``std_s``, ``estimable``, ``held_s`` (one per tick).
+    Returns arrays ``latency_s``, ``std_s``, ``estimable``, ``changing``, ``held_s`` (one per tick).
     """
     columns = [np.asarray(values, dtype=float) for values in (time_s, yaw_rate_radps, speed_mps, steer_rad,
                                                                 lane_offset_m, lane_heading_rad)]
@@ -552,7 +675,7 @@ def estimate_stream(time_s, yaw_rate_radps, speed_mps, steer_rad, lane_offset_m,
                        f"{[column.shape for column in columns]}")
     estimator = LatencyEstimator(config, vehicle_params)
     out = {"latency_s": np.full(n, np.nan), "std_s": np.full(n, np.inf), "estimable": np.zeros(n, bool),
-           "held_s": np.full(n, np.nan)}
+           "changing": np.zeros(n, bool), "held_s": np.full(n, np.nan)}
     for k in range(n):
         lane = None
         if math.isfinite(columns[4][k]) and math.isfinite(columns[5][k]):
@@ -560,4 +683,5 @@ def estimate_stream(time_s, yaw_rate_radps, speed_mps, steer_rad, lane_offset_m,
         estimate = estimator.update(FastSample(columns[0][k], columns[1][k], columns[2][k], columns[3][k]), lane)
         out["latency_s"][k], out["std_s"][k] = estimate.latency_s, estimate.std_s
         out["estimable"][k], out["held_s"][k] = estimate.estimable, estimate.held_s
+        out["changing"][k] = estimate.state == "changing"
     return out

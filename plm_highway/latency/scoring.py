@@ -12,6 +12,9 @@ pipeline can be asked for; 50 ms at 20 Hz, 33 ms at 30 Hz).
   until the used estimate is within the tolerance again; and the share of all ticks within it.
 - :func:`quiet_metrics`: on stretches where the car barely turns (nothing to align), how often the estimator
   still claimed an estimate, and how often that claim was wrong.
+- :func:`claim_step_metrics`: after each step of the true latency by at least two frames, whether the estimator
+  stopped claiming a wrong value within 1 s, and whether it then claimed the new value within 5 s or said
+  "changing" until it could.
 """
 
 from __future__ import annotations
@@ -58,6 +61,8 @@ def lock_metrics(time_s, true_s, held_s, latency_s, estimable, tolerance_s: floa
         "lock_s": math.nan if lock is None else float(t[lock]),
         "estimable_fraction": float(estimable.mean()),
         "wrong_when_estimable_fraction": float((estimable & ~right).sum() / max(estimable.sum(), 1)),
+        "claims": int(estimable.sum()),
+        "wrong_claims": int((estimable & ~right).sum()),
         "within_after_first_fraction": float(held_right[after].mean()) if held_error.size else math.nan,
         "median_error_after_first_s": float(np.median(held_error)) if held_error.size else math.nan,
         "p90_error_after_first_s": float(np.percentile(held_error, 90)) if held_error.size else math.nan,
@@ -114,3 +119,44 @@ def quiet_metrics(quiet, latency_s, true_s, estimable, tolerance_s: float) -> di
     wrong = claimed & ~within(c["latency_s"], c["true_s"], tolerance_s)
     return {"quiet_ticks": int(quiet.sum()), "estimable_when_quiet_fraction": float(claimed.sum() / max(quiet.sum(), 1)),
             "wrong_when_quiet_fraction": float(wrong.sum() / max(quiet.sum(), 1))}
+
+
+def claim_step_metrics(time_s, true_s, held_s, estimable, changing, tolerance_s: float, stop_budget_s: float = 1.0,
+                       claim_budget_s: float = 5.0) -> dict:
+    """How the claims behave after each step of the true latency by at least two tolerances (module docstring).
+
+    A step's segment runs to the next change of the truth by at least half a tolerance. *Stopped*: no claim more
+    than a tolerance off the truth from ``stop_budget_s`` after the step to the segment's end. *Answered*: a claim
+    within the tolerance before ``claim_budget_s`` (or the segment's end), or else no claim and "changing" at every
+    tick from ``stop_budget_s`` on until then. A segment shorter than ``stop_budget_s`` asks nothing of either.
+    """
+    c = _columns(time_s=time_s, true_s=true_s, held_s=held_s, estimable=estimable, changing=changing)
+    t, true = c["time_s"].astype(float), c["true_s"].astype(float)
+    claimed, changing = c["estimable"].astype(bool), c["changing"].astype(bool)
+    right = within(c["held_s"], true, tolerance_s)
+    jumps = np.abs(np.diff(true))
+    boundaries = np.flatnonzero(jumps >= tolerance_s / 2 - 1e-9) + 1
+    steps = [int(b) for b in boundaries if jumps[b - 1] >= 2 * tolerance_s - 1e-9]
+    stopped, answered, judged = [], [], 0
+    for start in steps:
+        later = boundaries[boundaries > start]
+        stop = int(later[0]) if later.size else len(t)
+        after = np.flatnonzero(t[start:stop] >= t[start] + stop_budget_s - 1e-9) + start
+        if not after.size:
+            continue
+        judged += 1
+        stopped.append(not np.any(claimed[after] & ~right[after]))
+        horizon = after[t[after] < t[start] + claim_budget_s - 1e-9]
+        span = np.arange(start, horizon[-1] + 1) if horizon.size else np.arange(start, start)
+        answered.append(bool(np.any(claimed[span] & right[span]))
+                        or bool(horizon.size and np.all(~claimed[horizon] & changing[horizon])))
+    return {
+        "steps": int(len(steps)),
+        "steps_judged": judged,
+        "stopped_within_budget_fraction": float(np.mean(stopped)) if stopped else math.nan,
+        "answered_fraction": float(np.mean(answered)) if answered else math.nan,
+        "handled_fraction": float(np.mean(np.logical_and(stopped, answered))) if stopped else math.nan,
+        "stopped": int(np.sum(stopped)),
+        "answered": int(np.sum(answered)),
+        "handled": int(np.sum(np.logical_and(stopped, answered))),
+    }

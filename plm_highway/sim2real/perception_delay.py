@@ -46,23 +46,31 @@ def perception_delay(path: str | os.PathLike, config: LatencyEstimatorConfig = D
                                               f"{', '.join(LANE_COLUMNS)}), so its perception delay cannot be estimated"}
     result = estimate_recording(columns, config, vehicle_params)
     estimable = result["estimable"]
-    if not estimable.any():
+    # Where nothing was claimed, the newest estimate sure enough to use (the held value moved off the prior) is
+    # still reported, as not claimed: a recording is read once, and this says what its lane signal supports.
+    moved = np.flatnonzero(np.abs(result["held_s"] - config.prior_latency_s) > 1e-12)
+    if not estimable.any() and not moved.size:
         return {"estimated": False, "reason": "the recording's driving never carried enough information to align "
                                               "its lane signal (not estimable)",
                 "rows": int(len(estimable))}
-    last = int(np.flatnonzero(estimable)[-1])
-    return {"estimated": True, "latency_s": float(result["latency_s"][last]), "std_s": float(result["std_s"][last]),
-            "estimable_fraction": float(estimable.mean()), "rows": int(len(estimable)),
-            "median_estimable_s": float(np.median(result["latency_s"][estimable]))}
+    last = int(np.flatnonzero(estimable)[-1]) if estimable.any() else int(moved[-1])
+    return {"estimated": True, "claimed": bool(estimable.any()), "latency_s": float(result["held_s"][last]),
+            "std_s": float(result["std_s"][last]), "estimable_fraction": float(estimable.mean()),
+            "rows": int(len(estimable)),
+            "median_estimable_s": float(np.median(result["latency_s"][estimable])) if estimable.any() else None}
 
 
 def perception_delay_lines(found: dict, delays: dict[str, float]) -> list[str]:
     """The sim2real report's section: the camera's perception delay beside the diagnosis's delays."""
     lines = ["## Perception delay", ""]
-    if found.get("estimated"):
+    if found.get("estimated") and found.get("claimed", True):
         lines.append(f"The camera's lane signal is {found['latency_s']:.3f} s +- {found['std_s']:.3f} s late "
-                     f"(latency estimator, no capture timestamps; estimable on {100 * found['estimable_fraction']:.0f}% "
+                     f"(latency estimator, no capture timestamps; claimed on {100 * found['estimable_fraction']:.0f}% "
                      f"of {found['rows']} rows, median {found['median_estimable_s']:.3f} s).")
+    elif found.get("estimated"):
+        lines.append(f"The camera's lane signal is about {found['latency_s']:.3f} s +- {found['std_s']:.3f} s late "
+                     f"(latency estimator, no capture timestamps): its newest sure estimate, never claimed on the "
+                     f"{found['rows']} rows, because it did not hold still long enough to be.")
     else:
         lines.append(f"Not estimated: {found['reason']}.")
     if delays:
