@@ -23,10 +23,10 @@ TINY_STEPS = 12
 REPO = Path(__file__).resolve().parent.parent
 
 
-def tiny_plan(pairs: int = 1, seeds=(0,), remedies=()):
+def tiny_plan(pairs: int = 1, seeds=(0,), remedies=(), latency_source=None):
     recipe = with_overrides(recipe_named(None, "ideal"), **TINY)
     return make_plan(recipe, "ideal", pairs, settings=("const:0", "const:0.25"), sim_seeds=seeds, max_steps=TINY_STEPS,
-                     remedies=remedies)
+                     remedies=remedies, latency_source=latency_source)
 
 
 def options(tmp_path: Path, **changes) -> RunOptions:
@@ -353,3 +353,25 @@ def test_the_prepared_gpu_run_completes_at_toy_size_on_the_cpu(tmp_path):
     assert "`.ci/gpu-run OUT`" in (REPO / "docs" / "devices.md").read_text()
     again = subprocess.run([str(REPO / ".ci" / "gpu-run"), str(out)], env=env, capture_output=True, text=True)
     assert again.returncode == 2 and "exists" in again.stderr
+
+
+@pytest.mark.slow
+def test_plm_net_told_the_estimated_latency_is_a_population_of_its_own(tmp_path):
+    from plm_highway.errors import BadInput
+    from plm_highway.population.ledger import made_from
+
+    plain, estimated = tiny_plan(), tiny_plan(latency_source="estimated")
+    # a plan with the conditions' own source reads and hashes as the committed ones were made
+    assert "latency_source" not in plain.as_dict() and "latency_source" not in made_from(plain)
+    assert estimated.as_dict()["latency_source"] == "estimated"
+    assert made_from(estimated) == {**made_from(plain), "latency_source": "estimated"}
+    with pytest.raises(BadInput, match="--latency-source 'guessed'"):
+        tiny_plan(latency_source="guessed")
+    run_population(estimated, options(tmp_path))
+    assert read_plan(tmp_path / "work") == estimated
+    rows = read_results(tmp_path / "out" / "results.csv")
+    assert len(rows) == 4 and all(r["steps_scored"] == TINY_STEPS for r in rows)
+    assert "conditions (PLM-Net told the estimated latency)" in (tmp_path / "out" / "report.md").read_text()
+    # the same pair under the conditions' own source is another population: its work directory is refused
+    with pytest.raises(BadInput):
+        run_population(plain, options(tmp_path, out=tmp_path / "plain"))

@@ -19,6 +19,7 @@ def configure(parser) -> None:
     RECIPES = static_names("plm_highway.population.recipe", "RECIPES")
     REMEDIES = static_value("plm_highway.population.remedies", "REMEDIES")
     CONDITION_NAMES = static_names("plm_highway.rollout.conditions", "CONDITION_NAMES")
+    LATENCY_SOURCE_NAMES = static_value("plm_highway.rollout.conditions", "LATENCY_SOURCE_NAMES")
 
     parser.add_argument("--pairs", type=bounded_int(1, MAX_PAIRS), required=True,
                         help="how many BM/TAPM pairs to train (pair k: data seed 1+k, training seeds k)")
@@ -30,6 +31,9 @@ def configure(parser) -> None:
                         help="also try this TAPM remedy on the same pairs (repeatable): " + "; ".join(
                             f"{name}: {text}" for name, text in REMEDIES.items()))
     parser.add_argument("--track", default="test", help="track the pairs are judged on")
+    parser.add_argument("--latency-source", choices=LATENCY_SOURCE_NAMES,
+                        help="what PLM-Net is told of the latency (default: the conditions' own); 'estimated': the "
+                             "latency estimated from the stream, logged beside the true age")
     parser.add_argument("--seeds", default=str(DEFAULT_SIM_SEEDS), metavar="N|LIST",
                         help="simulator seeds per pair and setting: a count (5: seeds 0-4) or a list")
     parser.add_argument("--out", type=Path,
@@ -69,7 +73,7 @@ def run(args) -> int:
 
     recipe = with_overrides(recipe_named(args.recipe, args.conditions), args.episodes, args.max_samples, args.epochs)
     plan = make_plan(recipe, args.conditions, args.pairs, args.track, sim_seeds=tuple(parse_seeds(args.seeds)),
-                     max_steps=args.max_steps, remedies=tuple(args.remedy))
+                     max_steps=args.max_steps, remedies=tuple(args.remedy), latency_source=args.latency_source)
     out = args.out or DEFAULT_OUT[args.conditions]
     work = args.work or DEFAULT_WORK / args.conditions
     if args.backend != "ray":  # a Ray worker resolves auto/cuda itself: its machine may have the GPU

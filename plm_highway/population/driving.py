@@ -76,11 +76,12 @@ def drive_pair(task: DriveTask) -> DriveResult:
     from plm_highway.evaluation.reproduce import conditions_named
     from plm_highway.road.track import resolve_track
     from plm_highway.rollout.cells import run_cells, runs_under
+    from plm_highway.rollout.conditions import with_latency_source
     from plm_highway.rollout.policies import single_threaded_inference
 
     cpu0 = time.process_time()
     plan = task.plan
-    conditions = conditions_named(plan.conditions)
+    conditions = with_latency_source(conditions_named(plan.conditions), plan.latency_source or None)
     track_spec = resolve_track(plan.track)
     cells = [cell for seed in task.seeds for cell in plan_runs(plan, seed, track_spec.name, conditions, task.remedy)]
     checkpoints = materialised_checkpoints(task.pair, task.files)

@@ -47,10 +47,12 @@ def track_sha256(track: str) -> str:
 
 def made_from(plan: PopulationPlan) -> dict:
     """What a pair's results are made from (everything but the pair's own seeds and the remedies)."""
-    return {"recipe": plan.recipe.as_dict(), "conditions": plan.conditions, "track": plan.track,
+    data = {"recipe": plan.recipe.as_dict(), "conditions": plan.conditions, "track": plan.track,
             "track_sha256": track_sha256(plan.track), "train_track_sha256": track_sha256(plan.recipe.track),
             "settings": list(plan.settings), "sim_seeds": list(plan.sim_seeds), "max_steps": plan.max_steps,
             "kit_version": __version__}
+    # Only when set: results made with the conditions' own latency source keep the key they were committed under.
+    return {**data, "latency_source": plan.latency_source} if plan.latency_source else data
 
 
 def population_key(plan: PopulationPlan) -> str:
@@ -115,7 +117,8 @@ def differences(earlier: dict, plan: PopulationPlan) -> list[str]:
     """The names of what ``plan``'s results would be made from that differs from ``earlier`` (a stored
     :func:`made_from`): ``track_sha256`` when a track file's contents changed under the same path."""
     earlier, now = (json.loads(json_text(side)) for side in (earlier, made_from(plan)))  # as a file reads back
-    return [name for name in now if earlier.get(name) != now[name]]
+    # Both sides' names: a field set on one side only (a latency source) differs as much as one set differently.
+    return [name for name in dict.fromkeys([*now, *earlier]) if earlier.get(name) != now.get(name)]
 
 
 def write_record(out: Path, record: dict, kind) -> Path:

@@ -36,12 +36,16 @@ class PopulationPlan:
     pairs: tuple[PairSeeds, ...]
     max_steps: int | None = None
     remedies: tuple[str, ...] = ()  # TAPM variants (plm_highway.population.remedies) tried on the same pairs
+    # What PLM-Net is told of the latency (plm_highway.rollout.conditions.LATENCY_SOURCE_NAMES); "" is the conditions'
+    # own source. Written only when set, so a plan without it reads and hashes as before.
+    latency_source: str = ""
 
     def as_dict(self) -> dict:
-        return {"format": PLAN_FORMAT, "recipe": self.recipe.as_dict(), "conditions": self.conditions,
+        data = {"format": PLAN_FORMAT, "recipe": self.recipe.as_dict(), "conditions": self.conditions,
                 "track": self.track, "settings": list(self.settings), "sim_seeds": list(self.sim_seeds),
                 "pairs": [asdict(p) for p in self.pairs], "max_steps": self.max_steps,
                 "remedies": list(self.remedies)}
+        return {**data, "latency_source": self.latency_source} if self.latency_source else data
 
     @classmethod
     def from_dict(cls, data: dict) -> PopulationPlan:
@@ -49,7 +53,7 @@ class PopulationPlan:
             raise BadInput(f"population plan: format {data.get('format')!r}, expected {PLAN_FORMAT!r}")
         return cls(Recipe.from_dict(data["recipe"]), data["conditions"], data["track"], tuple(data["settings"]),
                    tuple(data["sim_seeds"]), tuple(PairSeeds(**p) for p in data["pairs"]), data["max_steps"],
-                   tuple(data.get("remedies", ())))
+                   tuple(data.get("remedies", ())), data.get("latency_source", ""))
 
     @property
     def latency_settings(self) -> tuple[str, ...]:
@@ -59,9 +63,14 @@ class PopulationPlan:
 
 def make_plan(recipe: Recipe, conditions: str, pairs: int, track: str = "test",
               settings: tuple[str, ...] = DEFAULT_SETTINGS, sim_seeds: tuple[int, ...] | None = None,
-              max_steps: int | None = None, remedies: tuple[str, ...] = ()) -> PopulationPlan:
+              max_steps: int | None = None, remedies: tuple[str, ...] = (),
+              latency_source: str | None = None) -> PopulationPlan:
     """The plan of ``pairs`` pairs (pair k seeded by :meth:`PairSeeds.of`), checked."""
     from plm_highway.population.remedies import REMEDIES
+    from plm_highway.rollout.conditions import LATENCY_SOURCE_NAMES
+
+    if latency_source is not None and latency_source not in LATENCY_SOURCE_NAMES:
+        raise BadInput(f"--latency-source {latency_source!r}: expected one of {list(LATENCY_SOURCE_NAMES)}")
 
     unknown = [name for name in remedies if name not in REMEDIES]
     if unknown:
@@ -72,7 +81,8 @@ def make_plan(recipe: Recipe, conditions: str, pairs: int, track: str = "test",
         raise BadInput("population settings: const:0 (the reference) must be among them")
     seeds = tuple(range(DEFAULT_SIM_SEEDS)) if sim_seeds is None else tuple(sim_seeds)
     return PopulationPlan(recipe, conditions, str(track), tuple(settings), seeds,
-                          tuple(PairSeeds.of(k) for k in range(pairs)), max_steps, tuple(dict.fromkeys(remedies)))
+                          tuple(PairSeeds.of(k) for k in range(pairs)), max_steps, tuple(dict.fromkeys(remedies)),
+                          latency_source or "")
 
 
 def pair_name(pair: int) -> str:

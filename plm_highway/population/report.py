@@ -42,6 +42,12 @@ REPORT_FILES = ("results.csv", "pairs.csv", "population.json", "report.md", "err
                 "offset_rms.png", "drift.png")
 
 
+def source_text(plan: dict) -> str:
+    """What PLM-Net was told of the latency, where it is not the conditions' own (``--latency-source``)."""
+    source = plan.get("latency_source", "")
+    return f" (PLM-Net told the {source} latency)" if source else ""
+
+
 def result_rows(state) -> list[dict]:
     """Every run's row, with its pair's seeds, in a stable order."""
     seeds_of = {s.pair: s for s in state.plan.pairs}
@@ -299,7 +305,7 @@ def headline(document: dict) -> list[str]:
                   else f"{too_few('pairs')} (the 95% CIs need at least {MIN_INTERVAL_VALUES})")
     return [
         f"{n} independently trained BM/PLM-Net pairs (recipe `{plan['recipe']['name']}`), {plan['conditions']} "
-        f"conditions, {entry['label']} latency, whole test track, {len(plan['sim_seeds'])} simulator seeds each; "
+        f"conditions{source_text(plan)}, {entry['label']} latency, whole test track, {len(plan['sim_seeds'])} simulator seeds each; "
         f"means over pairs, {statistics}:",
         f"steering MAE reduction {_bare(entry['mae_reduction_pct'], 1, '%')} (PLM-Net lower "
         f"in {shares['lower_mae']} of {shares['pairs']} pairs; the paper: "
