@@ -218,3 +218,48 @@ def test_the_synthetic_lane_offset_is_the_distance_to_the_lane_circle(curvature,
         radius_m = 1.0 / curvature
         expected_m = abs(abs(radius_m) - math.hypot(x_m, y_m - radius_m))
     assert abs(offset_m[0]) == pytest.approx(expected_m, abs=1e-6)
+
+
+# -- claims: "estimated" only when right, "changing" after a step ---------------------------------------------------
+
+
+@settings(max_examples=60, deadline=None)
+@given(latency_s=st.floats(0.0, 1.0), std_s=st.floats(0.0, 1.0))
+def test_an_interval_holds_its_estimate_and_never_reaches_below_zero(latency_s, std_s):
+    from plm_highway.latency.estimate import LatencyEstimate
+
+    low, high = LatencyEstimate(latency_s, std_s, True, latency_s, 20, "estimated").interval_s
+    assert 0.0 <= low <= latency_s <= high
+    assert high - latency_s == pytest.approx(2.0 * std_s)
+    assert all(math.isnan(end) for end in LatencyEstimate(math.nan, math.inf, False, 0.175, 0).interval_s)
+
+
+def claims_after_steps(profile, seed: int):
+    from plm_highway.latency.scoring import claim_step_metrics
+
+    stream = synthetic_stream(StreamSpec(duration_s=24.0, latency=profile, weave=Weave((0.02, 0.01), (0.5, 0.9),
+                                                                                        (0.0, 1.0))),
+                              np.random.default_rng(seed))
+    result = run(stream)
+    claimed, true_s = result["estimable"], stream["true_latency_s"]
+    wrong = claimed & (np.abs(result["held_s"] - true_s) > FRAME_S + 1e-9)
+    steps = claim_step_metrics(stream["time_s"], true_s, result["held_s"], claimed, result["changing"], FRAME_S)
+    return result, claimed, wrong, steps
+
+
+@pytest.mark.parametrize("before_s, after_s", [(0.1, 0.3), (0.3, 0.1)])
+def test_after_a_step_the_old_value_is_not_claimed_and_the_new_one_is_within_5_s(before_s, after_s):
+    profile = TraceProfile(np.array([0.0, 11.99, 12.0, 40.0]), np.array([before_s, before_s, after_s, after_s]),
+                           spec="trace")
+    result, claimed, wrong, steps = claims_after_steps(profile, 3)
+    assert steps["steps_judged"] == 1 and steps["handled"] == 1, steps
+    t = np.arange(len(claimed)) * FRAME_S
+    assert not wrong[t >= 13.0 - 1e-9].any()  # the old value may be claimed for up to a second, never later
+    assert claimed[t < 12.0].any()  # a steady weave with a constant latency is claimed
+
+
+def test_a_latency_that_changes_every_second_is_not_claimed_wrong():
+    # the paper's time-varying profile: a new latency in [0, 0.35] s every second; the window (3 s) holds three
+    for seed in (0, 1):
+        _, claimed, wrong, _ = claims_after_steps("steps:0.0-0.35:1.0", seed)
+        assert wrong.sum() <= 0.05 * max(claimed.sum(), 1), (seed, int(wrong.sum()), int(claimed.sum()))
