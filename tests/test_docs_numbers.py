@@ -113,27 +113,57 @@ def test_the_paper_datas_steering_spread_is_the_shipped_manifests():
     assert f"labels' std is {spread:.3f} in the paper's unit of 450 deg of hand wheel" in text
 
 
-def test_the_latency_pages_words_on_the_probe_follow_the_committed_measurement():
-    results = json.loads((ROOT / "figures/latency-estimation/results.json").read_text(encoding="utf-8"))
-    text = _one_line((ROOT / "docs/latency.md").read_text(encoding="utf-8"))
-    probe = {(e["conditions"], e["setting"]): e for e in results["estimation"] if e["variant"] == "probe"}
-    constant = probe[("ideal", results["suite"]["robustness_setting"])]
-    assert "a lock within about two seconds under the ideal conditions, never a wrong claim" in text
-    assert round(constant["lock_s"]["mean"]) == 2 and constant["wrong_when_estimable_fraction"]["mean"] == 0.0
-    assert "claims estimates that are more than a frame off" in text
-    for setting in results["suite"]["probe_settings"]:
-        for conditions in results["suite"]["conditions"]:
-            assert probe[(conditions, setting)]["wrong_when_estimable_fraction"]["mean"] > 0.1
+def _latency_results() -> dict:
+    return json.loads((ROOT / "figures/latency-estimation/results.json").read_text(encoding="utf-8"))
 
 
-def test_the_latency_page_warns_where_the_committed_measurement_shows_wrong_claims():
-    results = json.loads((ROOT / "figures/latency-estimation/results.json").read_text(encoding="utf-8"))
+def test_the_latency_pages_words_on_slowness_follow_the_committed_measurement():
+    results = _latency_results()
     text = _one_line((ROOT / "docs/latency.md").read_text(encoding="utf-8"))
-    wrong = [e["wrong_when_estimable_fraction"]["mean"] for e in results["estimation"]
-             if e["role"] == "estimated" and not e["variant"] and not e["setting"].startswith("const:")
-             and e["estimable_fraction"]["mean"] > 0]
-    assert wrong and max(wrong) > 0.25
-    assert "its *estimable* flag is not to be trusted" in text
+    plain = [e for e in results["estimation"] if not e["variant"]]
+    smooth = [e for e in plain if e["role"] == "estimated" and e["conditions"] == "ideal"
+              and e["setting"].startswith("const:")]
+    weaving = [e for e in plain if e["role"] == "baseline" and e["setting"].startswith("const:")]
+    assert "under the ideal conditions the estimator rarely claims anything within the report's 30-s runs" in text
+    assert sum(e["claimed_runs"] for e in smooth) <= 0.25 * sum(e["runs"] for e in smooth)
+    paper = [e for e in plain if e["role"] == "estimated" and e["conditions"] == "paper"
+             and e["setting"] in ("const:0.15", "const:0.25", "const:0.35")]
+    assert "(under the paper conditions, in most runs, after 6 to 25 s)" in text
+    assert sum(e["claimed_runs"] for e in paper) > 0.5 * sum(e["runs"] for e in paper)
+    assert all(5.5 <= e["first_claim_s"]["mean"] <= 25.0 for e in paper)
+    assert "gives the lag away in most runs within about 5 to 9 s" in text
+    assert all(e["claimed_runs"] > e["runs"] / 2 and 4.5 <= e["first_claim_s"]["mean"] <= 9.0 for e in weaving)
+    varying = [e for e in plain if not e["setting"].startswith("const:")]
+    assert "the estimator says \"changing\" rather than a number" in text
+    assert sum(e["claims"] for e in varying) <= 0.05 * sum(e["runs"] for e in varying) * 600  # ticks of 30-s runs
+
+
+def test_the_latency_pages_probe_advice_follows_the_committed_measurement():
+    results = _latency_results()
+    text = _one_line((ROOT / "docs/latency.md").read_text(encoding="utf-8"))
+    by = {(e["conditions"], e["setting"], e["variant"]): e for e in results["estimation"] if e["role"] == "estimated"
+          and e["track"] == results["suite"]["robustness_track"]}
+    assert ("Under a constant latency it buys a claim within about 4 to 6 s, never a wrong one, for 1.3 to 2 times the "
+            "lane-offset RMS of the same runs without it") in text
+    setting = results["suite"]["robustness_setting"]
+    for conditions in results["suite"]["conditions"]:
+        probe, plain = by[(conditions, setting, "probe")], by[(conditions, setting, "")]
+        assert 3.5 <= probe["first_claim_s"]["mean"] <= 6.5 and probe["claims"] and probe["wrong_claims"] == 0
+        assert 1.25 <= probe["offset_rms_m"]["mean"] / plain["offset_rms_m"]["mean"] <= 2.05
+    assert "most of those claims are more than a frame off" in text
+    varying = [by[(c, s, "probe")] for c in results["suite"]["conditions"] for s in results["suite"]["probe_settings"]]
+    assert any(e["claims"] and e["wrong_claims"] > e["claims"] / 2 for e in varying)
+    assert "Every condition keeps its wrong claims at or below 5% but one" in text
+    over = [e for e in results["estimation"] if e["claims"] and e["wrong_claims"] > 0.05 * e["claims"]]
+    assert len(over) == 1 and over[0]["variant"] == "probe"
+
+
+def test_the_latency_page_says_the_deployed_method_never_claims_in_a_run():
+    results = _latency_results()
+    text = _one_line((ROOT / "docs/latency.md").read_text(encoding="utf-8"))
+    assert "it needs 150 s of valid driving before its first claim, so it never claims in a 30-s run" in text
+    assert results["suite"]["duration_s"] == 30.0
+    assert all(e["baselines"]["published"]["claims"] == 0 for e in results["estimation"])
 
 
 def test_the_bm_response_prose_follows_the_committed_sweeps():

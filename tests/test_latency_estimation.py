@@ -301,7 +301,7 @@ def test_a_mitigation_whose_estimate_never_locked_is_not_counted_as_met():
     results = json.loads(json_text(fabricated_results(none_locked=True)))
     mitigation_targets = [t for t in results["targets"] if t["target"].startswith("mitigation ")]
     assert mitigation_targets and not any(t["met"] for t in mitigation_targets)
-    assert all(t["detail"].startswith("not testable: the estimate never locked") for t in mitigation_targets)
+    assert all(t["detail"].startswith("not testable: the estimate was never claimed right") for t in mitigation_targets)
     # the same runs with locks are judged on their numbers
     locked = json.loads(json_text(fabricated_results()))
     assert any(t["met"] for t in locked["targets"] if t["target"].startswith("mitigation "))

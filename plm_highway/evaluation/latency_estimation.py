@@ -731,9 +731,10 @@ def targets(estimation: list[dict], mitigation: list[dict], ekf_rows: list[dict]
         kept_known = kept is not None and math.isfinite(kept)
         if locked.get((m["conditions"], m["track"], m["setting"])) == 0:
             # PLM-Net was told the estimator's prior all along: nothing in these runs was driven by an estimate.
-            met, detail = False, (f"not testable: the estimate never locked in these runs, so PLM-Net was told the "
-                                  f"estimator's prior throughout (it kept {f'{100 * kept:.0f}%' if kept_known else 'none'}"
-                                  f" of the reduction; offset RMS {ratio:.2f}x)")
+            met, detail = False, (f"not testable: the estimate was never claimed right in these runs, so PLM-Net was "
+                                  "told its newest sure estimate, or the prior before one (it kept "
+                                  f"{f'{100 * kept:.0f}%' if kept_known else 'none'} of the reduction; offset RMS "
+                                  f"{ratio:.2f}x)")
         elif not kept_known:
             met, detail = False, ("no reduction to keep: PLM-Net told the true latency did not lower the BM's MAE on "
                                   f"average; offset RMS {ratio:.2f}x")

@@ -23,6 +23,7 @@ BENCH_MODELS_RANDOM = (Path("figures/bench/models-cpu-random.json"),)
 BENCH_MODELS_CLOSED_LOOP = Path("figures/bench/models-cpu-closed-loop.json")
 SIM2REAL_BENCH = Path("figures/bench/sim2real.json")
 MITIGATIONS = Path("figures/mitigations/mitigations.json")
+LATENCY_ESTIMATION = Path("figures/latency-estimation/results.json")
 # The sim2real page's worked examples: ``plm-highway sim2real diagnose ... --json`` on the recordings its commands make.
 SIM2REAL_EXAMPLES = {"sim2real-worked-example": Path("figures/sim2real/worked-example/rec-diagnosis.json"),
                      "sim2real-small-car": Path("figures/sim2real/worked-example/small-diagnosis.json"),
@@ -124,6 +125,40 @@ def mitigations_table(root: Path) -> str:
     from plm_highway.population.mitigations import aim_table
 
     return aim_table(_json(root, MITIGATIONS))
+
+
+def latency_claims(root: Path) -> str:
+    """The latency estimator's claims beside the openpilot-style baseline's, per conditions and latency (pooled over
+    tracks and seeds), for the driving the estimate serves (PLM-Net told it) and a weaving car (the BM)."""
+    results = _json(root, LATENCY_ESTIMATION)
+    roles = {"estimated": "PLM-Net told the estimate", "baseline": "Base Model"}
+    groups: dict[tuple, list[dict]] = {}
+    for entry in results["estimation"]:
+        if entry["variant"] or entry["role"] not in roles:
+            continue
+        groups.setdefault((entry["conditions"], entry["role"], entry["setting"]), []).append(entry)
+
+    def pooled(entries: list[dict]) -> tuple[int, int, int, int]:
+        claims = sum(e.get("claims", 0) for e in entries)
+        wrong = sum(e.get("wrong_claims", 0) for e in entries)
+        runs = sum(e.get("runs", len(e["seeds"])) for e in entries)
+        return claims, wrong, sum(e.get("claimed_runs", 0) for e in entries), runs
+
+    def share(claims: int, wrong: int) -> str:
+        return f"{wrong} of {claims} ({100 * wrong / claims:.1f}%)" if claims else "no claim"
+
+    lines = ["| conditions | driving | latency | runs claimed | wrong claims | steps handled | baseline (scaled): runs "
+             "claimed | wrong claims |", "|---|---|---|---|---|---|---|---|"]
+    for (conditions, role, setting), entries in sorted(groups.items()):
+        claims, wrong, claimed_runs, runs = pooled(entries)
+        base = [e["baselines"]["scaled"] for e in entries if "scaled" in e.get("baselines", {})]
+        b_claims, b_wrong, b_runs, b_total = pooled([{**b, "seeds": []} for b in base])
+        steps = [e["claim_steps"] for e in entries if e.get("claim_steps")]
+        judged = sum(s["steps_judged"] for s in steps)
+        steps_text = f"{sum(s['handled'] for s in steps)} of {judged}" if judged else "-"
+        lines.append(f"| {conditions} | {roles[role]} | `{setting}` | {claimed_runs} of {runs} | "
+                     f"{share(claims, wrong)} | {steps_text} | {b_runs} of {b_total} | {share(b_claims, b_wrong)} |")
+    return "\n".join(lines)
 
 
 def estimation_table3(root: Path) -> str:
@@ -255,6 +290,7 @@ RENDERERS: dict[str, Callable[[Path], str]] = {
     "mitigations-table": mitigations_table,
     "quickstart-shipped-pair": quickstart_shipped_pair,
     "estimation-table3": estimation_table3,
+    "latency-claims": latency_claims,
     "plm-vs-ekf-table": plm_vs_ekf_table,
     "plm-vs-ekf-who-wins": plm_vs_ekf_who_wins,
     "bench-models-shipped": _bench_models_runs(BENCH_MODELS_SHIPPED),
