@@ -478,3 +478,17 @@ def test_the_run_cache_is_keyed_by_the_checkpoints_contents_and_a_cached_run_edi
     victim.write_text(json.dumps(data))
     edited, driven = measured(ck, cache)
     assert driven == 1 and edited == fresh
+
+
+def test_the_docs_claims_block_pools_tracks_and_seeds_from_the_results_file(tmp_path):
+    from plm_highway.io import json_text
+    from plm_highway.publish.renderers import LATENCY_ESTIMATION, latency_claims
+
+    results = json.loads(json_text(fabricated_results()))
+    (tmp_path / LATENCY_ESTIMATION).parent.mkdir(parents=True)
+    (tmp_path / LATENCY_ESTIMATION).write_text(json_text(results), encoding="utf-8")
+    table = latency_claims(tmp_path)
+    # two seeds of 300 claims with 3 wrong each; the baseline's one claiming run, 10 of its 50 claims wrong
+    assert "| ideal | PLM-Net told the estimate | `const:0.25` | 2 of 2 | 6 of 600 (1.0%) | - | 1 of 2 | 10 of 50 (20.0%) |" \
+        in table
+    assert "| ideal | PLM-Net told the estimate | `frames:9-21:60@30` | 2 of 2 | 6 of 600 (1.0%) | 2 of 4 |" in table
