@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -104,14 +105,15 @@ def time_scaled(factor: float, config: CorrelationLagConfig = PUBLISHED) -> Corr
                    recovery_s=config.recovery_s / factor, block_size=max(1, round(config.block_size / factor)))
 
 
-class CorrelationEstimate:
+class CorrelationEstimate(NamedTuple):
     """The baseline's answer at one tick: ``state`` in :data:`STATES`, ``latency_s`` the block mean (NaN before any
     accepted window), ``spread_s`` the block means' standard deviation, ``held_s`` what a consumer should use."""
 
-    __slots__ = ("state", "latency_s", "spread_s", "held_s", "blocks")
-
-    def __init__(self, state: str, latency_s: float, spread_s: float, held_s: float, blocks: int):
-        self.state, self.latency_s, self.spread_s, self.held_s, self.blocks = state, latency_s, spread_s, held_s, blocks
+    state: str
+    latency_s: float
+    spread_s: float
+    held_s: float
+    blocks: int
 
     @property
     def estimable(self) -> bool:
