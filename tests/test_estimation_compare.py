@@ -124,6 +124,19 @@ def test_paired_difference_turns_over_when_the_pair_does(pairs):
     assert forward["low"] <= forward["mean"] <= forward["high"]
 
 
+def test_summaries_stay_within_their_quantitys_range():
+    # skewed offsets, a road left in 4 and in 1 of 5 seeds: linear intervals would reach below 0 and above 1
+    result = _result_with({"plm": [0.1, 0.1, 0.1, 0.1, 3.0]}, metric="offset_rms_m")
+    offsets = result.summary("plm", "const:0.2")["offset_rms_m"]
+    assert 0 < offsets["low"] < offsets["high"] and offsets["mean"] == pytest.approx(0.68)
+    result = _result_with({"plm": [0.0, 1.0, 1.0, 1.0, 1.0]}, metric="left_road")
+    left = result.summary("plm", "const:0.2")["left_road"]
+    assert left["mean"] == pytest.approx(0.8) and left["low"] > 0.0 and left["high"] == 1.0
+    result = _result_with({"plm": [0.0, 0.0, 0.0, 0.0, 1.0]}, metric="left_road")
+    left = result.summary("plm", "const:0.2")["left_road"]
+    assert left["low"] == 0.0 and left["high"] < 1.0
+
+
 def test_who_wins_reads_the_paired_interval():
     entry = {"paired": {"ekf-plm": {"offset_rms_m": {"mean": -0.1, "low": -0.2, "high": -0.01, "n": 5}}}}
     assert who_wins(entry, "offset_rms_m") == "EKF"

@@ -125,7 +125,7 @@ class CompareResult:
 
     def summary(self, policy: str, latency: str, bias_s: float = 0.0) -> dict:
         return {metric: _interval(list(self.by_seed(policy, latency, bias_s, metric).values()),
-                                  "linear" if metric == "left_road" else "positive")
+                                  "linear" if metric == "left_road" else "positive", metric == "left_road")
                 for metric in SUMMARISED}
 
     def paired_difference(self, latency: str, metric: str, first: str, second: str, bias_s: float = 0.0) -> dict:
@@ -171,14 +171,18 @@ class CompareResult:
         }
 
 
-def _interval(values: list[float], scale: str = "linear") -> dict:
+def _interval(values: list[float], scale: str = "linear", share: bool = False) -> dict:
     """Mean and 95% interval over seeds: an outcome (an error, never negative) on the log scale, a paired
-    difference on the linear one (:mod:`plm_highway.metrics.intervals`)."""
+    difference on the linear one (:mod:`plm_highway.metrics.intervals`); a ``share`` (the fraction of seeds that
+    left the road) on the linear one, clipped to [0, 1]."""
     from plm_highway.metrics.intervals import mean_ci
 
     if not values:
         return {"mean": None, "low": None, "high": None, "n": 0}
-    return mean_ci(values, scale=scale).as_dict()
+    interval = mean_ci(values, scale=scale).as_dict()
+    if share and interval["low"] is not None:  # a share: no interval reaches outside [0, 1]
+        interval.update(low=max(0.0, interval["low"]), high=min(1.0, interval["high"]))
+    return interval
 
 
 def command_line(config: CompareConfig, seeds: int) -> str:
@@ -329,7 +333,10 @@ def markdown(reports: list[dict]) -> str:
              "scored track (`plm_highway.evaluation.outcomes`): steering MAE in the paper's unit (1 = 450 deg of "
              "steering wheel), every step missed after leaving the road counted as an error of 1 (normalised), and "
              "over the common span; lateral offset from the lane centre (RMS and max); Frechet distance between the "
-             "run's path and the reference's. Cells: mean over seeds [95 % Student-t interval].", "",
+             "run's path and the reference's. Cells: mean over seeds [95 % Student-t interval], on the quantity's "
+             "scale (`plm_highway.metrics.intervals`): errors, offsets and distances with the interval of their "
+             "logarithms, so never below 0; the fraction of seeds that left the road on the linear scale, clipped to "
+             "[0, 1]; paired differences on the linear scale.", "",
              "## Who wins where (paired EKF lane keeper, delay compensated, minus PLM-Net)", "",
              "| conditions | setting | steering MAE | offset RMS | Frechet | left the road: PLM-Net / EKF |",
              "|---|---|---|---|---|---|"]
