@@ -82,6 +82,19 @@ def test_transcription_agrees_with_the_percentages_stated_in_the_text():
     assert round(100 * (frechet["mitigated"][1] / frechet["reference"][1] - 1), 1) == 66.2
 
 
+def test_the_protocol_says_how_intervals_are_made_and_when_there_is_none():
+    from types import SimpleNamespace
+
+    from plm_highway.evaluation.report import protocol_lines
+    from plm_highway.metrics.intervals import MIN_INTERVAL_VALUES
+    from plm_highway.rollout.conditions import CONDITIONS
+
+    lines = protocol_lines(SimpleNamespace(seeds=[0, 1], conditions=CONDITIONS["ideal"]))
+    text = next(line for line in lines if line.startswith("**Confidence intervals**"))
+    assert f"fewer than {MIN_INTERVAL_VALUES} seeds there are too few seeds for an interval" in text
+    assert "{" not in text and "never below 0" in text and "never above 100%" in text
+
+
 def test_settings_labels_and_tags():
     assert protocol.split_settings(["const:0.2,steps:0.0-0.35:1.0", "const:0.2"]) == ["const:0.2", "steps:0.0-0.35:1.0"]
     assert protocol.paper_key("const:0.20") == "const:0.2" and protocol.paper_key("const:0.1") is None

@@ -26,7 +26,7 @@ from plm_highway.io import (
     write_csv_into,
     write_output,
 )
-from plm_highway.metrics.intervals import Estimate, interval_text, mean_ci
+from plm_highway.metrics.intervals import MIN_INTERVAL_VALUES, Estimate, interval_text, mean_ci
 from plm_highway.metrics.steering import ERROR_NAMES, reduction_pct
 from plm_highway.road.track import TrackSpec
 from plm_highway.rollout.conditions import (
@@ -495,8 +495,8 @@ def protocol_lines(r: Reproduction) -> list[str]:
         ("**Confidence intervals**: 95% Student-t intervals over seeds, on the quantity's scale "
          "(plm_highway.metrics.intervals): errors (MAE, MSE, RMSE) with the interval of their logarithms, so never below "
          "0; reductions, computed per seed, with the interval of the logarithms of the ratios PLM-Net / BM, so never "
-         "above 100%; differences with the linear interval; the number beside each is the arithmetic mean. With fewer than {MIN_INTERVAL_VALUES} seeds there are too few seeds for an interval "
-         "(\"no interval\")."),
+         "above 100%; differences with the linear interval; the number beside each is the arithmetic mean. With "
+         f"fewer than {MIN_INTERVAL_VALUES} seeds there are too few seeds for an interval (\"no interval\")."),
         (f"**End of the road**: the camera sees {sight_m(r.conditions.camera) - 5:.0f} m ahead of the car (range + "
          f"mount offset); runs on an open track stop {sight_m(r.conditions.camera):.0f} m before the road's end (a "
          "further 5 m margin), before the end can appear in a frame. Earlier reports drove to the end, and the BM "
