@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import copy
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,12 +15,17 @@ from plm_highway.errors import BadInput
 from plm_highway.evaluation.calibration import (
     CalibrationOptions,
     bm_calibration,
+    committed_calibration,
     injected_latency_s,
     judge,
     paper_bm_mae_rad,
     paper_unit_to_front_wheel_rad,
+    resummarised,
     summary_lines,
 )
+
+ROOT = Path(__file__).resolve().parents[1]
+COMMITTED = sorted(ROOT.glob("figures/bm-calibration*.json"))
 
 
 def test_paper_units_convert_at_the_protocols_steering_ratio():
@@ -264,3 +271,97 @@ def test_a_foreign_numbers_file_is_refused_before_any_run(tmp_path, capsys, monk
     assert code == 2
     assert "cal.json" in capsys.readouterr().err
     assert (tmp_path / "cal.json").read_text() == '{"mine": 1}' and not (tmp_path / "cal.png").exists()
+
+
+def stale_calibration() -> dict:
+    """Numbers as an older calibrate wrote them: per-seed MAEs of 0.01, 0.02 and 0.04 rad at every latency, with the
+    linear Student-t interval that reaches below 0 (0.0233 +- 4.303 * 0.01528 / sqrt(3) = [-0.0146, 0.0613])."""
+    stale = {"mean": 0.07 / 3, "low": -0.0146, "high": 0.0613, "n": 3}
+    row = {"injected_s": 0.0, "mae_rad_per_seed": [0.01, 0.02, 0.04], "mae_rad": dict(stale),
+           "mae_penalised_rad_per_seed": [0.01, 0.02, 0.04], "mae_penalised_rad": dict(stale),
+           "left_road": [False, False, False], "paper_rad": None}
+    per_latency = {}
+    for latency_s in (0.15, 0.20, 0.25, 0.30):
+        per_latency[f"{latency_s:.2f}"] = {**copy.deepcopy(row), "injected_s": latency_s,
+                                           "paper_rad": paper_bm_mae_rad(latency_s)}
+    return {"track": "test", "conditions": "paper", "seeds": [0, 1, 2], "reading": "stated", "steering_ratio": 12.0,
+            "noise_floor": {"mae_rad_per_pair": [0.001, 0.002],
+                            "mae_rad": {"mean": 0.0015, "low": -0.005, "high": 0.008, "n": 2}},
+            "per_latency": per_latency, "rules": {"stale": True}, "command": "plm-highway calibrate --seeds 3"}
+
+
+def test_a_rerender_computes_each_interval_again_on_the_log_scale_from_the_recorded_values():
+    stale = stale_calibration()
+    before = copy.deepcopy(stale)
+    renewed = resummarised(stale)
+    assert stale == before  # the numbers given are left as they were
+    # By hand: ln 0.01, ln 0.02, ln 0.04 have mean ln 0.02 and standard deviation ln 2; t(0.975, 2 dof) = 4.3027, so
+    # the interval is 0.02 * exp(-+4.3027 * 0.6931 / sqrt(3)) = 0.02 * exp(-+1.7219) = [0.003575, 0.1119]; the mean
+    # reported is still the arithmetic one, 0.07 / 3.
+    for row in renewed["per_latency"].values():
+        for metric in ("mae_rad", "mae_penalised_rad"):
+            assert row[metric] == {"mean": pytest.approx(0.07 / 3), "low": pytest.approx(0.003575, rel=1e-3),
+                                   "high": pytest.approx(0.1119, rel=1e-3), "n": 3}
+        assert row["mae_rad_per_seed"] == [0.01, 0.02, 0.04]
+    # Two seed pairs are too few for an interval: none, where the stale one gave one.
+    assert renewed["noise_floor"]["mae_rad"] == {"mean": pytest.approx(0.0015), "low": None, "high": None, "n": 2}
+    # The rules are judged again on the means: 0.0233 / 0.0015 = 15.6x the floor; 0.0233 rad is 0.21x the paper's
+    # 0.1122 rad at 0.15 s, outside the factor 2.
+    assert renewed["rules"]["rise"]["factor"] == pytest.approx(0.07 / 3 / 0.0015) and renewed["rules"]["rise"]["met"]
+    assert renewed["rules"]["paper"]["ours_over_paper"]["0.15"] == pytest.approx(0.07 / 3 / 0.11215, rel=1e-3)
+    assert renewed["rules"]["paper"]["met"] is False
+    assert {key: renewed[key] for key in ("seeds", "reading", "steering_ratio", "command")} == \
+        {key: before[key] for key in ("seeds", "reading", "steering_ratio", "command")}
+
+
+@pytest.mark.parametrize("path", COMMITTED, ids=[path.stem for path in COMMITTED])
+def test_a_committed_calibration_renders_again_with_its_values_means_and_rules(path):
+    committed = json.loads(path.read_text(encoding="utf-8"))
+    renewed = committed_calibration(path)
+    summaries = [("noise_floor", "mae_rad_per_pair", "mae_rad")]
+    summaries += [(key, per_seed, metric) for key in committed["per_latency"]
+                  for per_seed, metric in (("mae_rad_per_seed", "mae_rad"),
+                                           ("mae_penalised_rad_per_seed", "mae_penalised_rad"))]
+    assert len(summaries) == 9
+    for where, per_seed, metric in summaries:
+        old = committed[where] if where == "noise_floor" else committed["per_latency"][where]
+        new = renewed[where] if where == "noise_floor" else renewed["per_latency"][where]
+        assert new[per_seed] == old[per_seed]
+        assert new[metric]["mean"] == old[metric]["mean"] and new[metric]["n"] == old[metric]["n"] == len(old[per_seed])
+        assert 0.0 <= new[metric]["low"] <= new[metric]["mean"] <= new[metric]["high"], (where, metric)
+    assert renewed["rules"] == committed["rules"]
+    assert renewed["command"] == committed["command"]  # the runs' own command: nothing was driven again
+
+
+def test_report_only_renders_the_figure_and_numbers_again_in_place_without_driving(tmp_path, capsys, monkeypatch):
+    import plm_highway.evaluation.calibration as calibration
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("a calibration ran under --report-only")
+
+    monkeypatch.setattr(calibration, "run_cells", must_not_run)
+    out = tmp_path / "cal.png"
+    stale = stale_calibration()
+    out.with_suffix(".json").write_text(json.dumps({"plm_highway_output": "bm-calibration", **stale}))
+    assert cli.main(["calibrate", "--report-only", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "0.15 s: BM MAE 0.0233 rad [0.0036, 0.1119]" in printed
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    numbers = json.loads(out.with_suffix(".json").read_text())
+    assert numbers["plm_highway_output"] == "bm-calibration" and numbers["command"] == stale["command"]
+    assert numbers["per_latency"]["0.25"]["mae_rad"]["low"] == pytest.approx(0.003575, rel=1e-3)
+    # Again, over the figure it wrote: in place, as often as asked.
+    assert cli.main(["calibrate", "--report-only", "--out", str(out)]) == 0
+    # Numbers that are not a calibration's, or lack what the summaries come from, are refused by name.
+    (tmp_path / "other.json").write_text('{"mine": 1}')
+    assert cli.main(["calibrate", "--report-only", "--out", str(tmp_path / "other.png")]) == 2
+    assert "other.json" in capsys.readouterr().err and not (tmp_path / "other.png").exists()
+    del stale["noise_floor"]["mae_rad_per_pair"]
+    (tmp_path / "short.json").write_text(json.dumps({"plm_highway_output": "bm-calibration", **stale}))
+    assert cli.main(["calibrate", "--report-only", "--out", str(tmp_path / "short.png")]) == 2
+    assert "mae_rad_per_pair" in capsys.readouterr().err
+    del stale["conditions"], stale["per_latency"]["0.20"]["left_road"]
+    (tmp_path / "shorter.json").write_text(json.dumps({"plm_highway_output": "bm-calibration", **stale}))
+    assert cli.main(["calibrate", "--report-only", "--out", str(tmp_path / "shorter.png")]) == 2
+    assert "missing: conditions, left_road" in capsys.readouterr().err
+    assert not any((tmp_path / name).exists() for name in ("short.png", "shorter.png"))

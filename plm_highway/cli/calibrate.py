@@ -63,6 +63,10 @@ def configure(parser) -> None:
     parser.add_argument("--workers", type=bounded_int(0, 256), default=d["workers"],
                         help="0: the runs batched in this process; N: on N processes (the same numbers)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--report-only", action="store_true",
+                        help="render the figure and numbers at --out again from the per-seed values its .json holds "
+                             "(every mean and interval computed again, the rules judged again); drive nothing, the "
+                             "other options are ignored")
     add_overwrite(parser)
 
 
@@ -71,9 +75,20 @@ def run(args) -> int:
         CALIBRATION_JSON,
         CalibrationOptions,
         bm_calibration,
+        committed_calibration,
         summary_lines,
         write_calibration,
     )
+
+    if args.report_only:  # in place, from the numbers committed beside the figure: no checkpoints, no runs
+        from pathlib import Path
+
+        result = committed_calibration(Path(args.out).with_suffix(".json"))
+        figure_path, json_path = write_calibration(result, args.out, overwrite=True)
+        for line in summary_lines(result):
+            print(line)
+        print(f"figure: {figure_path}\nnumbers: {json_path}")
+        return 0
 
     options = CalibrationOptions(
         track=args.track, seeds=args.seeds, conditions=args.conditions, checkpoints=args.checkpoints,

@@ -28,6 +28,7 @@ paper's 0.15 s row is compared with our BM at 9 frames of the 30 Hz loop, 0.30 s
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -35,9 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
+from plm_highway.errors import BadInput
 from plm_highway.evaluation import paper_results as paper
 from plm_highway.evaluation.protocol import PAPER_STEERING_RATIO, PAPER_TRACK, noise_floor, penalised_mae
-from plm_highway.io import file_kind, pyplot, write_figure_and_numbers
+from plm_highway.io import JSON_MARKER_KEY, file_kind, load_json, pyplot, write_figure_and_numbers
 from plm_highway.metrics.intervals import mean_ci
 from plm_highway.metrics.steering import common_span, steering_errors
 from plm_highway.models.config_checks import check_choice
@@ -99,6 +101,13 @@ def _paper_rule(per_latency: dict[float, dict], metric: str, what: str) -> dict:
             "met": all(1.0 / PAPER_FACTOR <= ratio <= PAPER_FACTOR for ratio in ratios.values())}
 
 
+def mae_summary(values: Sequence[float]) -> dict:
+    """Mean and 95% CI of MAEs over seeds (or seed pairs), as a calibration's numbers hold them: an error, so its
+    interval is that of the logarithms (:func:`~plm_highway.metrics.intervals.mean_ci`, ``scale="positive"``),
+    never below 0, and none from fewer than 3 values."""
+    return mean_ci(values, scale="positive").as_dict()
+
+
 @dataclass(frozen=True)
 class CalibrationOptions:
     """What ``plm-highway calibrate`` is asked to do: its options, typed (the command line builds one).
@@ -138,8 +147,6 @@ def bm_calibration(options: CalibrationOptions = CalibrationOptions()) -> dict:
     spec_of = {latency_s: f"const:{injected:g}" for latency_s, injected in injected_s.items()}
     seed_list = parse_seeds(seeds)
     if len(seed_list) < 2:
-        from plm_highway.errors import BadInput
-
         raise BadInput(f"--seeds {seeds!r}: the noise floor needs at least two seeds")
     spec = resolve_track(track)
     chosen = with_friction_limit(with_pipeline(with_speed_logic(CONDITIONS[conditions], o.speed_logic),
@@ -168,13 +175,13 @@ def bm_calibration(options: CalibrationOptions = CalibrationOptions()) -> dict:
             penalised.append(penalised_mae(reference.columns["steering"], delayed.columns["steering"])
                              * chosen.max_steering_rad)
         per_latency[latency_s] = {"injected_s": injected_s[latency_s],
-                                  "mae_rad_per_seed": maes, "mae_rad": mean_ci(maes, scale="positive").as_dict(),
+                                  "mae_rad_per_seed": maes, "mae_rad": mae_summary(maes),
                                   "mae_penalised_rad_per_seed": penalised,
-                                  "mae_penalised_rad": mean_ci(penalised, scale="positive").as_dict(),
+                                  "mae_penalised_rad": mae_summary(penalised),
                                   "left_road": [by_cell[(s, spec_of[latency_s])].left_road for s in seed_list],
                                   "paper_rad": paper_bm_mae_rad(latency_s)}
     floor_values = [value * chosen.max_steering_rad for value in noise_floor(references)]
-    floor = {"mae_rad_per_pair": floor_values, "mae_rad": mean_ci(floor_values, scale="positive").as_dict()}
+    floor = {"mae_rad_per_pair": floor_values, "mae_rad": mae_summary(floor_values)}
     pipeline = (chosen.processing_delay_steps, chosen.steering_time_constant_s)
     as_conditions = pipeline == (CONDITIONS[conditions].processing_delay_steps,
                                  CONDITIONS[conditions].steering_time_constant_s)
@@ -186,6 +193,51 @@ def bm_calibration(options: CalibrationOptions = CalibrationOptions()) -> dict:
             "steering_ratio": PAPER_STEERING_RATIO, "max_steering_rad": chosen.max_steering_rad,
             "noise_floor": floor, "per_latency": {f"{k:.2f}": v for k, v in per_latency.items()},
             "rules": judge(per_latency, floor)}
+
+
+def resummarised(result: dict) -> dict:
+    """A calibration's numbers (``result``, as :func:`bm_calibration` returned them or its JSON holds them) with every
+    summary computed again from the values they record, driving nothing: each latency's MAE and penalised MAE from
+    its per-seed values and the noise floor from its seed-pair values (:func:`mae_summary`), and the rules judged
+    again on those means. Everything else (the values, the paper's numbers, the options and command the runs were
+    driven with) is kept as recorded; ``result`` itself is left unchanged."""
+    renewed = copy.deepcopy(result)
+    try:
+        for row in renewed["per_latency"].values():
+            row["mae_rad"] = mae_summary(row["mae_rad_per_seed"])
+            row["mae_penalised_rad"] = mae_summary(row["mae_penalised_rad_per_seed"])
+        floor = renewed["noise_floor"]
+        floor["mae_rad"] = mae_summary(floor["mae_rad_per_pair"])
+        renewed["rules"] = judge({float(key): row for key, row in renewed["per_latency"].items()}, floor)
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise BadInput(f"calibration numbers lack what their summaries are computed from ({type(exc).__name__}: "
+                       f"{exc})") from None
+    return renewed
+
+
+# What a calibration's numbers record of its runs, and of each latency, for its summaries, figure and summary lines.
+_RECORDED = ("track", "conditions", "seeds", "reading", "steering_ratio", "noise_floor", "per_latency")
+_RECORDED_ROW = ("injected_s", "mae_rad_per_seed", "mae_penalised_rad_per_seed", "left_road", "paper_rad")
+
+
+def committed_calibration(path: str | Path) -> dict:
+    """The calibration numbers committed at ``path`` (a ``plm-highway calibrate`` JSON file), their summaries
+    computed again (:func:`resummarised`): what ``plm-highway calibrate --report-only`` renders."""
+    data = load_json(path, what="calibration numbers file")
+    if not isinstance(data, dict) or data.get(JSON_MARKER_KEY) != CALIBRATION_JSON.name:
+        raise BadInput(f"{path}: not {CALIBRATION_JSON.describe}")
+    del data[JSON_MARKER_KEY]  # the file's kind, written again with the numbers
+    rows = data.get("per_latency")
+    if not isinstance(rows, dict) or not all(isinstance(row, dict) for row in rows.values()):
+        rows = {}  # named as missing below
+    missing = [key for key in _RECORDED if key not in data or (key == "per_latency" and not rows)]
+    missing += sorted({key for row in rows.values() for key in _RECORDED_ROW if key not in row})
+    if missing:
+        raise BadInput(f"{path}: not the numbers of a whole calibration (missing: {', '.join(missing)})")
+    try:
+        return resummarised(data)
+    except BadInput as exc:
+        raise BadInput(f"{path}: {exc}") from None
 
 
 def calibration_figure(result: dict):
@@ -222,7 +274,7 @@ def calibration_figure(result: dict):
                     color="tab:red", alpha=0.12, label=f"within a factor {PAPER_FACTOR:g} of the paper")
     ax.axhline(RISE_FACTOR * floor["mean"], color="0.4", ls=":", lw=1,
                label=f"{RISE_FACTOR:g}x our noise floor (the 0.15 s rule)")
-    ax.set_yscale("log", nonpositive="clip")  # a CI reaching below 0 is drawn to the bottom edge
+    ax.set_yscale("log", nonpositive="clip")  # a CI reaching 0 (a zero among the values) is drawn to the bottom edge
     if reading == "stated":
         ax.set_xlabel("constant perception latency [s]")
     else:
