@@ -54,7 +54,15 @@ def test_bench_reproduce_drives_the_same_runs_three_ways(tmp_path, capsys):
     assert "load average" in printed and all(name in printed for name in result["sides"])
 
 
-def test_bad_sizes_are_refused_before_work():
+def test_bad_sizes_are_refused_before_work(monkeypatch):
     assert main(["bench", "sweep", "--envs", "0"]) == 2
-    with pytest.raises(ValueError):
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("a model or a worker pool was made before the bad input was refused")
+
+    monkeypatch.setattr("plm_highway.rollout.policies.make_policy", no_work)
+    monkeypatch.setattr("plm_highway.rollout.backends.worker_pool", no_work)
+    with pytest.raises(ValueError, match="const:abc"):
         bench_sweep(n_envs=1, steps=3, policy="bm", latency="const:abc")
+    with pytest.raises(FileNotFoundError, match="no-such-track"):
+        bench_sweep(n_envs=1, steps=3, policy="bm", track="no-such-track")

@@ -51,11 +51,16 @@ def bench_sweep(n_envs: int = 16, steps: int = 100, policy: str = "plm", latency
     machine two torch threads at batch size 1 can take 20x longer than one)."""
     import torch
 
+    from plm_highway.latency.profiles import parse_profile
+    from plm_highway.road.track import resolve_track
     from plm_highway.rollout.cells import RunCell, run_cells
     from plm_highway.rollout.policies import VisionPolicy, make_policy, single_threaded_inference
 
     if not 1 <= repeats <= 100:
         raise ValueError(f"repeats {repeats}: must lie in [1, 100]")
+    # the latency and track are read again by every side; a bad one is refused before the pool starts
+    parse_profile(latency)
+    resolve_track(track)
     load = os.getloadavg()[0]
     vision = make_policy(policy)
     default_kernels = make_policy(policy)
