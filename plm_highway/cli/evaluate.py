@@ -61,6 +61,10 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
+    from plm_highway.latency.profiles import parse_profile
+
+    # parsed at the boundary, before the simulator and the models are imported: a typo is refused at once
+    latency = parse_profile(args.latency)
     from plm_highway.evaluation.evaluate import (
         EVALUATION_DIR,
         EVALUATION_JSON,
@@ -75,7 +79,7 @@ def run(args) -> int:
         if path is not None:
             check_target(path, kind, overwrite=args.overwrite)
     with single_threaded_inference():
-        result, logs = evaluate(args.track, args.latency, args.policy, args.seed, args.max_steps, args.checkpoints,
+        result, logs = evaluate(args.track, latency, args.policy, args.seed, args.max_steps, args.checkpoints,
                                 args.seeds, args.conditions, args.injection, device_of(args),
                                 latency_source=args.latency_source)
     if args.json or args.out:
