@@ -480,6 +480,44 @@ def test_the_run_cache_is_keyed_by_the_checkpoints_contents_and_a_cached_run_edi
     assert driven == 1 and edited == fresh
 
 
+def test_the_run_cache_is_keyed_by_the_estimators_source(monkeypatch):
+    import importlib
+
+    import plm_highway.io.digests as digests
+    import plm_highway.latency as latency_package
+    from plm_highway.evaluation.latency_estimation import RunSpec, run_inputs
+
+    spec = RunSpec("ideal", "test", 1, "const:0.25", "estimated", "recording")
+    latency_estimation = importlib.import_module("plm_highway.evaluation.latency_estimation")
+    assert run_inputs(spec, None)["code_sha256"] == digests.source_sha256(latency_package, latency_estimation)
+    monkeypatch.setattr(digests, "source_sha256", lambda *modules: "another estimator")
+    assert run_inputs(spec, None)["code_sha256"] == "another estimator"
+
+
+def test_a_source_digest_changes_with_any_source_file_of_the_package_and_nothing_else(tmp_path, monkeypatch):
+    import importlib
+
+    from plm_highway.io.digests import source_sha256
+
+    package = tmp_path / "probe_pkg"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "a.py").write_text("X = 1\n")
+    (package / "notes.txt").write_text("not code")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    module = importlib.import_module("probe_pkg")
+    first = source_sha256(module)
+    assert source_sha256(module) == first
+    (package / "notes.txt").write_text("still not code")
+    assert source_sha256(module) == first
+    (package / "a.py").write_text("X = 2\n")
+    assert source_sha256(module) != first
+    (package / "a.py").write_text("X = 1\n")
+    assert source_sha256(module) == first
+    (package / "b.py").write_text("")
+    assert source_sha256(module) != first
+
+
 def test_the_docs_claims_block_pools_tracks_and_seeds_from_the_results_file(tmp_path):
     from plm_highway.io import json_text
     from plm_highway.publish.renderers import LATENCY_ESTIMATION, latency_claims

@@ -339,8 +339,10 @@ def recording_round_trip(log, conditions) -> dict:
 def run_inputs(spec: RunSpec, checkpoints, _memo: dict | None = None) -> dict:
     """What a run is made from, by content (its cache key besides the spec): the track's bytes, the checkpoint
     pair's files (sha256; a pair retrained into the same ``--checkpoints`` is another pair, another directory
-    with the same files the same one), any ``trace:`` file's bytes and the kit's version."""
-    from plm_highway.io.digests import file_sha256, kit_version
+    with the same files the same one), any ``trace:`` file's bytes, the kit's version and the source of the
+    estimators and of this module (an estimator changed between two runs of the report makes its cache stale)."""
+    import plm_highway.latency as latency_package
+    from plm_highway.io.digests import file_sha256, kit_version, source_sha256
     from plm_highway.road.track import track_sha256
     from plm_highway.rollout.policies import checkpoint_pair_sha256
 
@@ -353,7 +355,7 @@ def run_inputs(spec: RunSpec, checkpoints, _memo: dict | None = None) -> dict:
     kind, _, rest = spec.latency.partition(":")
     return {"track_sha256": memo[("track", spec.track)], "checkpoints_sha256": memo[("pair", preset)],
             "trace_sha256": file_sha256(rest, f"latency {spec.latency!r}: trace file") if kind == "trace" else None,
-            "kit_version": kit_version()}
+            "kit_version": kit_version(), "code_sha256": source_sha256(latency_package, sys.modules[__name__])}
 
 
 def _cached(cache: Path | None, spec: RunSpec, max_steps: int | None, inputs: dict) -> dict | None:

@@ -83,6 +83,19 @@ def set_aside(path: Path, why: str, then: str = "run again") -> Path:
     return candidate
 
 
+def source_sha256(*modules) -> str:
+    """The digest of the source of ``modules`` (a package: every ``.py`` file directly in its folder; a module:
+    its file), each file as its name and bytes, in the order given and sorted within a package: the code a result
+    was made by, so that a result made by other code of that path is made again."""
+    digest = hashlib.sha256()
+    for module in modules:
+        source = Path(module.__file__)
+        files = sorted(source.parent.glob("*.py")) if source.name == "__init__.py" else [source]
+        for path in files:
+            digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()
+
+
 def kit_version() -> str:
     from plm_highway._version import __version__
 

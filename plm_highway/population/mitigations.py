@@ -20,7 +20,6 @@ hashes, the settings, seeds, designs and the source of the mitigation code); oth
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 from collections.abc import Sequence
@@ -32,7 +31,7 @@ import numpy as np
 from plm_highway.errors import BadInput
 from plm_highway.io import JSON_MARKER_KEY, directory_kind, file_kind, json_text, write_csv_into, write_output
 from plm_highway.io.bounded import JsonLimits, load_json
-from plm_highway.io.digests import kit_version
+from plm_highway.io.digests import kit_version, source_sha256
 from plm_highway.population.analysis import spread
 from plm_highway.population.ledger import LEDGER_DIR, file_sha256, read_record, sealed
 
@@ -82,10 +81,7 @@ def code_sha256() -> str:
     """The digest of the mitigation code's source (a changed design makes its parts stale)."""
     import plm_highway.mitigation as package
 
-    digest = hashlib.sha256()
-    for path in sorted(Path(package.__file__).parent.glob("*.py")):
-        digest.update(path.name.encode() + b"\0" + path.read_bytes())
-    return digest.hexdigest()
+    return source_sha256(package)
 
 
 def population_parts(population_out: Path, work: Path, pairs: int | None = None) -> list[Part]:
