@@ -8,9 +8,16 @@ diagnose --report):
   random number of progress updates (commands that show progress), and after seeded random
   fractions of the first run's wall time. After every kill the target is the first
   run's output byte for byte, or (a kill after publishing) the new output whole;
-- a run that completes afterwards removes the staging directories the killed runs left;
-- a foreign directory and a foreign file at the target survive every command byte-identical;
+- a run that completes afterwards (a fresh ``python -m plm_highway``) removes the staging
+  directories the killed runs left, and writes the first run's output again;
+- a foreign directory and a foreign file at the target survive every command byte-identical, and
+  the command refuses before any work (the refusal is all it prints);
 - two processes writing one new target at once: one publishes whole, the other exits 2 cleanly.
+
+Every other run is a process of its own forked from one interpreter that imported the library
+beforehand (tests/command_server.py): a SIGKILL ends it as it ends any process, and the random
+kill points fall in the command's own work, not in the seconds a fresh interpreter spends importing
+torch and the simulator, when nothing is written yet.
 
 The commands are deterministic under their seed, so the new output of an ``--overwrite`` run is
 byte-identical to the first one except for the fields listed in ``VOLATILE`` (wall times).
@@ -24,8 +31,11 @@ any CPU affinity.
 
 from __future__ import annotations
 
+import contextlib
+import itertools
 import json
 import os
+import queue
 import signal
 import subprocess
 import sys
@@ -53,30 +63,101 @@ def env() -> dict:
     return {**os.environ, "PYTHONPATH": str(REPO_ROOT), "SDL_VIDEODRIVER": "offscreen", "MPLBACKEND": "Agg"}
 
 
-class Running:
-    """A command in a subprocess whose stderr is drained by a thread that counts progress updates
-    (tqdm redraws end in a carriage return, log lines in a newline)."""
+# What the commands below import, the command server imports once (torch's optimiser pulls in its compiler's
+# configuration at the first step).
+SERVER_MODULES = ["plm_highway.data.collect", "plm_highway.data.dataset", "plm_highway.training.train",
+                  "plm_highway.evaluation.evaluate", "plm_highway.evaluation.reproduce", "plm_highway.rollout.policies",
+                  "plm_highway.sim2real.workflow", "plm_highway.sim2real.diagnose", "plm_highway.sim2real.report",
+                  "torch._inductor.config", *(f"plm_highway.cli.{name}" for name in
+                                              ("collect", "train", "evaluate", "reproduce", "sim2real"))]
 
-    def __init__(self, cwd: Path, argv: list[str]):
-        self.process = subprocess.Popen([sys.executable, "-m", "plm_highway", *argv], cwd=cwd, env=env(),
-                                        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        self.updates = 0
-        self.stderr = b""
-        self._reader = threading.Thread(target=self._drain, daemon=True)
+
+class CommandServer:
+    """tests/command_server.py: each command a process of its own, forked from an interpreter that imported the
+    library once (a fresh ``python -m plm_highway`` spends seconds on imports before it does anything)."""
+
+    def __init__(self, stderr_dir: Path):
+        self.stderr_dir = stderr_dir
+        self.process = subprocess.Popen([sys.executable, str(REPO_ROOT / "tests" / "command_server.py"),
+                                         *SERVER_MODULES], env=env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                        text=True, bufsize=1)
+        ready = self.process.stdout.readline()
+        assert ready and json.loads(ready) == {"ready": True}, "the command server did not start"
+        self._lock = threading.Lock()
+        self._started: queue.Queue[int] = queue.Queue()
+        self._exits: dict[int, int] = {}
+        self._gone = False  # the server's stdout closed: it reports nothing more
+        self._changed = threading.Condition()
+        self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
 
-    def _drain(self) -> None:
-        while chunk := self.process.stderr.read1(4096):
-            self.stderr += chunk
-            self.updates += chunk.count(b"\r") + chunk.count(b"\n")
+    def _read(self) -> None:
+        for line in self.process.stdout:
+            message = json.loads(line)
+            if "pid" in message:
+                self._started.put(message["pid"])
+            else:
+                with self._changed:
+                    self._exits[message["exited"]] = message["code"]
+                    self._changed.notify_all()
+        with self._changed:
+            self._gone = True
+            self._changed.notify_all()
+
+    def start(self, cwd: Path, argv: list[str], stderr: Path) -> int:
+        with self._lock:
+            self.process.stdin.write(json.dumps({"cwd": str(cwd), "argv": argv, "stderr": str(stderr)}) + "\n")
+            self.process.stdin.flush()
+            return self._started.get(timeout=60)
+
+    def exit_code(self, pid: int, timeout: float | None) -> int | None:
+        """The command's exit status (negative: the signal that ended it), or None while it runs."""
+        with self._changed:
+            self._changed.wait_for(lambda: pid in self._exits or self._gone, timeout=timeout)
+            if pid not in self._exits and self._gone:
+                raise RuntimeError(f"the command server ended before reporting process {pid}")
+            return self._exits.get(pid)
+
+    def close(self) -> None:
+        self.process.stdin.close()
+        self.process.wait(timeout=60)
+
+
+class Running:
+    """A command in a process of its own (forked by the command server), its stderr in a file whose progress
+    updates are counted (tqdm redraws end in a carriage return, log lines in a newline)."""
+
+    _numbers = itertools.count()
+
+    def __init__(self, server: CommandServer, cwd: Path, argv: list[str]):
+        self.server = server
+        self.stderr_path = server.stderr_dir / f"stderr-{next(self._numbers)}.txt"
+        self.stderr_path.touch()
+        self.pid = server.start(cwd, argv, self.stderr_path)
+
+    @property
+    def updates(self) -> int:
+        data = self.stderr_path.read_bytes()
+        return data.count(b"\r") + data.count(b"\n")
+
+    def poll(self) -> int | None:
+        return self.server.exit_code(self.pid, timeout=0)
+
+    def kill(self) -> None:
+        if self.poll() is None:  # not reported as ended: a child of the server, not yet reaped, so still this command
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, signal.SIGKILL)
 
     def wait(self, timeout: float = 600) -> tuple[int, str]:
-        code = self.process.wait(timeout=timeout)
-        self._reader.join(timeout=10)
-        return code, self.stderr.decode("utf-8", "replace")
+        code = self.server.exit_code(self.pid, timeout)
+        if code is None:
+            self.kill()
+            raise TimeoutError(f"{self.pid} ran past {timeout} s")
+        return code, self.stderr_path.read_bytes().decode("utf-8", "replace")
 
 
 def run(cwd: Path, argv: list[str], timeout: float = 600) -> subprocess.CompletedProcess:
+    """``python -m plm_highway ARGV`` from the start, imports and all."""
     return subprocess.run([sys.executable, "-m", "plm_highway", *argv], cwd=cwd, env=env(), capture_output=True,
                           text=True, timeout=timeout)
 
@@ -118,21 +199,27 @@ COMMANDS = {
                        "--json", "target.json"], "target.json"),
     "evaluate-out": (["evaluate", "--policy", "expert", "--max-steps", "150", "--latency", "const:0.1",
                       "--out", "target"], "target"),
-    "reproduce": (["reproduce", "--settings", "const:0.1", "--generalise", "--max-steps", "40", "--workers", "0",
-                   "--out", "target"], "target"),
+    "reproduce": (["reproduce", "--settings", "const:0.1", "--seeds", "1", "--generalise", "--max-steps", "40",
+                   "--workers", "0", "--out", "target"], "target"),
     "diagnose": (["sim2real", "diagnose", "rec/r.csv", "--quiet", "--report", "target"], "target"),
 }
 
 
 @pytest.fixture(scope="module")
-def inputs(tmp_path_factory) -> Path:
+def server(tmp_path_factory):
+    server = CommandServer(tmp_path_factory.mktemp("fault_stderr"))
+    yield server
+    server.close()
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory, server) -> Path:
     """A dataset and a recording the commands read (shared, read-only)."""
     root = tmp_path_factory.mktemp("fault_inputs")
-    result = run(root, ["collect", "--track", "test", "--episodes", "2", "--episode-seconds", "2", "--out", "ds"])
-    assert result.returncode == 0, result.stderr
-    result = run(root, ["sim2real", "make-recording", "--effect", "transport_delay", "--duration-s", "40",
-                        "--out", "rec/r.csv"])
-    assert result.returncode == 0, result.stderr
+    for argv in (["collect", "--track", "test", "--episodes", "2", "--episode-seconds", "2", "--out", "ds"],
+                 ["sim2real", "make-recording", "--effect", "transport_delay", "--duration-s", "40", "--out", "rec/r.csv"]):
+        code, stderr = Running(server, root, argv).wait()
+        assert code == 0, stderr
     return root
 
 
@@ -145,32 +232,28 @@ def workdir(tmp_path: Path, inputs: Path) -> Path:
 
 
 def kill_when(running: Running, ready, deadline_s: float) -> bool:
-    """SIGKILL the command as soon as ``ready()``; False if it ended (or the deadline passed) first."""
-    process = running.process
+    """SIGKILL the command as soon as ``ready()``; whether the SIGKILL ended it (False: it ended first, or the
+    deadline passed and it was killed then)."""
     end = time.monotonic() + deadline_s
-    while time.monotonic() < end:
-        if process.poll() is not None:
-            running.wait()
-            return False
+    while time.monotonic() < end and running.poll() is None:
         if ready():
-            process.send_signal(signal.SIGKILL)
-            running.wait()
-            return True
+            running.kill()
+            return running.wait()[0] == -signal.SIGKILL
         time.sleep(0.005)
-    process.kill()
+    running.kill()
     running.wait()
     return False
 
 
 @pytest.mark.timeout(1200)
 @pytest.mark.parametrize("command", list(COMMANDS))
-def test_sigkill_leaves_the_previous_output_or_the_new_one_whole(command, inputs, tmp_path):
+def test_sigkill_leaves_the_previous_output_or_the_new_one_whole(command, server, inputs, tmp_path):
     argv, relative = COMMANDS[command]
     work = workdir(tmp_path, inputs)
     target = work / relative
     argv = [*argv, "--overwrite"]  # every run alike, so the recorded command lines agree too
     started = time.monotonic()
-    first = Running(work, argv)
+    first = Running(server, work, argv)
     code, stderr = first.wait()
     first_wall_s = time.monotonic() - started
     assert code == 0, stderr
@@ -187,7 +270,7 @@ def test_sigkill_leaves_the_previous_output_or_the_new_one_whole(command, inputs
     kills = 0
     for kind, at in points:
         name = f"{kind} {at}"
-        process = Running(work, argv)
+        process = Running(server, work, argv)
         begin = time.monotonic()
         if kind == "staging":
             def ready():
@@ -205,6 +288,7 @@ def test_sigkill_leaves_the_previous_output_or_the_new_one_whole(command, inputs
             f"{command}: after a SIGKILL ({name}) the target is neither the previous output nor a whole new one")
     assert kills >= 1, f"{command}: no kill landed before the command finished"
 
+    # A fresh interpreter (its own hash seed, nothing imported beforehand) writes the same output again.
     completed = run(work, argv)
     assert completed.returncode == 0, completed.stderr
     assert without_volatile(tree(target)) == without_volatile(previous)
@@ -226,25 +310,27 @@ def _foreign(work: Path, relative: str, as_dir: bool) -> Path:
 @pytest.mark.timeout(600)
 @pytest.mark.parametrize("as_dir", [True, False], ids=["foreign-directory", "foreign-file"])
 @pytest.mark.parametrize("command", list(COMMANDS))
-def test_foreign_content_at_the_target_survives(command, as_dir, inputs, tmp_path):
+def test_foreign_content_at_the_target_survives(command, as_dir, server, inputs, tmp_path):
     argv, relative = COMMANDS[command]
     work = workdir(tmp_path, inputs)
     target = _foreign(work, relative, as_dir)
     before = tree(target)
     for extra in ([], ["--overwrite"]):
-        result = run(work, [*argv, *extra])
-        assert result.returncode == 2, result.stderr
-        assert "Traceback" not in result.stderr and relative in result.stderr
+        code, stderr = Running(server, work, [*argv, *extra]).wait()
+        assert code == 2, stderr
+        assert "Traceback" not in stderr and relative in stderr
+        # Refused before any work: the refusal is all the command printed (no progress, no log line).
+        assert stderr.startswith(f"plm-highway {argv[0]}") and stderr.count("\n") == 1 and "\r" not in stderr, stderr
         assert tree(target) == before
         assert staging_dirs(target) == []
 
 
 @pytest.mark.timeout(600)
 @pytest.mark.parametrize("command", ["evaluate-json", "collect"])
-def test_two_writers_of_one_target_one_wins_whole(command, inputs, tmp_path):
+def test_two_writers_of_one_target_one_wins_whole(command, server, inputs, tmp_path):
     argv, relative = COMMANDS[command]
     work = workdir(tmp_path, inputs)
-    processes = [Running(work, argv) for _ in range(2)]
+    processes = [Running(server, work, argv) for _ in range(2)]
     results = [p.wait() for p in processes]
     codes = sorted(code for code, _ in results)
     assert codes == [0, 2], results
@@ -292,7 +378,6 @@ def kit_output(target: Path, files: dict[str, bytes], *, overwrite: bool = False
 
 
 def cli(argv: list[str]) -> tuple[int, str]:
-    import contextlib
     import io
 
     from plm_highway.cli import main
