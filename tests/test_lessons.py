@@ -126,15 +126,19 @@ def test_solution_and_lesson_are_stripped_with_stable_ids(path):
 
 @pytest.mark.skipif(shutil.which("nbgrader") is None, reason="nbgrader's command line is not installed")
 def test_lessons_are_byte_identical_to_nbgrader_generate_assignment(tmp_path):
-    """An instructor's course: solutions as nbgrader's source, ``nbgrader generate_assignment`` for each."""
+    """An instructor's course: solutions as nbgrader's source, ``nbgrader generate_assignment`` for them all.
+
+    One command for every assignment (nbgrader reads the assignment name as a pattern): each nbgrader
+    command spends seconds starting up and creating the gradebook, more than generating a lesson."""
     for path in SOLUTIONS:
         folder = tmp_path / "source" / assignment_id(path.name)
         folder.mkdir(parents=True)
         shutil.copyfile(path, folder / path.name)
     (tmp_path / "nbgrader_config.py").write_text('c = get_config()\nc.CourseDirectory.course_id = "plm_highway"\n')
+    subprocess.run(["nbgrader", "generate_assignment", "*", "--force"], cwd=tmp_path, check=True, capture_output=True,
+                   text=True, timeout=300)
+    assert sorted(p.name for p in (tmp_path / "release").iterdir()) == [assignment_id(p.name) for p in SOLUTIONS]
     for path in SOLUTIONS:
-        subprocess.run(["nbgrader", "generate_assignment", assignment_id(path.name), "--force"], cwd=tmp_path,
-                       check=True, capture_output=True, text=True, timeout=300)
         released = tmp_path / "release" / assignment_id(path.name) / path.name
         assert released.read_bytes() == (REPO / "lessons" / path.name).read_bytes(), (
             f"lessons/{path.name} differs from nbgrader's release: run 'plm-highway lessons build'")
@@ -178,6 +182,7 @@ def test_lesson_text_names_no_reference_implementation(path):
 @pytest.mark.slow
 @pytest.mark.parametrize("path", SOLUTIONS, ids=lambda p: p.name)
 def test_every_check_fails_on_the_student_stub_with_a_short_block(path):
+    """Also why nbgrader gives every lesson's untouched notebook zero (tests/test_lessons_nbgrader.py grades one)."""
     lesson = nbformat.read(REPO / "lessons" / path.name, as_version=4)
     os.environ["PLM_FAST"] = "1"
     NotebookClient(lesson, timeout=600, allow_errors=True, kernel_name="python3",

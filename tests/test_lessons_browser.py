@@ -1,8 +1,8 @@
 """The lessons in a real browser: JupyterLab on 127.0.0.1, headless Chromium driven by Selenium.
 
-For each solution notebook: open it, Run > Run All Cells, wait for the kernel, save; then the last graded
-check printed PASSED on the page and the saved notebook holds no error output. Screenshots go to a
-temporary folder (printed). Skipped when Chromium, its driver or Selenium are missing (Debian:
+For each solution notebook: open it (the first on its JupyterLab URL, the others in the JupyterLab already
+loaded), Run > Run All Cells, wait for the kernel, save; then the last graded check printed PASSED on the page
+and the saved notebook holds no error output. Screenshots go to a temporary folder (printed). Skipped when Chromium, its driver or Selenium are missing (Debian:
 ``apt-get install chromium chromium-driver``; ``pip install selenium``).
 """
 
@@ -61,7 +61,9 @@ def jupyterlab(tmp_path_factory):
                JUPYTERLAB_WORKSPACES_DIR=str(tmp_path_factory.mktemp("lab_workspaces")))  # no tabs from earlier runs
     server = subprocess.Popen([sys.executable, "-m", "jupyter", "lab", "--no-browser", "--ip=127.0.0.1",
                                f"--port={port}", f"--IdentityProvider.token={token}", f"--ServerApp.root_dir={root}",
-                               "--ServerApp.open_browser=False", "--allow-root"], env=env, stdout=subprocess.DEVNULL,
+                               "--ServerApp.open_browser=False", "--allow-root",
+                               # window.jupyterapp: the next notebook opens in the running page (see _open)
+                               "--LabApp.expose_app_in_browser=True"], env=env, stdout=subprocess.DEVNULL,
                               stderr=subprocess.DEVNULL)
     base = f"http://127.0.0.1:{port}"
     try:
@@ -73,7 +75,7 @@ def jupyterlab(tmp_path_factory):
             except OSError:
                 if time.monotonic() > deadline or server.poll() is not None:
                     raise RuntimeError("JupyterLab did not start") from None
-                time.sleep(1)
+                time.sleep(0.25)
         yield base, token, root
     finally:
         server.terminate()
@@ -108,6 +110,24 @@ def _click_menu(driver, menu: str, item: str) -> None:
     wait.until(ec.element_to_be_clickable((By.XPATH, f"//li[contains(@class,'lm-Menu-item')][.//div[text()='{item}']]"))).click()
 
 
+def _open(driver, base: str, token: str, name: str) -> None:
+    """Open the notebook: the first one loads JupyterLab on its URL; later ones open in the running JupyterLab,
+    as a student opens the next lesson (loading the whole application again costs seconds of every test)."""
+    if not driver.current_url.startswith(f"{base}/lab"):
+        driver.get(f"{base}/lab/tree/{name}?token={token}")
+        return
+    error = driver.execute_script(
+        "return window.jupyterapp.commands.execute('docmanager:open', {path: arguments[0]})"
+        ".then(() => null, (error) => String(error));", name)
+    assert error is None, f"JupyterLab could not open {name}: {error}"
+
+
+def _texts(driver, selector: str) -> list[str]:
+    """The text of every element the CSS selector matches, in one round trip to the browser."""
+    return driver.execute_script("return Array.from(document.querySelectorAll(arguments[0]), e => e.innerText);",
+                                 selector)
+
+
 @pytest.fixture(scope="module")
 def screenshots(tmp_path_factory):
     folder = tmp_path_factory.mktemp("lesson_screenshots")
@@ -125,14 +145,17 @@ def test_solution_runs_in_jupyterlab_and_its_last_check_passes(path, jupyterlab,
     cells = nbformat.read(path, as_version=4).cells
     last_check = max(i for i, cell in enumerate(cells) if cell.cell_type == "code" and check_calls(cell.source))
     check_name = check_calls(cells[last_check].source)[0][1]
-    browser.get(f"{base}/lab/tree/{path.name}?token={token}")
-    WebDriverWait(browser, 180, poll_frequency=1).until(
-        lambda d: d.find_elements(By.CSS_SELECTOR, ACTIVE + ".jp-Cell") and
-        "Idle" in d.find_element(By.ID, "jp-main-statusbar").text)
+    _open(browser, base, token, path.name)
+
+    def opened(driver) -> bool:  # this notebook in front, all its cells on the page, its kernel started
+        status = driver.find_element(By.ID, "jp-main-statusbar").text
+        return path.name in status and "Idle" in status and len(_texts(driver, ACTIVE + ".jp-Cell")) == len(cells)
+
+    WebDriverWait(browser, 180, poll_frequency=0.5).until(opened)
     started = time.monotonic()
 
     def prompts(driver) -> list[str]:
-        return [p.text for p in driver.find_elements(By.CSS_SELECTOR, ACTIVE + ".jp-CodeCell .jp-InputPrompt")]
+        return _texts(driver, ACTIVE + ".jp-CodeCell .jp-InputPrompt")
 
     def run_started(driver) -> bool:
         return any(prompt.strip() not in ("", "[ ]:") for prompt in prompts(driver))
@@ -147,13 +170,13 @@ def test_solution_runs_in_jupyterlab_and_its_last_check_passes(path, jupyterlab,
     try:
         _click_menu(browser, "Run", "Run All Cells")
         try:
-            WebDriverWait(browser, 30, poll_frequency=1).until(run_started)
+            WebDriverWait(browser, 30, poll_frequency=0.5).until(run_started)
         except TimeoutException:
             # The click did not reach the notebook (a lost menu click, not the notebook's doing): once more,
             # and if the cells still do not start, fail here rather than after RUN_TIMEOUT_S.
             _click_menu(browser, "Run", "Run All Cells")
-            WebDriverWait(browser, 30, poll_frequency=1).until(run_started, f"{path.name}: Run All did not start")
-        WebDriverWait(browser, RUN_TIMEOUT_S, poll_frequency=2).until(finished)
+            WebDriverWait(browser, 30, poll_frequency=0.5).until(run_started, f"{path.name}: Run All did not start")
+        WebDriverWait(browser, RUN_TIMEOUT_S, poll_frequency=0.5).until(finished)
     finally:
         browser.save_screenshot(str(screenshots / f"{path.stem}.png"))
     elapsed_s = time.monotonic() - started
@@ -172,7 +195,7 @@ def test_solution_runs_in_jupyterlab_and_its_last_check_passes(path, jupyterlab,
         saved = nbformat.read(root / path.name, as_version=4)
         if any(cell.get("outputs") for cell in saved.cells if cell.cell_type == "code") or time.monotonic() > deadline:
             break
-        time.sleep(1)
+        time.sleep(0.25)
     _click_menu(browser, "File", "Close All Tabs")
     errors = [(i, out.get("ename")) for i, cell in enumerate(saved.cells) if cell.cell_type == "code"
               for out in cell.outputs if out.output_type == "error"]

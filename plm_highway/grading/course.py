@@ -194,7 +194,47 @@ def temporary_course(sources: Mapping[str, str]) -> Iterator[Path]:
             folder = root / "source" / assignment_id(name)
             folder.mkdir(parents=True)
             (folder / name).write_text(text)  # inside our own temporary course, not a user path
+        _create_gradebook(root)
         yield root
+
+
+def _db_url(root: Path) -> str:
+    return f"sqlite:///{root / 'gradebook.db'}"
+
+
+def gradebook_revision() -> str | None:
+    """The alembic revision nbgrader stamps a new gradebook with: the head of its own migration scripts."""
+    from alembic.script import ScriptDirectory
+    from alembic.util import CommandError
+    from nbgrader.dbutil import ALEMBIC_DIR
+
+    try:
+        return ScriptDirectory(ALEMBIC_DIR).get_current_head()
+    except CommandError:  # several heads: leave the choice to nbgrader
+        return None
+
+
+def _create_gradebook(root: Path) -> None:
+    """Create the course's gradebook with nbgrader's ``Gradebook``, reading its revision in this process.
+
+    A new gradebook is stamped with the head revision of nbgrader's migration scripts, which nbgrader reads
+    by running ``alembic heads`` in a subprocess; that subprocess imports nbgrader afresh, about 4 s of CPU,
+    more than generating all five student versions. :func:`gradebook_revision` reads the same scripts here;
+    everything else is nbgrader's own. Where the revision cannot be read, nbgrader creates the gradebook
+    as usual when its first converter runs.
+    """
+    import nbgrader.api
+
+    revision = gradebook_revision()
+    if revision is None or not callable(getattr(nbgrader.api, "get_alembic_version", None)):
+        return
+    in_a_subprocess = nbgrader.api.get_alembic_version
+    nbgrader.api.get_alembic_version = lambda: revision
+    try:
+        with nbgrader.api.Gradebook(_db_url(root), COURSE_ID):
+            pass
+    finally:
+        nbgrader.api.get_alembic_version = in_a_subprocess
 
 
 def _config(root: Path, timeout_s: int = CELL_TIMEOUT_S):
@@ -203,7 +243,7 @@ def _config(root: Path, timeout_s: int = CELL_TIMEOUT_S):
     config = Config()
     config.CourseDirectory.root = str(root)
     config.CourseDirectory.course_id = COURSE_ID
-    config.CourseDirectory.db_url = f"sqlite:///{root / 'gradebook.db'}"
+    config.CourseDirectory.db_url = _db_url(root)
     config.Execute.timeout = timeout_s
     config.Exchange.root = str(root / "exchange")
     return config
@@ -340,7 +380,7 @@ def grade_submissions(solutions_dir: Path, submissions_dir: Path, fast: bool = T
                 folder.mkdir(parents=True)
                 shutil.copyfile(path, folder / name)
                 _run_converter(Autograde, root, assignment_id(name), student, timeout_s)
-        with Gradebook(f"sqlite:///{root / 'gradebook.db'}", COURSE_ID) as gradebook:
+        with Gradebook(_db_url(root), COURSE_ID) as gradebook:
             for student, lessons in submissions.items():
                 for name in sorted(lessons):
                     submission = gradebook.find_submission(assignment_id(name), student)
