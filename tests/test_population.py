@@ -7,7 +7,6 @@ import importlib.util
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -179,34 +178,38 @@ def test_a_failed_training_is_reported_not_dropped(tmp_path, monkeypatch):
     assert record["ok"] is False and "the optimiser diverged" in record["error"]
 
 
-def test_an_existing_report_is_refused_before_any_work(tmp_path):
+def test_an_existing_report_is_refused_before_any_work(tmp_path, capsys):
+    from plm_highway.cli import main
+
     (tmp_path / "out").mkdir()
     (tmp_path / "out" / "mine.txt").write_text("keep")
-    result = subprocess.run([sys.executable, "-m", "plm_highway", "population", "--pairs", "1", "--out",
-                             str(tmp_path / "out"), "--work", str(tmp_path / "work")], capture_output=True, text=True)
-    assert result.returncode == 2
-    assert "refusing to replace" in result.stderr and "Traceback" not in result.stderr
+    code = main(["population", "--pairs", "1", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "work")])
+    stderr = capsys.readouterr().err
+    assert code == 2
+    assert "refusing to replace" in stderr and "Traceback" not in stderr
     assert not (tmp_path / "work").exists() and (tmp_path / "out" / "mine.txt").read_text() == "keep"
 
 
 @pytest.mark.slow
 def test_the_smoke_run_completes(tmp_path):
-    """The smoke run docs/population.md shows, as written (two pairs of the paper recipe shrunk, 100 steps per run)."""
+    """The smoke run docs/population.md shows, as written (two pairs of the paper recipe shrunk to 4 episodes and 100
+    samples, 40 steps per run): every stage of the command, on the process pool, at toy size."""
     documented = (REPO / "docs" / "population.md").read_text()
-    command = "plm-highway population --pairs 2 --max-samples 300 --epochs 1 --max-steps 100 --seeds 2 --out DIR"
+    command = ("plm-highway population --pairs 2 --episodes 4 --max-samples 100 --epochs 1 --max-steps 40 --seeds 2 "
+               "--out DIR")
     assert f"`{command}`" in documented
     result = subprocess.run([*command.split(), "--no-progress"], cwd=tmp_path, capture_output=True, text=True,
                             timeout=1800)
     assert result.returncode == 0, result.stderr[-3000:]
     rows = read_results(tmp_path / "DIR" / "results.csv")
     assert len(rows) == 2 * 2 * 12
-    # The yardstick is each pair's own BM without latency: a BM trained on 300 samples may leave the road before
-    # step 100, and then every run of that pair and seed is scored over the reference's span, never beyond 100.
+    # The yardstick is each pair's own BM without latency: a BM trained on 100 samples may leave the road before
+    # step 40, and then every run of that pair and seed is scored over the reference's span, never beyond 40.
     scored = {}
     for r in rows:
         scored.setdefault((r["pair"], r["seed"]), set()).add(r["steps_scored"])
-    assert all(len(s) == 1 and 0 < next(iter(s)) <= 100 for s in scored.values()), scored
-    assert all(r["steps_driven"] <= 100 for r in rows)
+    assert all(len(s) == 1 and 0 < next(iter(s)) <= 40 for s in scored.values()), scored
+    assert all(r["steps_driven"] <= 40 for r in rows)
     assert "2 independently trained BM/PLM-Net pairs" in result.stdout
 
 

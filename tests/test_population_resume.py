@@ -3,7 +3,9 @@
 Training, driving and the posed-gain measurement are replaced by fakes whose outputs are a pure function of
 exactly what the real ones read (recipe, training-track geometry and seeds; checkpoint bytes, test-track geometry,
 latency, seed and step limit), so a result reused from stale inputs shows as a difference from a fresh run. Everything
-else (plan, work directory, committed pair records, report) is the kit's own code, run as the command runs it.
+else (plan, work directory, committed pair records, report) is the kit's own code, run as the command runs it, except
+the drawing of the report's figures: they plot numbers population.json holds (compared here), and drawing them was most
+of each run's time; tests/test_population.py draws them for real.
 """
 
 from __future__ import annotations
@@ -92,14 +94,28 @@ def fake_posed_gains(checkpoints, conditions_name, track, latencies_s, *args, **
                    "heading_gain_per_rad": float(rng.uniform(-3.0, -1.0))} for name in names}
 
 
+def fake_save_figures(plan, numbers, directory):
+    names = ["errors.png", "reductions.png", "offset_rms.png"]
+    for name in names:
+        (directory / name).write_bytes(b"not drawn")
+    return names
+
+
+def fake_save_drift_figure(plan, drift, directory):
+    (directory / "drift.png").write_bytes(b"not drawn")
+    return "drift.png"
+
+
 @pytest.fixture
 def fakes(monkeypatch):
-    from plm_highway.population import study, training
+    from plm_highway.population import report, study, training
     from plm_highway.rollout import cells
 
     monkeypatch.setattr(training, "_make_pair", fake_make_pair)
     monkeypatch.setattr(cells, "run_cells", fake_run_cells)
     monkeypatch.setattr(study, "posed_gains", fake_posed_gains)
+    monkeypatch.setattr(report, "save_figures", fake_save_figures)
+    monkeypatch.setattr(report, "save_drift_figure", fake_save_drift_figure)
 
 
 def track_text(radius_m: float) -> str:

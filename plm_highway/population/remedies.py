@@ -88,7 +88,7 @@ def _onpolicy_tapm(task: RemedyTask, work: Path) -> tuple[dict, dict]:
                          balance_max_per_bin=recipe.tapm.balance_max_per_bin, show_progress=False)
     description = train_tapm(work / "data", work / "remedy", work / "bm", config, recipe.delta_grid_s,
                              f"{recipe.train_command('tapm', seeds.tapm_seed)} (remedy {task.remedy})",
-                             device=task.device)
+                             device=task.device, balance_figure=False)  # only CHECKPOINT_FILES travel back
     files = {"tapm": {name: (work / "remedy" / name).read_bytes() for name in CHECKPOINT_FILES}}
     training = description["training"]
     summary = {"rows_demonstrations": manifest["remedy"]["rows_demonstrations"],

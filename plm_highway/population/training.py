@@ -79,12 +79,13 @@ def _make_pair(recipe: Recipe, seeds: PairSeeds, work: Path, device: str = "cpu"
                                    balance_max_per_bin=step.balance_max_per_bin, show_progress=False)
         command = recipe.train_command(model, seed)
         with times.stage(f"{model}_training"):
+            # Only the checkpoint files travel back (CHECKPOINT_FILES): the steering-balance figure is not drawn.
             if model == "bm":
                 descriptions[model] = train_base_model(data_dir, bm_dir, recipe.preset, train_config, command,
-                                                       device=device)
+                                                       device=device, balance_figure=False)
             else:
                 descriptions[model] = train_tapm(data_dir, tapm_dir, bm_dir, train_config, recipe.delta_grid_s,
-                                                 command, device=device)
+                                                 command, device=device, balance_figure=False)
     files = {model: {name: (directory / name).read_bytes() for name in CHECKPOINT_FILES}
              for model, directory in (("bm", bm_dir), ("tapm", tapm_dir))}
     summary = {"data_samples": int(len(steps["t_s"])), "threads": recipe.threads, "stages": times.as_dict(),

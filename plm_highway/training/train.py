@@ -307,11 +307,14 @@ def prepare_rows(
     return PreparedRows(train_rows, val_rows, counts, steering_before, rows.steering)
 
 
-def _write_checkpoint_dir(out_dir: Path, model, description: dict, prepared: PreparedRows, overwrite: bool) -> None:
-    """The checkpoint, its description and the balancing figure, published together once training succeeded."""
+def _write_checkpoint_dir(out_dir: Path, model, description: dict, prepared: PreparedRows, overwrite: bool,
+                          balance_figure: bool = True) -> None:
+    """The checkpoint, its description and (``balance_figure``) the balancing figure, published together once
+    training succeeded."""
     with write_output(out_dir, CHECKPOINT, overwrite=overwrite) as staged:
         save_checkpoint(staged, model, description)
-        prepared.save_balance_figure(staged / BALANCE_FIGURE_NAME)
+        if balance_figure:
+            prepared.save_balance_figure(staged / BALANCE_FIGURE_NAME)
 
 
 def train_base_model(
@@ -322,10 +325,12 @@ def train_base_model(
     command: str = "",
     overwrite: bool = False,
     device: str | torch.device = "cpu",
+    balance_figure: bool = True,
 ) -> dict:
     """Train a BM on the dataset at ``data_dir``; writes ``out_dir/model.pt`` + ``model.json``; returns the description.
 
-    ``device``: ``cpu``, ``cuda`` or ``auto`` (see the module docstring)."""
+    ``device``: ``cpu``, ``cuda`` or ``auto`` (see the module docstring). ``balance_figure=False`` leaves out the
+    steering-balance figure (for callers that keep only the checkpoint files: drawing it costs about a second)."""
     device = resolve_device(device)
     dataset = read_dataset(data_dir)
     model_config = preset_config(preset)
@@ -342,7 +347,7 @@ def train_base_model(
         "image_size_px": list(model_config.image_size_px),
         "training": _training_summary(data_dir, dataset, config, result, prepared.counts, command, device),
     }
-    _write_checkpoint_dir(out_dir, bm, description, prepared, overwrite)
+    _write_checkpoint_dir(out_dir, bm, description, prepared, overwrite, balance_figure)
     return description
 
 
@@ -355,10 +360,12 @@ def train_tapm(
     command: str = "",
     overwrite: bool = False,
     device: str | torch.device = "cpu",
+    balance_figure: bool = True,
 ) -> dict:
     """Train a TAPM on the frozen BM at ``bm_path``; writes ``out_dir/model.pt`` + ``model.json``.
 
-    ``device``: ``cpu``, ``cuda`` or ``auto`` (see the module docstring)."""
+    ``device``: ``cpu``, ``cuda`` or ``auto`` (see the module docstring); ``balance_figure`` as for
+    :func:`train_base_model`."""
     device = resolve_device(device)
     bm = freeze(load_base_model(bm_path, device))
     bm_description = read_description(bm_path, KIND_BASE_MODEL)
@@ -383,7 +390,7 @@ def train_tapm(
         "bm_fingerprint": state_fingerprint(bm),
         "training": _training_summary(data_dir, dataset, config, result, prepared.counts, command, device),
     }
-    _write_checkpoint_dir(Path(out_dir), tapm, description, prepared, overwrite)
+    _write_checkpoint_dir(Path(out_dir), tapm, description, prepared, overwrite, balance_figure)
     return description
 
 
