@@ -297,7 +297,8 @@ def channel_prediction(signal: FitSignal, recording: Recording, params: EffectPa
         key = index.tobytes()
         known = turns.get(key)
         if known is None:
-            tables = (np.empty((index.shape[0], signal.taps.shape[0])), np.empty((index.shape[0], signal.taps.shape[0])))
+            shape = (index.shape[0], signal.taps.shape[0])
+            tables = (np.empty(shape), np.empty(shape))
             lateral_fir_at_turned(*inputs, *tables, False)
             turns[key] = tables
         else:
