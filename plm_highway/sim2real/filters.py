@@ -44,6 +44,34 @@ def fir_filter_at(x, taps, lo, index, out):
 
 
 @numba.njit(cache=True, nogil=True)
+def lateral_fir_at_turned(vy, speed, heading, taps, lo, index, out, cos_turn, sin_turn, known):
+    """:func:`lateral_fir_at` with the turns' cosines and sines (which depend on the recorded heading only) kept:
+    ``cos_turn``/``sin_turn`` [len(index), len(taps)] are filled here when not ``known``, read when ``known``. The
+    arithmetic is lateral_fir_at's, term by term, so the output is the same to the bit; the trigonometry, most of
+    the cost, is done once per heading and index instead of once per model."""
+    n = vy.shape[0]
+    m = taps.shape[0]
+    for i in range(index.shape[0]):
+        k = index[i]
+        acc = 0.0
+        for j in range(m):
+            s = min(max(k + lo + j, 0), n - 1)
+            if known:
+                cos_dh = cos_turn[i, j]
+                sin_dh = sin_turn[i, j]
+            else:
+                dh = heading[s] - heading[k]
+                cos_dh = math.cos(dh)
+                sin_dh = math.sin(dh)
+                cos_turn[i, j] = cos_dh
+                sin_turn[i, j] = sin_dh
+            v = speed[s]
+            along = math.sqrt(max(v * v - vy[s] * vy[s], 0.0))
+            acc += taps[j] * (vy[s] * cos_dh + (along - v) * sin_dh)
+        out[i] = acc
+
+
+@numba.njit(cache=True, nogil=True)
 def lateral_fir_at(vy, speed, heading, taps, lo, index, out):
     """What a lateral velocity taken from positions reads when the car's is ``vy``: the velocities
     in the filter window, each along the heading it had, projected on the car's lateral axis at the

@@ -98,13 +98,16 @@ def _channel(r, dt, sensor_delay_s, bias, taps, lo, out):
 
 
 @numba.njit(cache=True, nogil=True)
-def _grid_into(drive, car, points, tires, channel, moves, step_sizes, weight, first, last, gram):
-    """Rows ``first:last`` of :func:`grid_statistics`; releases the GIL."""
+def _grid_into(drive, car, points, tires, channel, moves, step_sizes, weight, same_chain, first, last, gram):
+    """Rows ``first:last`` of :func:`grid_statistics`; releases the GIL. ``same_chain[g]``: point g differs from
+    point g-1 only in what acts on the channel (sensor delay, gyro bias), so its chain's yaw rate is the one
+    simulated for g-1."""
     n = drive.steer.shape[0]
     n_lin = moves.shape[0]
     out = ChainOutputs(np.empty(n), np.empty(n), np.empty(n))
     columns = np.empty((n_lin + 1, n))
     pred = np.empty(n)
+    r = np.empty(n)
     y, taps, lo = channel.y, channel.taps, channel.lo
     for g in range(first, last):
         p = _chain_at(points, g)
@@ -113,8 +116,11 @@ def _grid_into(drive, car, points, tires, channel, moves, step_sizes, weight, fi
             tire = TireTable(tires.maps[ti], tires.start[ti], tires.bank_r[ti], tires.bank_vy[ti])
         else:
             tire = TireTable(np.zeros((0, 8)), np.zeros(0), np.zeros(0), np.zeros(0))
-        simulate_chain(drive, p, car, tire, out, 0)
-        _channel(out.r, drive.dt_s, p.sensor_delay_s, p.gyro_bias_radps, taps, lo, pred)
+        if g == first or not same_chain[g]:
+            simulate_chain(drive, p, car, tire, out, 0)
+            for k in range(n):
+                r[k] = out.r[k]
+        _channel(r, drive.dt_s, p.sensor_delay_s, p.gyro_bias_radps, taps, lo, pred)
         for k in range(n):
             columns[0, k] = y[k] - pred[k]
         for j in range(n_lin):
@@ -208,9 +214,35 @@ def grid_statistics(drive: Drive, car: CarParams, points: np.ndarray, channel: G
     for j, d in enumerate(linear):
         moves[d.field][j] = d.step
     step_sizes = np.array([d.step for d in linear], float)
+    # Points whose chains differ only in what acts on the channel alone are simulated once: ordered so that they
+    # neighbour each other (each row is still computed from its own point; the rows go back to the points' order).
+    order, same_chain = _chain_groups(points)
+    sorted_tires = tires._replace(index=np.ascontiguousarray(tires.index[order]))
     gram = np.zeros((n_points, weight.shape[0], len(linear) + 1, len(linear) + 1))
-    in_threads(_grid_into, n_points, (drive, car, points, tires, channel, moves, step_sizes, weight), (gram,))
-    return gram
+    in_threads(_grid_into, n_points, (drive, car, np.ascontiguousarray(points[order]), sorted_tires, channel, moves,
+                                      step_sizes, weight, same_chain), (gram,))
+    out = np.empty_like(gram)
+    out[order] = gram
+    return out
+
+
+CHANNEL_ONLY_FIELDS = ("sensor_delay_s", "gyro_bias_radps")  # simulate_chain reads neither: see _channel
+
+
+def _chain_groups(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An order of ``points`` in which points with the same chain (every field but :data:`CHANNEL_ONLY_FIELDS`) are
+    adjacent, first-seen chains first and each group in its points' order; and, in that order, whether a point's
+    chain is its predecessor's."""
+    chains = points.copy()
+    for name in CHANNEL_ONLY_FIELDS:
+        chains[name] = 0.0
+    keys = chains.view(np.dtype((np.void, chains.dtype.itemsize)))
+    _, first_of, group = np.unique(keys, return_index=True, return_inverse=True)
+    group = group.ravel()
+    order = np.lexsort((np.arange(len(points)), first_of[group]))
+    same_chain = np.zeros(len(points), np.bool_)
+    same_chain[1:] = group[order][1:] == group[order][:-1]
+    return order, same_chain
 
 
 def profile_linear(gram: np.ndarray, lo: np.ndarray, hi: np.ndarray, base: np.ndarray

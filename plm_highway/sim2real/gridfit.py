@@ -2,7 +2,8 @@
 coordinates in closed form at every grid point, and the best points as starts for polishing.
 
 A grid larger than ``MAX_GRID_POINTS`` is seeded with each effect's best single-effect grid points
-(remembered in a :class:`FitCache` shared between candidates, with the grid statistics).
+(remembered in a :class:`FitCache` shared between candidates, with the grid statistics of every point
+simulated so far: candidates' grids share many points, and a point's statistics depend on nothing else).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ N_POLISH = 2
 class FitCache:
     """Grid statistics shared between candidates, and each effect's best grid rows alone."""
 
+    # {linear directions: {grid point (its CHAIN_DTYPE record's bytes): its rows of the grid statistics}}
     grams: dict = field(default_factory=dict)
     top_rows: dict[str, np.ndarray] = field(default_factory=dict)
 
@@ -130,12 +132,28 @@ def grid_blocks(problem: FitProblem, effects: tuple[str, ...], coords: list[Coor
     blocks, grams = [], []
     for rows in _candidate_grid(effects, problem.ctx, cache):
         points = _chain_points(effects, coords, rows, problem.ctx)
-        key = (points.tobytes(), tuple(d.field for d in directions))
-        if key not in cache.grams:
-            cache.grams[key] = problem.grid_gram(points, directions)
         blocks.append((rows, points))
-        grams.append(cache.grams[key])
+        grams.append(_cached_grid_gram(problem, points, directions, cache))
     return blocks, grams
+
+
+def _cached_grid_gram(problem: FitProblem, points: np.ndarray, directions: list, cache: FitCache) -> np.ndarray:
+    """``problem.grid_gram(points, directions)``, simulating only the points no earlier grid of the cache had.
+
+    A point's statistics are computed from that point alone (its own simulations, the problem's channel and fold
+    weights, the directions' steps), never from the other points of its grid, so a row met before is the row a
+    new simulation would give, to the bit.
+    """
+    known = cache.grams.setdefault(tuple(directions), {})
+    keys = [points[g:g + 1].tobytes() for g in range(len(points))]
+    first = {}
+    for g, key in enumerate(keys):
+        if key not in known:
+            first.setdefault(key, g)
+    if first:
+        for key, row in zip(first, problem.grid_gram(points[list(first.values())], directions)):
+            known[key] = row
+    return np.stack([known[key] for key in keys])
 
 
 def remember_top_rows(problem: FitProblem, effects: tuple[str, ...], coords: list[Coordinate], blocks, grams,

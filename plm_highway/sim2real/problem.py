@@ -81,11 +81,18 @@ class FitProblem:
 
     def predictions(self, params: EffectParams) -> list[np.ndarray]:
         out = model_outputs(self.recording, params, with_slip=False)
-        return [channel_prediction(c, self.recording, params, out) for c in self.channels]
+        return [channel_prediction(c, self.recording, params, out, turns=self._turns(i))
+                for i, c in enumerate(self.channels)]
 
     def predictions_at(self, params: EffectParams, indices: list[np.ndarray]) -> list[np.ndarray]:
         out = model_outputs(self.recording, params, with_slip=False)
-        return [channel_prediction(c, self.recording, params, out, idx) for c, idx in zip(self.channels, indices)]
+        return [channel_prediction(c, self.recording, params, out, idx, turns=self._turns(i))
+                for i, (c, idx) in enumerate(zip(self.channels, indices))]
+
+    def _turns(self, channel: int) -> dict:
+        """Channel ``channel``'s kept heading turns (see ``replay.channel_prediction``)."""
+        turns = self.__dict__.setdefault("_turns_by_channel", {})
+        return turns.setdefault(channel, {})
 
     def predict(self, params: EffectParams) -> np.ndarray:
         """The primary channel as the model with ``params`` predicts it."""

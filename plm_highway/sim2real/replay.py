@@ -40,7 +40,7 @@ import numpy as np
 from scipy.signal import savgol_coeffs
 
 from plm_highway.sim2real.chain import EffectParams, _delayed, simulate
-from plm_highway.sim2real.filters import fir_filter, fir_filter_at, lateral_fir_at
+from plm_highway.sim2real.filters import fir_filter, fir_filter_at, lateral_fir_at, lateral_fir_at_turned
 from plm_highway.sim2real.recording import Recording
 from plm_highway.vehicle.kinematic import integrate_pose_euler
 
@@ -277,16 +277,32 @@ def model_yaw_rate(recording: Recording, params: EffectParams, with_slip: bool =
 
 def channel_prediction(signal: FitSignal, recording: Recording, params: EffectParams,
                        outputs: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-                       index: np.ndarray | None = None) -> np.ndarray:
+                       index: np.ndarray | None = None, turns: dict | None = None) -> np.ndarray:
     """What ``signal`` would record if the car were the model with ``params`` (only at ``index``
-    when given: fits read filtered channels at a few samples)."""
+    when given: fits read filtered channels at a few samples).
+
+    ``turns``: where a caller predicts this lateral-velocity ``signal`` of this ``recording`` many times (a fit),
+    a dict it keeps for them: the heading's turns within the filter window are computed once per index there (the
+    same numbers either way)."""
     r, vy, _ = model_outputs(recording, params, with_slip=False) if outputs is None else outputs
     if signal.source == "lateral_velocity":
-        index = np.arange(recording.n) if index is None else index
+        index = np.arange(recording.n) if index is None else np.ascontiguousarray(index, np.int64)
         out = np.empty(index.shape[0])
-        lateral_fir_at(np.ascontiguousarray(vy, float), np.ascontiguousarray(recording.speed_mps, float),
-                       np.ascontiguousarray(recording.heading_rad, float), np.ascontiguousarray(signal.taps, float),
-                       int(signal.lo), index, out)
+        inputs = (np.ascontiguousarray(vy, float), np.ascontiguousarray(recording.speed_mps, float),
+                  np.ascontiguousarray(recording.heading_rad, float), np.ascontiguousarray(signal.taps, float),
+                  int(signal.lo), index, out)
+        if turns is None:
+            lateral_fir_at(*inputs)
+            return out
+        key = index.tobytes()
+        known = turns.get(key)
+        if known is None:
+            shape = (index.shape[0], signal.taps.shape[0])
+            tables = (np.empty(shape), np.empty(shape))
+            lateral_fir_at_turned(*inputs, *tables, False)
+            turns[key] = tables
+        else:
+            lateral_fir_at_turned(*inputs, *known, True)
         return out
     source = r
     if signal.late and params.sensor_delay_s > 0:
