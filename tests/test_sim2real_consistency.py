@@ -117,6 +117,35 @@ def test_each_self_contradiction_is_found_on_a_noisy_recording_too(noisy_base, n
     assert words in result["consistency"]["contradictions"][0]["text"]
 
 
+@pytest.fixture(scope="module")
+def very_noisy_base():
+    """20 times the default noise: the heading's step noise (0.057 rad) is a quarter of a glitch's size."""
+    return _base(20.0)
+
+
+@pytest.mark.parametrize("name", list(CLASSES))
+def test_a_very_noisy_recordings_self_contradiction_blames_its_channel(very_noisy_base, name):
+    """The heading's noise is not mistaken for glitches (which would leave nothing to check) when a gyro in the
+    wrong units or sign cannot serve as their reference: the contradiction is still found and blamed."""
+    change, drop, channel, cause, _ = CLASSES[name]
+    consistency = check_consistency(_corrupted(very_noisy_base, change, drop))
+    assert not consistency.consistent
+    assert [(c.channel, c.cause) for c in consistency.contradictions] == [(channel, cause)]
+
+
+def test_a_very_noisy_consistent_recording_is_consistent(very_noisy_base):
+    assert check_consistency(very_noisy_base).consistent
+
+
+def test_a_heading_glitch_is_found_in_a_very_noisy_recording_with_or_without_a_gyro(very_noisy_base):
+    for drop, gyro in ((), "yaw_rate"), (("yaw_rate", "lat_accel"), "faster than"):
+        columns = {k: v.copy() for k, v in very_noisy_base.columns().items() if k not in drop}
+        columns["heading"][1500:] += 1.0  # a localisation jump of 1 rad at t = 30 s
+        recording = recording_from_arrays(columns, vehicle=very_noisy_base.vehicle, name="glitch")
+        assert not recording.usable[1500] and recording.usable.mean() > 0.9, drop
+        assert any("heading jumps by +1." in w and gyro in w for w in recording.warnings), recording.warnings
+
+
 def test_a_noisy_consistent_recording_is_checked_not_skipped(noisy_base):
     """Every check is made (over a longer window than the clean recording's) and every one holds."""
     checks = check_consistency(noisy_base)

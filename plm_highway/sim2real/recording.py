@@ -82,6 +82,9 @@ HEADING_JUMP_RAD = 0.2
 MAX_PLAUSIBLE_YAW_RATE_RADPS = 3.0
 # Glitches are rare: a yaw rate that disagrees with this share of the heading's steps is no reference.
 MAX_GLITCH_FRACTION = 0.02
+# A glitch also stands this many standard deviations of the heading's own step noise out of it (a noisy
+# heading's steps are not glitches).
+GLITCH_NOISE_SIGMAS = 6.0
 JUMP_EXCLUDE_S = 1.0
 # The speed floor: below it a sample is not scored (the car barely turns whatever it steers, and
 # the slip models divide by the speed). It scales with the car and with how it was driven:
@@ -432,6 +435,16 @@ def _plausible_yaw_rate(steer: np.ndarray, speed: np.ndarray, wheelbase_m: float
     return max(MAX_PLAUSIBLE_YAW_RATE_RADPS, 2.0 * float(np.max(kinematic)))
 
 
+def _step_noise_rad(heading: np.ndarray) -> float:
+    """The standard deviation of the heading's step-to-step white noise, from its second differences
+    (robust: the car's own turning and rare glitches barely move their median absolute deviation)."""
+    if heading.shape[0] < 3:
+        return 0.0
+    second = np.diff(heading, 2)
+    # white noise of std s: a step's is s*sqrt(2), a second difference's s*sqrt(6)
+    return 1.4826 * float(np.median(np.abs(second - np.median(second)))) * math.sqrt(2.0 / 6.0)
+
+
 def _heading_jumps(heading: np.ndarray, yaw_rate: np.ndarray | None, t: np.ndarray,
                    line_numbers: np.ndarray, warnings: list[str],
                    max_yaw_rate: float = MAX_PLAUSIBLE_YAW_RATE_RADPS) -> np.ndarray:
@@ -439,14 +452,16 @@ def _heading_jumps(heading: np.ndarray, yaw_rate: np.ndarray | None, t: np.ndarr
     or faster than ``max_yaw_rate``. Localisation glitches, not vehicle motion."""
     dt = np.diff(t)
     step = np.diff(heading)
+    noise_rad = GLITCH_NOISE_SIGMAS * _step_noise_rad(heading)
     bad = np.zeros(0, int)
     if yaw_rate is not None:
-        bad = np.flatnonzero(np.abs(step - 0.5 * (yaw_rate[1:] + yaw_rate[:-1]) * dt) > HEADING_JUMP_RAD)
+        bad = np.flatnonzero(np.abs(step - 0.5 * (yaw_rate[1:] + yaw_rate[:-1]) * dt)
+                             > max(HEADING_JUMP_RAD, noise_rad))
         against = "not matched by yaw_rate"
     if yaw_rate is None or len(bad) > MAX_GLITCH_FRACTION * len(step):
         # Without a gyro, or with one that disagrees with the heading throughout (its units or sign;
         # the consistency checks name it): glitches are steps no car makes.
-        bad = np.flatnonzero(np.abs(step) > max_yaw_rate * dt + HEADING_JUMP_RAD / 4)
+        bad = np.flatnonzero(np.abs(step) > max_yaw_rate * dt + max(HEADING_JUMP_RAD / 4, noise_rad))
         against = f"faster than {max_yaw_rate:.3g} rad/s"
     if len(bad):
         i = bad[0] + 1
