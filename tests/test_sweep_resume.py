@@ -122,3 +122,32 @@ def test_an_edited_cell_is_kept_aside_and_named(tmp_path, capsys):
     aside = victim.with_name(victim.name + ".edited")
     assert json.loads(aside.read_text())["lateral_offset_rms_m"] == 7.5  # the user's file, kept as it was
     assert f"{victim}: its content does not match" in capsys.readouterr().err
+
+
+def test_other_grids_cells_are_counted_kept_and_pruned_only_when_asked(tmp_path):
+    out = tmp_path / "out"
+    first = SweepGrid(latencies=("const:0.1", "const:0.2"), seeds=(0,), policies=("expert",), max_steps=STEPS)
+    second = SweepGrid(latencies=("const:0.1",), seeds=(0,), policies=("expert",), max_steps=STEPS)
+    run_sweep(first, out, workers=0, progress=False)
+    cells = out / "cells"
+    (cells / "notes.json").write_text('{"mine": true}')  # not the kit's: never counted nor removed
+    kept = run_sweep(second, out, workers=0, progress=False)
+    assert (kept["ran"], kept["other_cells"], kept["pruned"]) == (0, 1, 0)  # 0.2 s (the reference is shared)
+    assert len(list(cells.glob("*.json"))) == 4  # 0.1 s, 0.2 s, the reference, notes.json
+    back = run_sweep(first, out, workers=0, progress=False)  # the first grid comes back: nothing runs again
+    assert (back["ran"], back["other_cells"]) == (0, 0)
+    pruned = run_sweep(second, out, workers=0, progress=False, prune=True)
+    assert (pruned["ran"], pruned["other_cells"], pruned["pruned"]) == (0, 1, 1)
+    assert sorted(p.name for p in cells.glob("*.json")) == sorted([*(f"{k}.json" for k in _keys(second)),
+                                                                    "notes.json"])
+    assert table(out) == table_of_fresh(second, tmp_path / "fresh")
+
+
+def _keys(grid: SweepGrid) -> list[str]:
+    inputs = grid.inputs()
+    return [cell.key(grid.settings(cell, inputs)) for cell in grid.cells()]
+
+
+def table_of_fresh(grid: SweepGrid, out) -> str:
+    run_sweep(grid, out, workers=0, progress=False)
+    return table(out)

@@ -48,6 +48,9 @@ def configure(parser) -> None:
     parser.add_argument("--batch-size", type=bounded_int(1, 4096), default=d["batch_size"],
                         help="envs stepped together per worker (one batched forward pass per step)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--prune", action="store_true",
+                        help="remove from OUT/cells the results of other grids or inputs (kept by default: a grid or "
+                             "input that comes back reuses them; they never enter this grid's table)")
     add_overwrite(parser)
     add_device(parser)
 
@@ -62,8 +65,13 @@ def run(args) -> int:
     grid = grid_from_mapping(data, "sweep options")
     summary = run_sweep(grid, args.out, workers=args.workers, backend=args.backend, address=args.address,
                         batch_size=args.batch_size, checkpoints=args.checkpoints, overwrite=args.overwrite,
-                        progress=not args.no_progress, device=args.device)
+                        progress=not args.no_progress, device=args.device, prune=args.prune)
     print(f"{summary['cells']} runs ({summary['ran']} run now, {summary['resumed']} kept from earlier)")
+    if summary["pruned"]:
+        print(f"removed {summary['pruned']} cell result(s) of other grids or inputs from {args.out}/cells")
+    elif summary["other_cells"]:
+        print(f"{summary['other_cells']} cell result(s) of other grids or inputs stay in {args.out}/cells, unused "
+              "(--prune removes them)")
     print(f"wrote {summary['table']}")
     for path in summary["figures"]:
         print(f"wrote {path}")

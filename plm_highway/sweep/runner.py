@@ -88,8 +88,11 @@ def run_chunk(job: ChunkJob) -> list[dict]:
 
 def run_sweep(grid: SweepGrid, out, workers: int | None = None, backend: str = "local", address: str | None = None,
               batch_size: int = DEFAULT_BATCH_SIZE, checkpoints=None, overwrite: bool = False,
-              progress: bool = True, device: str = "cpu") -> dict:
+              progress: bool = True, device: str = "cpu", prune: bool = False) -> dict:
     """Run every cell of ``grid`` not yet in ``out``; write the table and figures. Returns a summary dict.
+
+    Cell results of other grids or inputs in ``out/cells`` are kept (a grid or input that comes back reuses them;
+    they never enter this grid's table: cells are keyed by content) and counted, or removed with ``prune``.
 
     ``device`` (``cpu``, ``cuda``, ``auto``): where each worker runs the models; on a Ray cluster it is resolved
     by the worker, elsewhere here first (``cuda`` without CUDA is refused before any run)."""
@@ -131,8 +134,29 @@ def run_sweep(grid: SweepGrid, out, workers: int | None = None, backend: str = "
         runner.close()
     rows = table_rows(cells, results)
     figures = _publish_set(out, grid, rows)
+    others = _other_cells(out, set(keys.values()))
+    if prune:
+        for path in others:
+            path.unlink()
     return {"out": str(out), "cells": len(cells), "ran": len(todo), "resumed": len(cells) - len(todo),
-            "table": str(out / "results.csv"), "figures": [str(path) for path in figures], "rows": rows}
+            "table": str(out / "results.csv"), "figures": [str(path) for path in figures], "rows": rows,
+            "other_cells": len(others), "pruned": len(others) if prune else 0}
+
+
+def _other_cells(out: Path, keys: set[str]) -> list[Path]:
+    """The cell results in ``out/cells`` that this grid's cells are not: written by the kit for another grid or
+    other inputs (a file the kit did not write, or set aside as edited, is not one of them)."""
+    others = []
+    for path in sorted((out / "cells").glob("*.json")):
+        if path.stem in keys or not path.is_file() or path.is_symlink():
+            continue
+        try:
+            data = load_json(path, CELL_LIMITS, what="sweep cell result")
+        except (OSError, BadInput):
+            continue
+        if isinstance(data, dict) and data.get(JSON_MARKER_KEY) == SWEEP_CELL.name:
+            others.append(path)
+    return others
 
 
 def _open_directory(out: Path, grid: SweepGrid, overwrite: bool) -> None:
