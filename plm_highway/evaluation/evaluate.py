@@ -40,7 +40,7 @@ from plm_highway.rollout.conditions import (
     with_injection,
     with_latency_source,
 )
-from plm_highway.rollout.policies import MITIGATED_POLICIES, make_policy
+from plm_highway.rollout.policies import MITIGATING_POLICIES, make_policy, policy_kind
 from plm_highway.rollout.seeds import parse_seeds
 
 COMBINED_COLUMNS = ("steering", "latency_s", "observation_age_s", "x_m", "y_m", "lateral_offset_m", "segment")
@@ -106,9 +106,6 @@ def summary_lines(result: dict) -> list[str]:
     return lines
 
 
-MITIGATING_POLICIES = ("plm", *MITIGATED_POLICIES)  # policies evaluated as the "mitigated" run beside the BM
-
-
 def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps=None, checkpoints=None,
              seeds=None, conditions: str = "ideal", injection: str | None = None, device="cpu",
              latency_source: str | None = None) -> tuple[dict, dict]:
@@ -152,7 +149,7 @@ def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps
             for key in ("seeds", "per_seed", "over_seeds"):
                 result.pop(key, None)
         return _with_options(result, conditions, injection, latency_source), logs
-    base_policy = "expert" if policy == "expert" else "bm"
+    base_policy = policy_kind(policy).reference
     policies = {"reference": make_policy(base_policy, checkpoints, device=device),
                 "baseline": make_policy(base_policy, checkpoints, device=device)}
     if policy in MITIGATING_POLICIES:
@@ -202,7 +199,7 @@ def _drive_ekf(track_spec: TrackSpec, latency_spec: str, seed: int, max_steps: i
 def _evaluate_seeds(track_label: str, track_spec: TrackSpec, latency_spec: str, policy: str, seeds: list[int],
                     max_steps: int | None, checkpoints, chosen: Conditions, device="cpu") -> tuple[dict, dict]:
     """The runs of every seed under the conditions ``chosen``."""
-    base_policy = "expert" if policy == "expert" else "bm"
+    base_policy = policy_kind(policy).reference
     # The model policies loaded once here; the expert is made per run by the runner.
     policies = {} if base_policy == "expert" else {"bm": make_policy("bm", checkpoints, preset=chosen.checkpoint_preset,
                                                                              device=device)}

@@ -41,22 +41,20 @@ from plm_highway.rollout.batched import drive_batched
 from plm_highway.rollout.closed_loop import Policy, RunCell, RunLog, drive_cell, make_env
 from plm_highway.rollout.conditions import Conditions, scored_steps, start_perturbation
 from plm_highway.rollout.policies import (
-    MITIGATED_POLICIES,
+    MODEL_POLICIES,
     POLICY_NAMES,
     SHIPPED_PRESET,
     VisionPolicy,
     biased,
     checkpoint_pair_sha256,
     make_policy,
-    run_plant,
+    policy_for_run,
     single_threaded_inference,
 )
 
 DEFAULT_BATCH_SIZE = 32
 MAX_BATCH_SIZE = 4096
 MAX_THREADS = 64
-# loaded once per process and shared by the runs; the others are made per run
-MODEL_POLICIES = ("bm", "plm", *MITIGATED_POLICIES)
 ROLES = ("reference", "baseline", "mitigated")
 
 
@@ -199,20 +197,9 @@ def _policy_for(cell: RunCell, models: Mapping[str, VisionPolicy]) -> Policy:
     expert or EKF of its own, or the object the cell holds."""
     if not isinstance(cell.policy, str):
         return cell.policy
-    if cell.policy in MODEL_POLICIES:
-        mitigation = None
-        if cell.policy in MITIGATED_POLICIES:  # a per-run object: the run's camera, its own sensor noise
-            from plm_highway.mitigation import make_mitigation
-
-            mitigation = make_mitigation(MITIGATED_POLICIES[cell.policy], cell.camera, cell.seed,
-                                         models[cell.policy].model_policy, cell.env_config)
-        return VisionPolicy(models[cell.policy].model_policy, cell.latency_bias_s, cell.latency_source, mitigation)
-    if cell.policy == "ekf":  # its plant is the run's (camera, loop, actuator, car)
-        from plm_highway.estimation.policy import ekf_policy
-
-        return ekf_policy(latency_bias_s=cell.latency_bias_s, seed=cell.seed, latency_source=cell.latency_source,
-                          **run_plant(cell.camera, cell.env_config))
-    return make_policy(cell.policy, latency_bias_s=cell.latency_bias_s, seed=cell.seed)
+    shared = models[cell.policy].model_policy if cell.policy in MODEL_POLICIES else None
+    return policy_for_run(cell.policy, shared, latency_bias_s=cell.latency_bias_s, latency_source=cell.latency_source,
+                          seed=cell.seed, camera=cell.camera, env_config=cell.env_config)
 
 
 def _check_no_shared_callables(cells: Sequence[RunCell]) -> None:

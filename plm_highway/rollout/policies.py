@@ -15,15 +15,56 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 from plm_highway.expert import ExpertPolicy
 from plm_highway.rollout.closed_loop import Policy
 from plm_highway.rollout.conditions import CONDITIONS, Conditions
 
-POLICY_NAMES = ("expert", "bm", "plm", "ekf", "bm-warp", "bm-smith")
+
+@dataclass(frozen=True)
+class PolicyKind:
+    """What a policy name means to every command that drives (:data:`POLICIES`): adding a policy is one entry."""
+
+    label: str  # how reports and printed summaries name it
+    reference: str  # the policy of the runs it is compared with: its reference (no latency) and its baseline
+    mitigates: bool  # driven as the "mitigated" run beside that baseline (evaluate, sweeps' reductions)
+    model: str | None = None  # the checkpoint model it runs ("bm": the Base Model; "plm": BM + TAPM); None: none
+    mitigation: str | None = None  # a plug-in mitigation (plm_highway.mitigation) on the frozen BM, by its name
+
+    @property
+    def reads_checkpoints(self) -> bool:
+        return self.model is not None
+
+
+# The one table of policies (a literal dict: the command line reads its names without importing this module).
+# The EKF lane keeper is compared with itself in `evaluate` (fusing late frames as if current, then re-stamping
+# them); in a sweep its steering is compared with the BM's, as every model policy's.
+POLICIES = {
+    "expert": PolicyKind("expert driver", reference="expert", mitigates=False),
+    "bm": PolicyKind("Base Model", reference="bm", mitigates=False, model="bm"),
+    "plm": PolicyKind("PLM-Net", reference="bm", mitigates=True, model="plm"),
+    "ekf": PolicyKind("EKF lane keeper", reference="bm", mitigates=False),
+    "bm-warp": PolicyKind("BM with image warping", reference="bm", mitigates=True, model="bm", mitigation="warp"),
+    "bm-smith": PolicyKind("BM with a Smith predictor", reference="bm", mitigates=True, model="bm",
+                           mitigation="smith"),
+}
+POLICY_NAMES = tuple(POLICIES)
 # Policies that are the frozen BM with a plug-in mitigation (plm_highway.mitigation), by the mitigation's name.
-MITIGATED_POLICIES = {"bm-warp": "warp", "bm-smith": "smith"}
+MITIGATED_POLICIES = {name: kind.mitigation for name, kind in POLICIES.items() if kind.mitigation is not None}
+# Policies evaluated as the "mitigated" run beside the BM.
+MITIGATING_POLICIES = tuple(name for name, kind in POLICIES.items() if kind.mitigates)
+# Policies whose runs read a checkpoint pair (loaded once per process and shared by the runs).
+MODEL_POLICIES = tuple(name for name, kind in POLICIES.items() if kind.reads_checkpoints)
+
+
+def policy_kind(name: str) -> PolicyKind:
+    """The registry's entry for ``name``, or a ValueError naming the known ones."""
+    kind = POLICIES.get(name) if isinstance(name, str) else None
+    if kind is None:
+        raise ValueError(f"--policy {name!r}: expected one of {list(POLICY_NAMES)}")
+    return kind
 # What PLM-Net is told -> the info key it reads; "estimated" is the latency estimated from the stream
 # (plm_highway.estimation.latency_stream, added to info by the run's LatencyEstimateWrapper).
 LATENCY_SOURCES = {"measured": "observation_age_s", "requested": "latency_s", "estimated": "latency_estimate_s"}
@@ -177,16 +218,11 @@ def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, lat
     device. The batch-invariant kernels, and with them the guarantee that batched and one-env runs agree bit for
     bit, are the CPU's. The expert and the EKF run on the host and ignore it.
     """
-    if name == "expert":
-        return ExpertPolicy()
-    if name == "ekf":
-        from plm_highway.estimation.policy import ekf_policy
-
-        plant = {} if conditions is None else ekf_plant(conditions)
-        return ekf_policy(compensate_delay=compensate_delay, latency_bias_s=latency_bias_s, seed=seed,
-                          latency_source=latency_source, **plant)
-    if name not in POLICY_NAMES:
-        raise ValueError(f"--policy {name!r}: expected one of {list(POLICY_NAMES)}")
+    kind = policy_kind(name)
+    if kind.model is None:
+        return policy_for_run(name, None, latency_bias_s=latency_bias_s, latency_source=latency_source,
+                              seed=seed, compensate_delay=compensate_delay,
+                              plant={} if conditions is None else ekf_plant(conditions))
     from plm_highway.models import checkpoints, inference
     from plm_highway.models.device import resolve_device
 
@@ -194,23 +230,46 @@ def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, lat
     bm_path, tapm_path = checkpoint_pair(checkpoint_dir, preset)
     # Batch-invariant kernels: a run's result does not depend on which runs shared its batch (or on
     # running alone), so batched, pooled and one-env runs of one seed give the same numbers.
-    if name == "bm" or name in MITIGATED_POLICIES:
+    if kind.model == "bm":
         model = checkpoints.load_base_model(bm_path, device)
         check_preset(model.config, bm_path, checkpoint_dir, preset)
         model_policy = inference.BaseModelPolicy(model, batch_invariant=True)
-        mitigation = None
-        if name in MITIGATED_POLICIES:
-            from plm_highway.mitigation import make_mitigation
-            # without conditions: those the preset's checkpoints are meant for (their camera is the one they see)
-            conditions = conditions or next(c for c in CONDITIONS.values() if c.checkpoint_preset == preset)
-            camera, env_config = conditions.camera, conditions.env_config()
-            mitigation = make_mitigation(MITIGATED_POLICIES[name], camera, seed, model_policy, env_config)
-        if mitigation is None:
+    else:
+        net = checkpoints.load_plm_net(bm_path, tapm_path, device)
+        check_preset(net.bm.config, bm_path, checkpoint_dir, preset)
+        model_policy = inference.PLMNetPolicy(net, batch_invariant=True)
+    if kind.mitigation is None:
+        if kind.model == "bm":  # the Base Model reads no latency
             return VisionPolicy(model_policy)
-        return VisionPolicy(model_policy, latency_bias_s, latency_source, mitigation)
-    net = checkpoints.load_plm_net(bm_path, tapm_path, device)
-    check_preset(net.bm.config, bm_path, checkpoint_dir, preset)
-    return VisionPolicy(inference.PLMNetPolicy(net, batch_invariant=True), latency_bias_s, latency_source)
+        return policy_for_run(name, model_policy, latency_bias_s=latency_bias_s, latency_source=latency_source)
+    # without conditions: those the preset's checkpoints are meant for (their camera is the one they see)
+    conditions = conditions or next(c for c in CONDITIONS.values() if c.checkpoint_preset == preset)
+    return policy_for_run(name, model_policy, latency_bias_s=latency_bias_s, latency_source=latency_source,
+                          seed=seed, camera=conditions.camera, env_config=conditions.env_config())
+
+
+def policy_for_run(name: str, model_policy=None, *, latency_bias_s: float = 0.0, latency_source: str = "measured",
+                   seed: int = 0, camera=None, env_config=None, compensate_delay: bool = True,
+                   plant: dict | None = None) -> Policy:
+    """The policy object of one run of ``name``: a model policy's ``model_policy`` (loaded once, shared by runs)
+    told this run's latency, with the run's own plug-in mitigation; the expert; or an EKF keeper with the run's own
+    sensor noise (``seed``) and plant (``plant``: :func:`ekf_plant`'s keywords; None: the run's, from ``camera``
+    and ``env_config``)."""
+    kind = policy_kind(name)
+    if name == "expert":
+        return ExpertPolicy()
+    if name == "ekf":
+        from plm_highway.estimation.policy import ekf_policy
+
+        plant = run_plant(camera, env_config) if plant is None else plant
+        return ekf_policy(compensate_delay=compensate_delay, latency_bias_s=latency_bias_s, seed=seed,
+                          latency_source=latency_source, **plant)
+    mitigation = None
+    if kind.mitigation is not None:  # a per-run object: the run's camera, its own sensor noise
+        from plm_highway.mitigation import make_mitigation
+
+        mitigation = make_mitigation(kind.mitigation, camera, seed, model_policy, env_config)
+    return VisionPolicy(model_policy, latency_bias_s, latency_source, mitigation)
 
 
 def check_preset(config, bm_path, checkpoint_dir, preset: str) -> None:

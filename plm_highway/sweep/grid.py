@@ -30,8 +30,7 @@ from pathlib import Path
 
 from plm_highway.errors import BadInput
 from plm_highway.io.bounded import JsonLimits, decode_utf8, parse_json, parse_yaml, read_bounded
-from plm_highway.rollout.cells import MODEL_POLICIES  # the policies whose runs read the checkpoints
-from plm_highway.rollout.policies import POLICY_NAMES, checkpoint_pair_sha256
+from plm_highway.rollout.policies import MODEL_POLICIES, POLICY_NAMES, checkpoint_pair_sha256, policy_kind
 from plm_highway.rollout.seeds import parse_seeds
 
 REFERENCE_LATENCY = "const:0"
@@ -65,8 +64,7 @@ class SweepCell:
     @property
     def reference(self) -> SweepCell:
         """The run this cell's steering is compared with."""
-        base = "expert" if self.policy == "expert" else "bm"
-        return SweepCell(self.condition, self.track, REFERENCE_LATENCY, self.seed, base)
+        return SweepCell(self.condition, self.track, REFERENCE_LATENCY, self.seed, policy_kind(self.policy).reference)
 
 
 @dataclass(frozen=True)
