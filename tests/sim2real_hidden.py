@@ -1,6 +1,6 @@
 """The concealed benchmark of residual discovery: physics outside the library, from its own generator.
 
-Nothing here is shared with ``plm_highway.sim2real.synth`` (the library's generator): a driver laps a
+Nothing here is shared with ``plm_highway.sim2real.physics.synth`` (the library's generator): a driver laps a
 closed circuit (two left hairpins, a chicane on each straight) with a pure-pursuit law on the true
 pose, weaving within its lane, at speeds set by the curvature; the car is a continuous kinematic
 bicycle or a single-track model with linear tires; the concealed physics sits between the driver's
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plm_highway.sim2real.recording import Recording, VehicleGeometry
+from plm_highway.sim2real.record.recording import Recording, VehicleGeometry
 from plm_highway.vehicle.single_track import SEED_PAPER_VEHICLE, params_per_kg, single_track_derivatives
 from plm_highway.vehicle.tires import GRAVITY_MPS2
 
@@ -322,7 +322,7 @@ def case(name: str) -> Case:
 
 def _steering_map_of(params, command: np.ndarray, speed: np.ndarray) -> np.ndarray:
     """The wheel angle a fitted chain makes of a command sequence (before its delay)."""
-    from plm_highway.sim2real.chain import steering_map
+    from plm_highway.sim2real.physics.chain import steering_map
 
     calibrated = np.ascontiguousarray(params.gain * command + params.offset_rad, float)
     out = np.empty_like(calibrated)
@@ -363,7 +363,8 @@ def total_removed(discovery) -> float:
 
 def run_case(case: Case, duration_s: float = DURATION_S):
     """One case end to end: (its row of the results, the diagnosis)."""
-    from plm_highway.sim2real.diagnose import diagnose, to_json
+    from plm_highway.sim2real.diagnose import diagnose
+    from plm_highway.sim2real.rendering import to_json
 
     recording, truth = drive(case.hidden, case.seed, duration_s)
     result = diagnose(recording, discovery="always" if case.expect is None else "auto")

@@ -40,8 +40,8 @@ def fixtures(tmp_path_factory) -> dict[str, Path]:
     """name -> a valid input of that kind, copied into a case's directory by :class:`Copy`."""
     from plm_highway.data.collect import collect
     from plm_highway.data.dataset import write_dataset
-    from plm_highway.sim2real.recording import write_recording
-    from plm_highway.sim2real.synth import make_recording
+    from plm_highway.sim2real.physics.synth import make_recording
+    from plm_highway.sim2real.record.recording import write_recording
 
     root = tmp_path_factory.mktemp("valid_inputs")
     frames, steps, manifest = collect(track="test", episodes=1, episode_seconds=1, progress=False)

@@ -12,13 +12,14 @@ import numpy as np
 import pytest
 
 from plm_highway.cli import main
-from plm_highway.sim2real import recording as recording_module
-from plm_highway.sim2real.diagnose import diagnose, runner_up_text, steering_frequency_hz, to_json
-from plm_highway.sim2real.fitting import fit_candidate
-from plm_highway.sim2real.problem import make_problem
-from plm_highway.sim2real.recording import read_recording, write_recording
-from plm_highway.sim2real.selection import Selection
-from plm_highway.sim2real.synth import make_recording
+from plm_highway.sim2real.diagnose import diagnose, steering_frequency_hz
+from plm_highway.sim2real.fit.fitting import fit_candidate
+from plm_highway.sim2real.fit.problem import make_problem
+from plm_highway.sim2real.fit.selection import Selection
+from plm_highway.sim2real.physics.synth import make_recording
+from plm_highway.sim2real.record import recording as recording_module
+from plm_highway.sim2real.record.recording import read_recording, write_recording
+from plm_highway.sim2real.rendering import runner_up_text, to_json
 
 
 @pytest.fixture(scope="module")

@@ -15,12 +15,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from plm_highway.cli import main
-from plm_highway.sim2real import recording as recording_module
 from plm_highway.sim2real.benchmark import CASE_SETS
-from plm_highway.sim2real.consistency import check_consistency
-from plm_highway.sim2real.diagnose import diagnose, to_json
-from plm_highway.sim2real.recording import read_recording, recording_from_arrays, write_recording
-from plm_highway.sim2real.synth import NoiseLevels, as_read, make_recording
+from plm_highway.sim2real.diagnose import diagnose
+from plm_highway.sim2real.physics.synth import NoiseLevels, as_read, make_recording
+from plm_highway.sim2real.record import recording as recording_module
+from plm_highway.sim2real.record.consistency import check_consistency
+from plm_highway.sim2real.record.recording import read_recording, recording_from_arrays, write_recording
+from plm_highway.sim2real.rendering import to_json
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real" / "iac_putnam_run4_2.csv"
 

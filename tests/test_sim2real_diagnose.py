@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 
 from plm_highway.cli import main
-from plm_highway.sim2real.diagnose import diagnose, to_json
-from plm_highway.sim2real.effects import EFFECT_NAMES, EFFECT_PARAM_KEYS
-from plm_highway.sim2real.recording import read_recording
-from plm_highway.sim2real.synth import NoiseLevels, make_recording
+from plm_highway.sim2real.diagnose import diagnose
+from plm_highway.sim2real.physics.effects import EFFECT_NAMES, EFFECT_PARAM_KEYS
+from plm_highway.sim2real.physics.synth import NoiseLevels, make_recording
+from plm_highway.sim2real.record.recording import read_recording
+from plm_highway.sim2real.rendering import to_json
 from plm_highway.vehicle.kinematic import kinematic_bicycle_rates
 
 REAL_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "real"

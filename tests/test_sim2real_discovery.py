@@ -13,14 +13,15 @@ import sim2real_hidden as hidden
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plm_highway.sim2real.chain import EffectParams, steering_map
-from plm_highway.sim2real.consistency import check_consistency
-from plm_highway.sim2real.diagnose import diagnose, to_json
-from plm_highway.sim2real.plausibility import delay_doubts, size_doubts
-from plm_highway.sim2real.problem import make_problem
-from plm_highway.sim2real.shapes import reversals
-from plm_highway.sim2real.terms import TERMS
-from plm_highway.sim2real.track_bank import lateral_pull_response
+from plm_highway.sim2real.diagnose import diagnose
+from plm_highway.sim2real.fit.plausibility import delay_doubts, size_doubts
+from plm_highway.sim2real.fit.problem import make_problem
+from plm_highway.sim2real.physics.chain import EffectParams, steering_map
+from plm_highway.sim2real.physics.terms import TERMS
+from plm_highway.sim2real.record.consistency import check_consistency
+from plm_highway.sim2real.rendering import to_json
+from plm_highway.sim2real.residual.shapes import reversals
+from plm_highway.sim2real.residual.track_bank import lateral_pull_response
 
 # ----------------------------------------------------------------------------------------------
 # The steering map (the chain's terms outside the library)
@@ -91,7 +92,7 @@ def test_a_lateral_pull_moves_the_tire_model_linearly():
 def test_every_term_is_complete_and_says_its_numbers(name):
     term = TERMS[name]
     assert term.fingerprint and term.term and term.sentence
-    from plm_highway.sim2real.effect_spec import FitContext
+    from plm_highway.sim2real.physics.effect_spec import FitContext
 
     ctx = FitContext(a_m=1.35, b_m=1.45, k2_m2=1.9, dt_s=0.02, steer_quantiles_rad=tuple(np.linspace(0.001, 0.06, 12)),
                      speed_median_mps=15.0)

@@ -10,7 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import signal as sps
 
-from plm_highway.sim2real.chain import (
+from plm_highway.sim2real.fit.grid import GridChannel, LinearDirection, grid_statistics, profile_linear
+from plm_highway.sim2real.physics.chain import (
     CarParams,
     Drive,
     EffectParams,
@@ -22,8 +23,7 @@ from plm_highway.sim2real.chain import (
     simulate,
     simulate_yaw_rate,
 )
-from plm_highway.sim2real.effects import EFFECTS, FitContext, coordinates_of, params_from
-from plm_highway.sim2real.grid import GridChannel, LinearDirection, grid_statistics, profile_linear
+from plm_highway.sim2real.physics.effects import EFFECTS, FitContext, coordinates_of, params_from
 from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE, KinematicBicycleParams, kinematic_bicycle_rates
 
 DT = 0.02
@@ -217,9 +217,10 @@ def test_an_effect_registered_at_run_time_is_concealed_named_and_recovered(monke
     recovers it, without any other table being touched."""
     import dataclasses
 
-    from plm_highway.sim2real import effects as effects_module
-    from plm_highway.sim2real.diagnose import diagnose, to_json
-    from plm_highway.sim2real.synth import make_recording
+    from plm_highway.sim2real.diagnose import diagnose
+    from plm_highway.sim2real.physics import effects as effects_module
+    from plm_highway.sim2real.physics.synth import make_recording
+    from plm_highway.sim2real.rendering import to_json
 
     lag = effects_module.EFFECTS["actuator_lag"]
     servo_ms = dataclasses.replace(

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from plm_highway.sim2real.benchmark import TOLERANCES
-from plm_highway.sim2real.diagnose import diagnose, to_json
-from plm_highway.sim2real.synth import as_read, make_recording
+from plm_highway.sim2real.diagnose import diagnose
+from plm_highway.sim2real.physics.synth import as_read, make_recording
+from plm_highway.sim2real.rendering import to_json
 
 # One tolerance table, shared with `plm-highway bench sim2real`: |estimate - truth| <= max(absolute, relative x truth).
 TOLERANCE = TOLERANCES
@@ -131,7 +132,7 @@ def test_physics_outside_the_library_is_never_a_match_nor_a_tight_fit(effects):
 def test_every_signal_is_reported_and_a_fit_that_helps_one_and_hurts_another_is_not_chosen_or_says_so():
     from dataclasses import replace
 
-    from plm_highway.sim2real.diagnose import summary_text
+    from plm_highway.sim2real.rendering import summary_text
 
     recording, _ = make_recording({"sensor_delay": 0.2}, rng=np.random.default_rng(8), duration_s=90.0)
     # Offer only a late *car*: it can fix the late gyro only by making the heading late too.

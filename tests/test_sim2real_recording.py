@@ -11,7 +11,8 @@ from highway_env.vehicle.kinematics import Vehicle
 
 from plm_highway.cli import main
 from plm_highway.io import file_kind, write_output
-from plm_highway.sim2real.recording import (
+from plm_highway.sim2real.physics.replay import plain_replay
+from plm_highway.sim2real.record.recording import (
     SIMULATOR_VEHICLE,
     Recording,
     VehicleGeometry,
@@ -19,7 +20,6 @@ from plm_highway.sim2real.recording import (
     read_sim_log,
     write_recording,
 )
-from plm_highway.sim2real.replay import plain_replay
 
 
 def _rows(n=800, dt=0.02, steer_scale=1.0):

@@ -25,7 +25,7 @@ from plm_highway.cli._common import (
 GROUP_HELP = "find where a simulator and a recording disagree, and why"
 
 # The recording bounds (rows, duration, sample rate) are checked when a recording is read, see
-# plm_highway/sim2real/recording.py; these bound only what an option alone can get wrong.
+# plm_highway/sim2real/record/recording.py; these bound only what an option alone can get wrong.
 MAX_SECONDS = 4 * 3600.0
 # Shorter blocks interleave fitted and held-out samples closer than the dynamics remember (a delay, a
 # steering lag): the held-out score would then measure interpolation, not prediction.
@@ -84,8 +84,8 @@ def run_diagnose(args) -> int:
 
 
 def configure_make_recording(parser) -> None:
-    from plm_highway.sim2real.effects import EFFECTS
-    from plm_highway.sim2real.synth import CARS, OUTSIDE_EFFECTS
+    from plm_highway.sim2real.physics.effects import EFFECTS
+    from plm_highway.sim2real.physics.synth import CARS, OUTSIDE_EFFECTS
     from plm_highway.sim2real.workflow import make_recording_file
 
     defaults = defaults_of(make_recording_file)

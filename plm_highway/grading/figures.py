@@ -95,8 +95,8 @@ def lesson3_figure(plt):
 
 def lesson4_figure(plt):
     """Section 1's plot for another car (a steering gain, not one of the lesson's concealed effects)."""
-    from plm_highway.sim2real.replay import noise_sigma
-    from plm_highway.sim2real.synth import make_recording
+    from plm_highway.sim2real.physics.replay import noise_sigma
+    from plm_highway.sim2real.physics.synth import make_recording
     from plm_highway.vehicle.kinematic import KinematicBicycleParams, kinematic_bicycle_rates
 
     recording, _ = make_recording({"steering_gain": 0.85}, rng=np.random.default_rng(7), duration_s=60.0,

@@ -45,7 +45,7 @@ class SealedAnswer:
 
 def concealed_recording(seed: int, duration_s: float):
     """The lesson's recording: the seed picks the concealed effect and its size. Returns (Recording, SealedAnswer)."""
-    from plm_highway.sim2real.synth import make_recording
+    from plm_highway.sim2real.physics.synth import make_recording
 
     rng = np.random.default_rng(seed)
     names = sorted(CONCEALED_EFFECTS)

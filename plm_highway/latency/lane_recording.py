@@ -1,7 +1,7 @@
 """A recording's camera lane signal and fast sensors, without capture timestamps: the file format the latency
 estimator reads offline.
 
-A recording (the sim2real CSV format, :mod:`plm_highway.sim2real.recording`) may carry, beside its standard
+A recording (the sim2real CSV format, :mod:`plm_highway.sim2real.record.recording`) may carry, beside its standard
 columns, what a camera pipeline reported at each row about the lane:
 
 ========================  ========  =============================================================

@@ -26,8 +26,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from plm_highway.sim2real.diagnose import diagnose, to_json
-from plm_highway.sim2real.synth import as_read, make_recording
+from plm_highway.sim2real.diagnose import diagnose
+from plm_highway.sim2real.physics.synth import as_read, make_recording
+from plm_highway.sim2real.rendering import to_json
 
 # Per-parameter tolerance: |estimate - truth| <= max(absolute, relative x |truth|).
 TOLERANCES = {
@@ -176,7 +177,7 @@ def timing(duration_s: float = 600.0, sample_hz: float = 50.0, seed: int = 5) ->
 
 _BASELINE_SNIPPET = """
 import json, os, time, numpy as np
-from plm_highway.sim2real.synth import make_recording
+from plm_highway.sim2real.physics.synth import make_recording
 from plm_highway.sim2real.diagnose import diagnose
 rec, _ = make_recording({"transport_delay": 0.2, "tire_slip": None}, rng=np.random.default_rng(%d),
                         duration_s=%r, sample_hz=%r)

@@ -3,7 +3,7 @@ the fitted term explains, and what is left.
 
 The steps, top to bottom (:func:`diagnose`):
 
-0. Check the recording against itself (:mod:`plm_highway.sim2real.consistency`); a recording that
+0. Check the recording against itself (:mod:`plm_highway.sim2real.record.consistency`); a recording that
    contradicts itself is ``inconsistent`` and nothing is fitted.
 1. Check there is enough to judge: the scored samples (moving faster than the recording's speed
    floor, outside gaps and glitches) and the steering's excitation. Too little is an error with
@@ -11,7 +11,7 @@ The steps, top to bottom (:func:`diagnose`):
 2. Replay the recorded steering and speed through the simulator's model and take residuals on
    every recorded channel (yaw rate, heading rate, lateral velocity from positions).
 3. Fit every candidate effect and pair inside the model; pick one on held-out data with a
-   complexity penalty (:mod:`plm_highway.sim2real.selection`).
+   complexity penalty (:mod:`plm_highway.sim2real.fit.selection`).
 4. Estimate the measurement noise from the best fit's residual (third differences).
 5. Locate the mismatch in time and by operating condition (bands from the recording's own
    speed and lateral-acceleration distribution).
@@ -32,7 +32,7 @@ The steps, top to bottom (:func:`diagnose`):
    inconclusive       nothing helps, but too little data (or no measured noise) to call it a match
    discovered         the library's best chain leaves structure and residual discovery names a
                       plausible term outside the library that improves held-out data
-                      (:mod:`plm_highway.sim2real.discovery`)
+                      (:mod:`plm_highway.sim2real.residual.discovery`)
    inconsistent       the recording contradicts itself (speed against positions, yaw rate against
                       heading, steering against the turns, time scale against both): no physics is
                       fitted; the channel and the likely cause (units, sign, scale) are named
@@ -43,23 +43,24 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
 from scipy.interpolate import CubicSpline
 from scipy.ndimage import correlate1d
 
-from plm_highway.io import json_safe
-from plm_highway.sim2real.chain import EffectParams
-from plm_highway.sim2real.consistency import Consistency, check_consistency
-from plm_highway.sim2real.discovery import Discovery, discover, removed_words, should_run
-from plm_highway.sim2real.effects import EFFECT_NAMES, SPECS, separating_text
-from plm_highway.sim2real.folds import MIN_BLOCKS, check_block_s, default_block_s
-from plm_highway.sim2real.plausibility import library_doubts
-from plm_highway.sim2real.problem import CandidateFit, FitProblem, make_problem
-from plm_highway.sim2real.recording import Recording
-from plm_highway.sim2real.replay import (
+from plm_highway.sim2real.diagnosis import (
+    EXCITATION_NOISE_FACTOR,
+    PARTLY_EXPLAINED_BELOW,
+    STRUCTURE_MATTERS_BELOW,
+    Diagnosis,
+)
+from plm_highway.sim2real.fit.folds import MIN_BLOCKS, check_block_s, default_block_s
+from plm_highway.sim2real.fit.plausibility import library_doubts
+from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem, make_problem
+from plm_highway.sim2real.fit.selection import Selection, fit_candidates, select
+from plm_highway.sim2real.physics.chain import EffectParams
+from plm_highway.sim2real.physics.replay import (
     ANCHOR_S,
     MIN_NOISE_SAMPLES,
     FitSignal,
@@ -70,10 +71,11 @@ from plm_highway.sim2real.replay import (
     replay_pose,
     yaw_rate_lag_behind_heading,
 )
-from plm_highway.sim2real.selection import Selection, fit_candidates, select
+from plm_highway.sim2real.record.consistency import check_consistency
+from plm_highway.sim2real.record.recording import Recording
+from plm_highway.sim2real.rendering import discovery_text, scored_text, summary_text
+from plm_highway.sim2real.residual.discovery import discover, should_run
 
-VERDICTS = ("match", "mismatch", "partly explained", "unexplained", "unexcited", "inconclusive", "inconsistent",
-            "discovered")
 DISCOVERY_MODES = ("auto", "always", "never")
 
 WINDOW_RMS_S = 1.0
@@ -92,60 +94,17 @@ CHANNEL_LAG_MIN_S = 0.06
 CONFIDENT_SCORED_S = 30.0
 CONFIDENT_SCORED_FRACTION = 0.5
 MIN_SCORED_S = 5.0
-# The steering (through the plain model) or the car must move the yaw rate this many noise levels.
-EXCITATION_NOISE_FACTOR = 3.0
-# What is left after a fit: unexplained share of the error above the noise, excess variance over
-# the noise, whiteness level, and the smallest correlation worth naming.
-PARTLY_EXPLAINED_BELOW = 0.8
-# A structured leftover matters when the fit explains less than this share of the error above the
-# noise: beyond it, what is left is the replay's own accuracy (e.g. a 1:10 car's stiff tire
-# dynamics replayed at the sample rate leave +30-40% noise variance, under 0.5% of its error).
-STRUCTURE_MATTERS_BELOW = 0.98
 # A held-out error below this fraction of the signal's RMS is the simulator's own replay written
 # with finitely many digits (a 6-digit log leaves ~2e-5): rounding, not physics.
 REPRODUCED_RELATIVE = 1e-4
 # A named effect that makes the re-anchored position error this much worse is not taken as physics.
 POSITION_WORSE = 0.10
+# What is left after a fit (with diagnosis.PARTLY_EXPLAINED_BELOW): excess variance over the noise, whiteness
+# level, and the smallest correlation worth naming.
 STRUCTURE_EXCESS = 0.2
 WHITENESS_ALPHA = 0.01
 MIN_CORRELATION = 0.1
 WHITENESS_LAGS = 20
-# A mixed result: a signal's error changes by more than this fraction the other way.
-SIGNAL_CHANGE = 0.05
-
-
-@dataclass
-class Diagnosis:
-    """A recording's diagnosis. An ``inconsistent`` recording stops at its consistency checks: it
-    has no signal, selection, replay or fit (those fields stay None)."""
-
-    recording: Recording
-    signal: FitSignal | None
-    noise_sigma: float
-    selection: Selection | None
-    block_s: float
-    anchor_s: float
-    heldout: np.ndarray | None
-    before: np.ndarray | None  # the primary channel as the plain model predicts it
-    after: np.ndarray | None  # ... as the chosen model predicts it (held-out samples: out of fold)
-    best: np.ndarray | None  # ... as the best-scoring candidate predicts it (== after on a mismatch)
-    pose_before: PoseReplay | None
-    pose_after: PoseReplay | None
-    windows: list[list[float]]
-    conditions: dict
-    fit: dict
-    summary: str
-    checks: dict = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)  # caveats found by the diagnosis itself
-    verdict: str = "match"
-    confidence: str = "normal"
-    data: dict = field(default_factory=dict)
-    residual: dict = field(default_factory=dict)
-    channels: list[FitSignal] = field(default_factory=list)
-    problem: FitProblem | None = None
-    consistency: Consistency | None = None
-    library_verdict: str | None = None  # the verdict of the library alone (differs on "discovered")
-    discovery: Discovery | None = None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -393,235 +352,6 @@ def residual_analysis(recording: Recording, signal: FitSignal, prediction: np.nd
 # Words
 
 
-def _band_label(row: dict, unit: str) -> str:
-    lo, hi = row["range"]
-    return f"> {lo:g} {unit}" if hi is None else f"{lo:g}-{hi:g} {unit}"
-
-
-def where_text(conditions: dict, windows: list[list[float]], duration_s: float, noise: float,
-               signal: str = "yaw rate") -> str:
-    covered = sum(b - a for a, b in windows)
-    parts = [(f"the {signal} error exceeds twice the noise in {len(windows)} stretch(es) covering "
-             f"{100 * covered / max(duration_s, 1e-9):.0f}% of the run")]
-    contrasts = []
-    for key, unit, name in (("speed_mps", "m/s", "at speeds"), ("abs_lat_accel_mps2", "m/s^2", "at |lateral accel|"),
-                            ("steer_freq_hz", "Hz", "with steering at")):
-        rows = [r for r in conditions[key] if r["fraction"] >= 0.03]
-        if len(rows) < 2:
-            continue
-        worst = max(rows, key=lambda r: r["rmse_before"])
-        best = min(rows, key=lambda r: r["rmse_before"])
-        ratio = worst["rmse_before"] / max(best["rmse_before"], 1e-12)
-        contrasts.append((ratio, (f"{name} {_band_label(worst, unit)} ({worst['rmse_before'] / max(noise, 1e-12):.1f}x "
-                                 f"noise vs {best['rmse_before'] / max(noise, 1e-12):.1f}x at "
-                                 f"{_band_label(best, unit)})")))
-    sides = {r["side"]: r for r in conditions["direction"]}
-    if "left" in sides and "right" in sides:
-        left, right = sides["left"]["rmse_before"], sides["right"]["rmse_before"]
-        if max(left, right) > 1.3 * min(left, right):
-            contrasts.append((max(left, right) / max(min(left, right), 1e-12),
-                              (f"in {'left' if left > right else 'right'} turns "
-                              f"({max(left, right) / max(noise, 1e-12):.1f}x noise vs "
-                              f"{min(left, right) / max(noise, 1e-12):.1f}x)")))
-    contrasts.sort(reverse=True)
-    strong = [text for ratio, text in contrasts if ratio > 1.3][:2]
-    if strong:
-        parts.append("it is largest " + " and ".join(strong))
-    return "; ".join(parts)
-
-
-def effect_sentence(name: str, params: dict, ci: dict) -> str:
-    return SPECS[name].sentence(params, ci)
-
-
-def tie_text(winner: tuple[str, ...], runner_up: tuple[str, ...]) -> str:
-    """What drive would separate two explanations a recording cannot tell apart."""
-    hints = [separating_text(a, b) for a in set(winner) - set(runner_up) for b in set(runner_up) - set(winner)]
-    hints = [h for h in dict.fromkeys(hints) if h]
-    return f" ({'; '.join(hints)})" if hints else ""
-
-
-def runner_up_text(sel: Selection, unit: str) -> str:
-    """Winner against runner-up with the margin's sign and its bootstrap spread."""
-    r, w = sel.runner_up, sel.winner
-    lo, hi = sel.margin_ci
-    spread = f"95% {100 * lo:+.1f} to {100 * hi:+.1f}%" if math.isfinite(lo) else "no spread"
-    head = f"Runner-up: {r.name} (held-out RMSE {r.heldout_rmse:.4f} {unit})"
-    if math.isfinite(lo) and lo <= 0 <= hi:
-        return (f"{head}: penalised score {100 * sel.margin:+.1f}% against {w.name} ({spread}), inside the bootstrap "
-                f"spread: this recording cannot tell them apart{tie_text(w.effects, r.effects)}.")
-    if sel.margin >= 0:
-        return f"{head}: penalised score {100 * sel.margin:.1f}% worse ({spread})."
-    why = (f"it does not beat the plain model consistently enough ({sel.reason})" if not w.effects
-           else f"its extra term does not improve consistently on {w.name}")
-    return f"{head}: scores {100 * -sel.margin:.1f}% better than {w.name} ({spread}) but is not chosen: {why}."
-
-
-def _change(before: float, after: float) -> float:
-    return after / before - 1.0 if before > 0 and math.isfinite(before) and math.isfinite(after) else math.nan
-
-
-def signals_text(fit: dict) -> tuple[str, list[str], list[str]]:
-    """Held-out error change of every signal; which improve and which worsen."""
-    parts, better, worse = [], [], []
-    rows = [(name, c["rmse_before"], c["rmse_after"], c["unit"]) for name, c in fit["channels"].items()]
-    rows += [("re-anchored heading", fit["heading_rmse_before_rad"], fit["heading_rmse_after_rad"], "rad"),
-             ("re-anchored position", fit["position_rmse_before_m"], fit["position_rmse_after_m"], "m")]
-    for name, before, after, unit in rows:
-        change = _change(before, after)
-        if not math.isfinite(change):
-            continue
-        label = name.replace("_", " ")
-        parts.append(f"{label} {before:.4g} -> {after:.4g} {unit} ({100 * change:+.0f}%)")
-        if change < -SIGNAL_CHANGE:
-            better.append(label)
-        elif change > SIGNAL_CHANGE:
-            worse.append(f"{label} ({100 * change:+.0f}%)")
-    return "; ".join(parts), better, worse
-
-
-def _scored_text(data: dict) -> str:
-    return (f"{data['scored_s']:.1f} s ({100 * data['scored_fraction']:.0f}%) of the {data['duration_s']:.1f} s "
-            "recording are scored")
-
-
-def summary_text(d: Diagnosis) -> str:
-    sel = d.selection
-    fit = d.fit
-    unit = d.signal.unit
-    label = d.signal.label
-    lines = []
-    if d.data.get("low_confidence_reasons"):
-        lines.append(f"Low confidence: only {_scored_text(d.data)} ({'; '.join(d.data['low_confidence_reasons'])}).")
-    if d.data.get("unchecked_consistency"):
-        lines.append("Low confidence: the recording could not be checked against itself for "
-                     + "; ".join(d.data["unchecked_consistency"])
-                     + ", so a flipped sign or a wrong unit in those channels would read as physics.")
-    if d.verdict == "unexcited":
-        lines.append(f"Unexcited: '{d.recording.name}' cannot show steering-path physics: the steering moves the "
-                     f"model's {label} by {d.data['model_signal_rms']:.4g} {unit} RMS and the car's {label} varies by "
-                     f"{d.data['recorded_signal_rms']:.4g} {unit}, both within {EXCITATION_NOISE_FACTOR:g} x the noise "
-                     f"({fit['noise_sigma']:.4g}). Record turns, weaves or lane changes.")
-        return "\n".join(lines)
-    if d.verdict in ("match", "inconclusive"):
-        if d.verdict == "match":
-            lines.append(f"No significant mismatch: the simulator's model reproduces '{d.recording.name}' within its "
-                         f"measurement noise (held-out {label} RMSE {fit['rmse_before']:.4f} {unit}, noise "
-                         f"{fit['noise_sigma']:.4f} {unit}; "
-                         + ("the replay reproduces the recording to the digits it was written with)."
-                            if d.data.get("reproduced") else "residual white)."))
-        else:
-            lines.append(f"Inconclusive: no candidate beats the simulator's model on '{d.recording.name}', but "
-                         f"{d.data['inconclusive_because']}, so this is not a match (held-out {label} RMSE "
-                         f"{fit['rmse_before']:.4f} {unit}, noise estimate {fit['noise_sigma']:.4f}).")
-        alt = sel.best if sel.best.effects else sel.runner_up
-        lines.append(f"Best alternative: {alt.name} (held-out RMSE {alt.heldout_rmse:.4f} {unit}); {sel.reason}.")
-        return "\n".join(lines)
-    if d.verdict == "unexplained":
-        left = d.residual
-        lines.append(f"Unexplained: '{d.recording.name}' departs from the simulator "
-                     f"({where_text(d.conditions, d.windows, d.recording.duration_s, fit['noise_sigma'], label)}), "
-                     f"but nothing in the library explains it: held-out {label} RMSE {fit['rmse_before']:.4f} {unit} "
-                     f"is {fit['rmse_before'] / max(fit['noise_sigma'], 1e-12):.1f}x the noise "
-                     f"({fit['noise_sigma']:.4f}) and not white{_correlates(left)}.")
-        if d.data.get("steering_flat"):
-            lines.append(f"The recorded steering barely varies (std {d.data['steer_std_rad']:.2g} rad) while the car "
-                         "turns: check the steer column (and --steer-scale for simulator logs).")
-        alt = sel.best if sel.best.effects else sel.runner_up
-        lines.append(f"Best alternative: {alt.name} (held-out RMSE {alt.heldout_rmse:.4f} {unit}); {sel.reason}.")
-        return "\n".join(lines)
-    effects = sel.winner.effects
-    sentences = [effect_sentence(e, sel.winner.estimates[e], sel.winner.ci95[e]) for e in effects]
-    name = " + ".join(e.replace("_", " ") for e in effects)
-    article = "a " if len(effects) == 1 else ""
-    lines += [
-        f"'{d.recording.name}' departs from the simulator: "
-        f"{where_text(d.conditions, d.windows, d.recording.duration_s, fit['noise_sigma'], label)}.",
-        "Missing physics: " + "; ".join(sentences) + ".",
-        (f"On held-out data {article}{name} explains {100 * fit['explained_fraction']:.0f}% of the {label} error "
-         f"above the noise: RMSE {fit['rmse_before']:.4f} -> {fit['rmse_after']:.4f} {unit} "
-         f"({100 * (fit['rmse_after'] / fit['rmse_before'] - 1):+.0f}%; noise {fit['noise_sigma']:.4f}); "
-         f"heading {fit['heading_rmse_before_rad']:.4f} -> {fit['heading_rmse_after_rad']:.4f} rad, position "
-         f"{fit['position_rmse_before_m']:.3f} -> {fit['position_rmse_after_m']:.3f} m (re-anchored every "
-         f"{d.anchor_s:g} s)."),
-    ]
-    text, better, worse = signals_text(fit)
-    if len(fit["channels"]) > 1:
-        lines.append(f"Every signal, held out: {text}.")
-    if worse and better:
-        lines.append(f"Mixed: the fit improves {', '.join(better)} but worsens {', '.join(worse)}; the recorded signals "
-                     "disagree about this physics (a sensor issue, or physics outside the library).")
-    lines.append(runner_up_text(sel, unit))
-    if d.verdict == "mismatch" and d.data.get("structure_within_accuracy"):
-        lines.append(f"What is left is not quite white noise ({d.residual['rmse'] / max(fit['noise_sigma'], 1e-12):.2f}x "
-                     f"the noise, Ljung-Box p = {d.residual['whiteness']['p_value']:.2g}) but is under "
-                     f"{100 * (1 - STRUCTURE_MATTERS_BELOW):.0f}% of the error above the noise: within the replay's "
-                     "accuracy.")
-    if d.verdict == "partly explained" and d.data.get("position_worse"):
-        lines.append(f"Partly explained: {name} fits the {label} but moves the car the wrong way (re-anchored position "
-                     f"{fit['position_rmse_before_m']:.3f} -> {fit['position_rmse_after_m']:.3f} m): a yaw-plane term "
-                     "standing in for physics it cannot represent (road bank or grade, a sensor mounted askew, "
-                     "something outside the library); do not read its parameters as the car's.")
-    elif d.verdict == "partly explained":
-        left = d.residual
-        why = (f"only {100 * fit['explained_fraction']:.0f}% of the error above the noise is explained"
-               if fit["explained_fraction"] < PARTLY_EXPLAINED_BELOW else
-               f"the remaining {label} error is {left['rmse'] / max(fit['noise_sigma'], 1e-12):.1f}x the noise")
-        white = left["whiteness"]
-        lines.append(f"Partly explained: {why} and what is left is not white noise (Ljung-Box p = "
-                     f"{white['p_value']:.2g}){_correlates(left)}; physics outside the library remains"
-                     + (" (or, close to the noise, the interpolation of the irregular rows' steering onto the "
-                        "uniform grid the model runs on)." if d.recording.raw is not None else "."))
-    return "\n".join(lines)
-
-
-def discovery_text(disc: Discovery, signal: FitSignal) -> str:
-    """Residual discovery in words: what entered (and what it gains held out), what is doubtful, what not."""
-    unit = signal.unit
-    lines = []
-    for f in disc.named:
-        lines.append(f"Discovered outside the library: {f.sentence}. Held out on {f.validation}, it removes "
-                     f"{100 * f.removed_fraction:.0f}% of the {signal.label} error above the noise left by "
-                     f"{disc.base.name if f is disc.found[0] else 'the model before it'}: RMSE "
-                     f"{math.sqrt(f.mse_before):.4f} -> {math.sqrt(f.mse_after):.4f} {unit} (t = {f.t_statistic:.1f}).")
-    for f in disc.doubtful:
-        lines.append(f"Doubtful, not named: {f.sentence} ({'; '.join(f.doubts)}); held out it "
-                     f"{removed_words(f.removed_fraction, would=True)} of the {signal.label} error above the noise.")
-    if not disc.named:
-        tried = sorted(disc.tried, key=lambda t: t.score_ratio)
-        best = f"; the best, {tried[0].name.replace('_', ' ')}: {tried[0].why}" if tried else ""
-        lines.append(f"Residual discovery: no {'plausible ' if disc.doubtful else ''}term outside the library "
-                     f"improves held-out data clearly ({len(tried)} tried{best}).")
-    if disc.not_tried:
-        lines.append("Not tried: " + "; ".join(f"{k.replace('_', ' ')} ({v})" for k, v in disc.not_tried.items())
-                     + ".")
-    return "\n".join(lines)
-
-
-def discovery_json(disc: Discovery) -> dict:
-    def found(f):
-        return {"name": f.name, "sentence": f.sentence, "params": f.estimates, "ci": f.ci95,
-                "validation": f.validation, "rmse_before": math.sqrt(f.mse_before), "rmse_after": math.sqrt(f.mse_after),
-                "removed_fraction": f.removed_fraction, "t_statistic": f.t_statistic, "plausible": f.plausible,
-                "doubts": f.doubts}
-    return {"base": disc.base.name, "found": [found(f) for f in disc.named],
-            "doubtful": [found(f) for f in disc.doubtful],
-            "tried": [{"name": t.name, "score_ratio": t.score_ratio, "entered": t.entered, "why": t.why}
-                      for t in disc.tried],
-            "not_tried": disc.not_tried, "noise_sigma": disc.noise_sigma}
-
-
-def _correlates(residual: dict) -> str:
-    named = [c for c in residual["correlations"] if c["significant"]][:3]
-    if not named:
-        return ""
-    return "; it correlates with " + ", ".join(f"{c['with']} (rho = {c['rho']:+.2f})" for c in named)
-
-
-# ----------------------------------------------------------------------------------------------
-# The diagnosis
-
-
 def _rmse(values: np.ndarray, mask: np.ndarray) -> float:
     return float(np.sqrt(np.mean(values[mask] ** 2))) if mask.any() else math.nan
 
@@ -704,7 +434,7 @@ def dropped_notes(data: dict, recording: Recording) -> list[str]:
 def _check_enough(data: dict, recording: Recording, problem_blocks: int) -> None:
     if data["scored_s"] < MIN_SCORED_S or problem_blocks < MIN_BLOCKS:
         raise ValueError(
-            f"{recording.name}: too little usable data for any verdict: {_scored_text(data)} "
+            f"{recording.name}: too little usable data for any verdict: {scored_text(data)} "
             f"(need at least {MIN_SCORED_S:g} s in {MIN_BLOCKS} cross-validation blocks); "
             f"{data['dropped']['below_speed_floor']} samples are slower than the speed floor "
             f"{data['speed_floor_mps']:.3g} m/s (the car's top speed is {float(np.max(recording.speed_mps)):.3g} m/s)")
@@ -881,50 +611,3 @@ def _verdict(sel: Selection, fit: dict, data: dict, left: dict, left_plain: dict
         data["inconclusive_because"] = " and ".join(reasons)
         return "inconclusive"
     return "match"
-
-
-def _candidate_json(c: CandidateFit) -> dict:
-    return {"name": c.name, "effects": list(c.effects), "params": c.estimates, "ci": c.ci95,
-            "rmse_heldout": c.heldout_rmse, "rmse_train": math.sqrt(c.train_mse), "dof": c.dof, "score": c.score,
-            "rmse_heldout_by_signal": {k: math.sqrt(v) for k, v in c.channel_mse.items()}}
-
-
-def to_json(d: Diagnosis) -> dict:
-    """The diagnosis as the documented JSON (effect names and parameter keys are fixed; no NaN)."""
-    rec = d.recording
-    recording = {"name": rec.name, "duration_s": rec.duration_s, "sample_hz": 1.0 / rec.dt_s,
-                 "vehicle": rec.vehicle.sidecar() | {"source": rec.vehicle.source},
-                 "yaw_inertia_assumed": not rec.vehicle.inertia_known}
-    if d.verdict == "inconsistent":
-        return json_safe({"verdict": d.verdict, "confidence": d.confidence, "effects": [],
-                          "consistency": d.consistency.to_json(), "summary": d.summary, "recording": recording,
-                          "warnings": list(rec.warnings) + list(d.notes), "effect_names": list(EFFECT_NAMES)})
-    sel = d.selection
-    winner = sel.winner
-    named = (d.library_verdict or d.verdict) in ("mismatch", "partly explained")
-    effects = [{"name": e, "params": winner.estimates[e], "ci": winner.ci95[e]} for e in winner.effects] if named \
-        else []
-    runner = _candidate_json(sel.runner_up)
-    runner["margin"] = sel.margin
-    runner["margin_ci95"] = list(sel.margin_ci)
-    return json_safe({
-        "verdict": d.verdict,
-        "library_verdict": d.library_verdict or d.verdict,
-        "confidence": d.confidence,
-        "effects": effects,
-        "discovery": discovery_json(d.discovery) if d.discovery is not None else None,
-        "runner_up": runner,
-        "fit": d.fit,
-        "residual": d.residual,
-        "data": d.data,
-        "windows": d.windows,
-        "conditions": d.conditions,
-        "reason": sel.reason,
-        "summary": d.summary,
-        "candidates": [_candidate_json(c) for c in sel.ranking],
-        "recording": recording,
-        "checks": d.checks,
-        "consistency": d.consistency.to_json() if d.consistency is not None else None,
-        "warnings": list(rec.warnings) + list(d.notes),
-        "effect_names": list(EFFECT_NAMES),
-    })

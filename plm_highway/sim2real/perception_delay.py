@@ -1,6 +1,6 @@
 """The perception delay of a recording, estimated from its camera lane signal and its fast sensors.
 
-A recording (:mod:`plm_highway.sim2real.recording`) may carry, beside its standard columns, what a camera
+A recording (:mod:`plm_highway.sim2real.record.recording`) may carry, beside its standard columns, what a camera
 pipeline reported at each row about the lane:
 
 ========================  ========  =============================================================

@@ -23,7 +23,7 @@ from plm_highway.rollout.conditions import CONDITIONS, scored_steps
 from plm_highway.rollout.policies import make_policy
 from plm_highway.sim2real.diagnose import diagnose
 from plm_highway.sim2real.perception_delay import diagnosis_delays, perception_delay
-from plm_highway.sim2real.recording import read_recording
+from plm_highway.sim2real.record.recording import read_recording
 
 SIMULATED_CONDITIONS = "paper"
 SIMULATED_TRACK = "test"

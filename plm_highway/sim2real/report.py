@@ -23,10 +23,11 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.io import directory_kind, file_kind, json_text, save_figure_into, write_output, write_outputs
-from plm_highway.sim2real.consistency import channel_rates
-from plm_highway.sim2real.diagnose import Diagnosis, to_json
-from plm_highway.sim2real.discovery import removed_words
-from plm_highway.sim2real.shapes import shape_data
+from plm_highway.sim2real.diagnosis import Diagnosis
+from plm_highway.sim2real.record.consistency import channel_rates
+from plm_highway.sim2real.rendering import to_json
+from plm_highway.sim2real.residual.discovery import removed_words
+from plm_highway.sim2real.residual.shapes import shape_data
 
 NAMED = ("mismatch", "partly explained")
 

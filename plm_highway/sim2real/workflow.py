@@ -16,13 +16,13 @@ from pathlib import Path
 
 from plm_highway.errors import BadInput
 from plm_highway.io.bounded import parse_float_text
-from plm_highway.sim2real.effects import EFFECT_NAMES, EFFECTS
-from plm_highway.sim2real.replay import ANCHOR_S
+from plm_highway.sim2real.physics.effects import EFFECT_NAMES, EFFECTS
+from plm_highway.sim2real.physics.replay import ANCHOR_S
 
 
 def parse_effect_specs(specs: list[str]) -> dict[str, dict[str, float] | None]:
     """``NAME``, ``NAME=VALUE`` (its first parameter) or ``NAME=VALUE,KEY=VALUE,...``."""
-    from plm_highway.sim2real.synth import OUTSIDE_EFFECTS
+    from plm_highway.sim2real.physics.synth import OUTSIDE_EFFECTS
 
     known = (*EFFECT_NAMES, *OUTSIDE_EFFECTS)
     out: dict[str, dict[str, float] | None] = {}
@@ -67,8 +67,9 @@ def diagnose_file(
     """Read a recording (or, with ``steer_column``, a simulator log), diagnose it, print the summary and
     publish the JSON and/or report. Returns the exit code (0)."""
     from plm_highway.io import check_target
-    from plm_highway.sim2real.diagnose import diagnose, to_json
-    from plm_highway.sim2real.recording import SIMULATOR_VEHICLE, read_recording, read_sidecar, read_sim_log
+    from plm_highway.sim2real.diagnose import diagnose
+    from plm_highway.sim2real.record.recording import SIMULATOR_VEHICLE, read_recording, read_sidecar, read_sim_log
+    from plm_highway.sim2real.rendering import to_json
     from plm_highway.sim2real.report import DIAGNOSIS_JSON, SIM2REAL_REPORT, publish_diagnosis
 
     started = time.perf_counter()
@@ -147,8 +148,8 @@ def make_recording_file(
     import numpy as np
 
     from plm_highway.io import check_target
-    from plm_highway.sim2real.recording import RECORDING_CSV, write_recording
-    from plm_highway.sim2real.synth import NoiseLevels, make_recording
+    from plm_highway.sim2real.physics.synth import NoiseLevels, make_recording
+    from plm_highway.sim2real.record.recording import RECORDING_CSV, write_recording
 
     parsed = parse_effect_specs(list(effects or []))
     check_target(out, RECORDING_CSV, overwrite=overwrite)

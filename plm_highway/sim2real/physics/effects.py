@@ -6,11 +6,11 @@ Each candidate effect inserts one physical term into the model chain (:mod:`.cha
             -> vehicle (kinematic | linear tires | saturating tires; road bank) -> sensors (late gyro)
 
 and every effect is one entry of :data:`EFFECTS`: its parameters (units, bounds, the values tried
-before polishing), the chain parameters (:class:`~plm_highway.sim2real.chain.EffectParams` fields)
+before polishing), the chain parameters (:class:`~plm_highway.sim2real.physics.chain.EffectParams` fields)
 it sets, the public parameter names it reports, its fingerprint, how ``make-recording`` conceals
 it, and its sentence in a summary. ``selection``, ``diagnose`` and ``synth`` read only this table;
 adding an effect that the chain can already express touches one entry (a new kind of physics also
-adds its term to :func:`~plm_highway.sim2real.chain.simulate_chain`).
+adds its term to :func:`~plm_highway.sim2real.physics.chain.simulate_chain`).
 
 =================== ============================================= ============================================
 effect              term                                          parameters (public names)
@@ -39,9 +39,9 @@ from collections import ChainMap
 
 import numpy as np
 
-from plm_highway.sim2real.chain import EffectParams
-from plm_highway.sim2real.effect_spec import Effect, FitContext, Parameter, pm
-from plm_highway.sim2real.terms import TERMS
+from plm_highway.sim2real.physics.chain import EffectParams
+from plm_highway.sim2real.physics.effect_spec import Effect, FitContext, Parameter, pm
+from plm_highway.sim2real.physics.terms import TERMS
 from plm_highway.vehicle.single_track import understeer_gradient
 from plm_highway.vehicle.tires import GRAVITY_MPS2
 

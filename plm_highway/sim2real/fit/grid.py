@@ -5,7 +5,7 @@ on a grid; its linear parameters (gain, offset, bank) enter the signal linearly 
 every grid point the best values follow from a weighted Gram matrix of the residual and the
 signal's sensitivities to them (:func:`grid_statistics`, then :func:`profile_linear`). One
 simulation serves every cross-validation fold (a weight row per fold). Grid points are a
-structured array of :data:`~plm_highway.sim2real.chain.CHAIN_DTYPE`; a linear coordinate is a
+structured array of :data:`~plm_highway.sim2real.physics.chain.CHAIN_DTYPE`; a linear coordinate is a
 direction in that space (:class:`LinearDirection`).
 """
 
@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from plm_highway.sim2real.chain import (
+from plm_highway.sim2real.physics.chain import (
     CHAIN_DTYPE,
     CarParams,
     ChainOutputs,
@@ -30,7 +30,7 @@ from plm_highway.sim2real.chain import (
     tire_maps,
     unit_bank_response,
 )
-from plm_highway.sim2real.filters import fir_filter
+from plm_highway.sim2real.physics.filters import fir_filter
 
 
 class GridChannel(NamedTuple):

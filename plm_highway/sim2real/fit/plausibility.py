@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import math
 
-from plm_highway.sim2real.consistency import Consistency
-from plm_highway.sim2real.problem import CandidateFit, FitProblem
+from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem
+from plm_highway.sim2real.record.consistency import Consistency
 
 OFFSET_CHANGE_RAD = 0.005
 GAIN_CHANGE = 0.25

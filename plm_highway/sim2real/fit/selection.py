@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plm_highway.sim2real.candidates import (
+from plm_highway.sim2real.fit.candidates import (
     available_effects,
     is_superset,
     neighbours,
@@ -56,11 +56,11 @@ from plm_highway.sim2real.candidates import (
     singles,
     with_refined,
 )
-from plm_highway.sim2real.fitting import fit_candidate, polish_candidate
-from plm_highway.sim2real.gridfit import FitCache
-from plm_highway.sim2real.problem import CandidateFit, FitProblem
-from plm_highway.sim2real.scoring import T_STAT_THRESHOLD, bootstrap_ratio, clearly_better
-from plm_highway.sim2real.uncertainty import refit
+from plm_highway.sim2real.fit.fitting import fit_candidate, polish_candidate
+from plm_highway.sim2real.fit.gridfit import FitCache
+from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem
+from plm_highway.sim2real.fit.scoring import T_STAT_THRESHOLD, bootstrap_ratio, clearly_better
+from plm_highway.sim2real.fit.uncertainty import refit
 
 NOISE_FRACTION = 0.1  # the improvement must exceed this fraction of the noise variance
 TOP_SINGLES = 4

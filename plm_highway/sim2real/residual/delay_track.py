@@ -27,11 +27,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.linalg import solve_banded
 
-from plm_highway.sim2real.chain import EffectParams
-from plm_highway.sim2real.problem import CandidateFit, FitProblem
-from plm_highway.sim2real.recording import Recording
-from plm_highway.sim2real.replay import FitSignal, channel_prediction, model_outputs
-from plm_highway.sim2real.scoring import combined_score
+from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem
+from plm_highway.sim2real.fit.scoring import combined_score
+from plm_highway.sim2real.physics.chain import EffectParams
+from plm_highway.sim2real.physics.replay import FitSignal, channel_prediction, model_outputs
+from plm_highway.sim2real.record.recording import Recording
 
 # Knots at half the shortest hold worth resolving (0.1 s).
 KNOT_S = 0.05

@@ -1,5 +1,5 @@
 """Terms outside the library of effects, which residual discovery (:mod:`.discovery`) tries on top of
-the library's best chain. Each is one :class:`~plm_highway.sim2real.effect_spec.Effect` entry of
+the library's best chain. Each is one :class:`~plm_highway.sim2real.physics.effect_spec.Effect` entry of
 :data:`TERMS`, fitted by the library's own machinery; the library's candidate search never offers
 them (it reads ``effects.EFFECTS`` only).
 
@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from plm_highway.sim2real.effect_spec import Effect, FitContext, Parameter
+from plm_highway.sim2real.physics.effect_spec import Effect, FitContext, Parameter
 
 
 def _no_synthesis(**kwargs) -> dict:

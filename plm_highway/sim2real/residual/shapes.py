@@ -16,9 +16,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from plm_highway.sim2real.chain import EffectParams, steering_map
-from plm_highway.sim2real.problem import FitProblem
-from plm_highway.sim2real.replay import channel_prediction, model_outputs
+from plm_highway.sim2real.fit.problem import FitProblem
+from plm_highway.sim2real.physics.chain import EffectParams, steering_map
+from plm_highway.sim2real.physics.replay import channel_prediction, model_outputs
 
 BINS = 12
 # The chain parameters each steering-map or sensor term sets, at their neutral values.

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import itertools
 
-from plm_highway.sim2real.effects import EFFECTS
-from plm_highway.sim2real.replay import FitSignal
+from plm_highway.sim2real.physics.effects import EFFECTS
+from plm_highway.sim2real.physics.replay import FitSignal
 
 
 def expand(effects: tuple[str, ...]) -> tuple[str, ...]:

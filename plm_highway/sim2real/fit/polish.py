@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from plm_highway.sim2real.chain import EffectParams
-from plm_highway.sim2real.effects import SPECS, FitContext, effect_report, params_from
-from plm_highway.sim2real.grid import LinearDirection
-from plm_highway.sim2real.problem import FitProblem
+from plm_highway.sim2real.fit.grid import LinearDirection
+from plm_highway.sim2real.fit.problem import FitProblem
+from plm_highway.sim2real.physics.chain import EffectParams
+from plm_highway.sim2real.physics.effects import SPECS, FitContext, effect_report, params_from
 from plm_highway.vehicle.tires import GRAVITY_MPS2
 
 MAX_POLISH_EVALUATIONS = 40

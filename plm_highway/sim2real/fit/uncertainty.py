@@ -11,10 +11,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from plm_highway.sim2real.effects import SPECS, coordinates_of, params_from
-from plm_highway.sim2real.jitter import jitter_interval
-from plm_highway.sim2real.polish import Polished, coordinates, polish, public_estimates
-from plm_highway.sim2real.problem import CandidateFit, FitProblem
+from plm_highway.sim2real.fit.jitter import jitter_interval
+from plm_highway.sim2real.fit.polish import Polished, coordinates, polish, public_estimates
+from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem
+from plm_highway.sim2real.physics.effects import SPECS, coordinates_of, params_from
 
 
 def _autocorrelation_inflation(residual: np.ndarray) -> float:

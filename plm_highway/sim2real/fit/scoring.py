@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from plm_highway.sim2real.problem import CandidateFit, FitProblem, heldout_mask
+from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem, heldout_mask
 
 PENALTY_PER_PARAMETER = 0.01
 T_STAT_THRESHOLD = 3.0

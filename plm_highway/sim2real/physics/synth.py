@@ -34,9 +34,9 @@ import numba
 import numpy as np
 from scipy.signal import lfilter
 
-from plm_highway.sim2real.chain import _servo
-from plm_highway.sim2real.effects import EFFECTS
-from plm_highway.sim2real.recording import (
+from plm_highway.sim2real.physics.chain import _servo
+from plm_highway.sim2real.physics.effects import EFFECTS
+from plm_highway.sim2real.record.recording import (
     SIMULATOR_VEHICLE,
     Recording,
     VehicleGeometry,

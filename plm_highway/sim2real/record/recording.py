@@ -80,6 +80,8 @@ GAP_INTERVALS = 5.0
 # no car makes) is a localisation glitch; samples this close to one are not scored.
 HEADING_JUMP_RAD = 0.2
 MAX_PLAUSIBLE_YAW_RATE_RADPS = 3.0
+# The window over which a rate is read from an angle (the heading's rate, by a Savitzky-Golay derivative).
+HEADING_DERIVATIVE_WINDOW_S = 0.5
 # Glitches are rare: a yaw rate that disagrees with this share of the heading's steps is no reference.
 MAX_GLITCH_FRACTION = 0.02
 # A glitch also stands this many standard deviations of the heading's own step noise out of it (a noisy

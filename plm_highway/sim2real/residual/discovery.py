@@ -7,7 +7,7 @@ on top of it, each fitted inside the model on every recorded channel and judged 
 * the steering map and the gyro (:mod:`.terms`): dead band, backlash, end stops, left/right
   asymmetry, a speed-dependent steering ratio, a gyro bias. Grid over the term's own parameter with
   the chain held, every linear coordinate in closed form, then polished jointly with the chain
-  (:func:`~plm_highway.sim2real.gridfit.extended_starts`); held out on the library's blocks;
+  (:func:`~plm_highway.sim2real.fit.gridfit.extended_starts`); held out on the library's blocks;
 * a delay that varies in time (:mod:`.delay_track`), held out on interleaved gyro samples (a
   time-local track cannot predict other stretches; the gyro's noise is white from sample to sample),
   and named only if it beats a free-form smoother as flexible as itself;
@@ -30,17 +30,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plm_highway.sim2real import delay_track, track_bank
-from plm_highway.sim2real.consistency import Consistency
-from plm_highway.sim2real.effects import SPECS
-from plm_highway.sim2real.fitting import polish_candidate, scored
-from plm_highway.sim2real.gridfit import extended_starts
-from plm_highway.sim2real.plausibility import compensation_doubts, delay_doubts, size_doubts
-from plm_highway.sim2real.problem import CandidateFit, FitProblem
-from plm_highway.sim2real.scoring import clearly_better
-from plm_highway.sim2real.selection import NOISE_FRACTION, POLISH_WITHIN, Selection
-from plm_highway.sim2real.terms import TERMS
-from plm_highway.sim2real.uncertainty import refit
+from plm_highway.sim2real.fit.fitting import polish_candidate, scored
+from plm_highway.sim2real.fit.gridfit import extended_starts
+from plm_highway.sim2real.fit.plausibility import compensation_doubts, delay_doubts, size_doubts
+from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem
+from plm_highway.sim2real.fit.scoring import clearly_better
+from plm_highway.sim2real.fit.selection import NOISE_FRACTION, POLISH_WITHIN, Selection
+from plm_highway.sim2real.fit.uncertainty import refit
+from plm_highway.sim2real.physics.effects import SPECS
+from plm_highway.sim2real.physics.terms import TERMS
+from plm_highway.sim2real.record.consistency import Consistency
+from plm_highway.sim2real.residual import delay_track, track_bank
 
 MAX_TERMS = 2
 # A term is the missing physics only if it removes at least this share of the held-out error left above

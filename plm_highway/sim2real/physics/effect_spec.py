@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plm_highway.sim2real.chain import TIRE_MIN_SPEED_MPS, EffectParams
+from plm_highway.sim2real.physics.chain import TIRE_MIN_SPEED_MPS, EffectParams
 
 # Quantiles of |steering command| a FitContext carries (the steering map's grids are set from them).
 STEER_QUANTILES = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.99)

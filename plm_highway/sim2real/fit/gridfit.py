@@ -12,11 +12,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plm_highway.sim2real.chain import ChainParams, EffectParams, chain_grid
-from plm_highway.sim2real.effects import SPECS, FitContext, coordinates_of, params_from
-from plm_highway.sim2real.grid import profile_linear
-from plm_highway.sim2real.polish import LINEAR_COORDINATES, Coordinate, coordinates, neutral_value
-from plm_highway.sim2real.problem import FitProblem
+from plm_highway.sim2real.fit.grid import profile_linear
+from plm_highway.sim2real.fit.polish import LINEAR_COORDINATES, Coordinate, coordinates, neutral_value
+from plm_highway.sim2real.fit.problem import FitProblem
+from plm_highway.sim2real.physics.chain import ChainParams, EffectParams, chain_grid
+from plm_highway.sim2real.physics.effects import SPECS, FitContext, coordinates_of, params_from
 
 MAX_GRID_POINTS = 1200
 SEED_POINTS = 6

@@ -45,8 +45,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy.signal import savgol_filter
 
-from plm_highway.sim2real.recording import Recording
-from plm_highway.sim2real.replay import HEADING_DERIVATIVE_WINDOW_S
+from plm_highway.sim2real.record.recording import HEADING_DERIVATIVE_WINDOW_S, Recording
 from plm_highway.vehicle.tires import GRAVITY_MPS2
 
 # A ratio between two channels that should agree is consistent within this factor (a wheel-speed

@@ -13,12 +13,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plm_highway.sim2real.chain import CarParams, Drive, EffectParams
-from plm_highway.sim2real.effect_spec import STEER_QUANTILES, FitContext
-from plm_highway.sim2real.folds import default_block_s, make_folds
-from plm_highway.sim2real.grid import GridChannel, LinearDirection, grid_statistics
-from plm_highway.sim2real.recording import Recording
-from plm_highway.sim2real.replay import FitSignal, channel_prediction, model_outputs, recorded_channels
+from plm_highway.sim2real.fit.folds import default_block_s, make_folds
+from plm_highway.sim2real.fit.grid import GridChannel, LinearDirection, grid_statistics
+from plm_highway.sim2real.physics.chain import CarParams, Drive, EffectParams
+from plm_highway.sim2real.physics.effect_spec import STEER_QUANTILES, FitContext
+from plm_highway.sim2real.physics.replay import FitSignal, channel_prediction, model_outputs, recorded_channels
+from plm_highway.sim2real.record.recording import Recording
 
 
 def fit_context(recording: Recording) -> FitContext:

@@ -39,13 +39,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import savgol_coeffs
 
-from plm_highway.sim2real.chain import EffectParams, _delayed, simulate
-from plm_highway.sim2real.filters import fir_filter, fir_filter_at, lateral_fir_at, lateral_fir_at_turned
-from plm_highway.sim2real.recording import Recording
+from plm_highway.sim2real.physics.chain import EffectParams, _delayed, simulate
+from plm_highway.sim2real.physics.filters import fir_filter, fir_filter_at, lateral_fir_at, lateral_fir_at_turned
+from plm_highway.sim2real.record.recording import HEADING_DERIVATIVE_WINDOW_S, Recording
 from plm_highway.vehicle.kinematic import integrate_pose_euler
 
 ANCHOR_S = 2.0
-HEADING_DERIVATIVE_WINDOW_S = 0.5
 # Samples at the start where settled-start assumptions of the effect states may still be wrong.
 SETTLE_S = 1.0
 # Third differences needed before a noise level counts as measured.

@@ -1,7 +1,7 @@
 """Fitting one candidate: grid, polish, held-out predictions and scores (:func:`fit_candidate`).
 
 Each candidate is fitted on each fold's train blocks: its grid stage (:mod:`.gridfit`) gives the
-best grid points, :func:`~plm_highway.sim2real.polish.polish` refines them on all channels, and
+best grid points, :func:`~plm_highway.sim2real.fit.polish.polish` refines them on all channels, and
 the fold's model predicts the held-out blocks. A candidate whose grid score cannot win stays a
 grid fit (``polished=False``) until :func:`polish_candidate` finishes it.
 """
@@ -13,13 +13,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from plm_highway.sim2real.chain import EffectParams
-from plm_highway.sim2real.effects import SPECS, coordinates_of, params_from
-from plm_highway.sim2real.gridfit import FitCache, fold_starts, grid_blocks, remember_top_rows
-from plm_highway.sim2real.jitter import JITTER_ITERATIONS, JITTER_MAX_S, delay_sensitivity, fit_jitter
-from plm_highway.sim2real.polish import coordinates, polish, public_estimates
-from plm_highway.sim2real.problem import CandidateFit, FitProblem, heldout_mask
-from plm_highway.sim2real.scoring import PENALTY_PER_PARAMETER, _mse, combined_score
+from plm_highway.sim2real.fit.gridfit import FitCache, fold_starts, grid_blocks, remember_top_rows
+from plm_highway.sim2real.fit.jitter import JITTER_ITERATIONS, JITTER_MAX_S, delay_sensitivity, fit_jitter
+from plm_highway.sim2real.fit.polish import coordinates, polish, public_estimates
+from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem, heldout_mask
+from plm_highway.sim2real.fit.scoring import PENALTY_PER_PARAMETER, _mse, combined_score
+from plm_highway.sim2real.physics.chain import EffectParams
+from plm_highway.sim2real.physics.effects import SPECS, coordinates_of, params_from
 
 
 def _candidate_dof(effects: tuple[str, ...]) -> int:

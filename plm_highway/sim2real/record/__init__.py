@@ -1,0 +1,1 @@
+"""A recording: reading and validating it (any vehicle, any rate), and checking it against itself."""
