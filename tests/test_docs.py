@@ -157,3 +157,18 @@ def test_the_hero_figure_is_one_the_kit_wrote():
 
     with Image.open(ROOT / "figures" / "zigzag.png") as image:
         assert image.info.get("Software") == "plm-highway"
+
+
+def test_the_readme_quotes_the_measured_suite_time():
+    """The suite's time in the README is the last measurement kept in figures/suite-time.json, idle and loaded."""
+    import json
+
+    runs = json.loads((ROOT / "figures" / "suite-time.json").read_text(encoding="utf-8"))["runs"]
+    idle = [run for run in runs if run["load"] == "idle"][-1]
+    loaded = [run for run in runs if run["load"] != "idle"][-1]
+    for run in runs:
+        assert run["command"] == "python -m pytest" and run["cores"] == 2 and run["wall_s"] > 0
+        assert run["cpu_s"] is None or run["wall_s"] < run["cpu_s"] <= 2 * run["wall_s"]  # 2 cores
+    tests = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split("## Tests")[1].split())
+    assert f"took {round(idle['wall_s'] / 60)} minutes on 2 otherwise idle cores" in tests
+    assert f"{round(loaded['wall_s'] / 60)} minutes with {loaded['load']}" in tests

@@ -79,9 +79,9 @@ def run(args) -> int:
         if path is not None:
             check_target(path, kind, overwrite=args.overwrite)
     with single_threaded_inference():
-        result, logs = evaluate(args.track, latency, args.policy, args.seed, args.max_steps, args.checkpoints,
-                                args.seeds, args.conditions, args.injection, device_of(args),
-                                latency_source=args.latency_source)
+        result, logs = evaluate(args.track, latency, args.policy, seed=args.seed, max_steps=args.max_steps,
+                                checkpoints=args.checkpoints, seeds=args.seeds, conditions=args.conditions,
+                                injection=args.injection, device=device_of(args), latency_source=args.latency_source)
     if args.json or args.out:
         publish_results(result, logs, args.json, args.out, overwrite=args.overwrite)
     if args.print_json:

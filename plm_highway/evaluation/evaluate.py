@@ -106,7 +106,7 @@ def summary_lines(result: dict) -> list[str]:
     return lines
 
 
-def evaluate(track="test", latency="const:0.25", policy="plm", seed=0, max_steps=None, checkpoints=None,
+def evaluate(track="test", latency="const:0.25", policy="plm", *, seed=0, max_steps=None, checkpoints=None,
              seeds=None, conditions: str = "ideal", injection: str | None = None, device="cpu",
              latency_source: str | None = None) -> tuple[dict, dict]:
     """Run the comparison; returns (result dict, {run name: RunLog}).
