@@ -191,7 +191,7 @@ def test_paper_conditions_drive_the_runs_as_reproduce_does(tmp_path, capsys):
         logs = run_cells(runs_under(cells, load_track("test"), conditions, make_policies(None, conditions), 20),
                          preset=conditions.checkpoint_preset)
     with single_threaded_inference():
-        _, evaluated = evaluate_cli.evaluate("test", "const:0.15", "plm", 2, 20, conditions="paper")
+        _, evaluated = evaluate_cli.evaluate("test", "const:0.15", "plm", seed=2, max_steps=20, conditions="paper")
     for log, name in zip(logs, ("baseline", "mitigated")):
         np.testing.assert_array_equal(evaluated[name].columns["steering"], log.columns["steering"])
         written = np.array([float(row["steering"]) for row in read_csv(out / f"{name}.csv")])
