@@ -243,18 +243,18 @@ def test_a_failing_run_leaves_previous_outputs_untouched(checkpoints, tmp_path, 
     (out / "report.md").write_text("previous report\n")
     previous_results = json.dumps({"command": "plm-highway reproduce --out out"})
     (out / "results.json").write_text(previous_results)
-    from plm_highway.rollout import batched
+    from plm_highway.rollout import closed_loop
 
-    real_make_env = batched.make_env
+    real_make_env = closed_loop.make_env
     calls = []
 
-    def failing_make_env(*args, **kwargs):  # the batched runner starts each run's env with it
+    def failing_make_env(*args, **kwargs):  # the loop starts each run's env with it
         calls.append(args)
         if len(calls) == 3:
             raise ValueError("latency spec 'const:0.2': simulated failure in the third run")
         return real_make_env(*args, **kwargs)
 
-    monkeypatch.setattr(batched, "make_env", failing_make_env)
+    monkeypatch.setattr(closed_loop, "make_env", failing_make_env)
     code = cli.main(["reproduce", "--out", str(out), "--checkpoints", str(checkpoints), "--max-steps", "20",
                      "--seeds", "1", "--settings", "const:0.2", "--generalise", "--no-progress", "--overwrite",
                      "--workers", "0"])

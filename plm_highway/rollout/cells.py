@@ -6,7 +6,7 @@ object). :func:`run_cells` drives a list of them and returns one
 :class:`~plm_highway.rollout.closed_loop.RunLog` per cell, in order; the arguments choose how:
 
 - ``serial=True``: one env at a time (:func:`~plm_highway.rollout.closed_loop.drive`), in this process;
-- by default, batched in this process (:mod:`plm_highway.rollout.batched`): ``batch_size`` envs stepped
+- by default, batched in this process (:func:`~plm_highway.rollout.closed_loop.drive_batched`): ``batch_size`` envs stepped
   together, one forward pass per model and policy step, over ``threads`` Python threads;
 - with a ``backend`` (:mod:`plm_highway.rollout.backends`: a local process pool or a Ray cluster), in chunks
   of at most ``batch_size`` cells, each chunk batched in a worker that loads the named policies once.
@@ -37,8 +37,7 @@ from plm_highway.latency import LatencyProfile, parse_profile
 from plm_highway.models.device import resolve_device
 from plm_highway.road.spec import TrackSpec
 from plm_highway.rollout.backends import LocalPool
-from plm_highway.rollout.batched import drive_batched
-from plm_highway.rollout.closed_loop import Policy, RunCell, RunLog, drive_cell, make_env
+from plm_highway.rollout.closed_loop import Policy, RunCell, RunLog, drive_batched, drive_cell, make_env
 from plm_highway.rollout.conditions import Conditions, scored_steps, start_perturbation
 from plm_highway.rollout.policies import (
     MODEL_POLICIES,

@@ -1,10 +1,37 @@
-"""Closed-loop runs: a policy drives a track, optionally seeing late observations, and is logged.
+"""Closed-loop runs and the one loop that drives them: a policy drives a track, optionally seeing late
+observations, and is logged.
 
 A policy is anything that satisfies :class:`Policy`: ``policy(frame, info) -> normalised steering``
 and ``reset()``; ``info`` carries the observed (possibly delayed) privileged state, the requested
 ``latency_s`` and the measured ``observation_age_s``. A policy that also counts the steps whose
 latency lay beyond what it can compensate satisfies :class:`CountsClampedLatency`, and its count is
 logged. Runs compared with each other use the same track, seed and so the same latency realisation.
+
+One loop drives every run: :func:`drive_batched` steps N runs together, one forward pass of each model per step;
+:func:`drive` is that loop with one run. Callers with many runs go through
+:func:`plm_highway.rollout.cells.run_cells`, which makes the policy objects and chooses how many runs share a batch,
+threads or a pool of workers. At every policy step the frames of all live runs whose policy
+:class:`SteersInBatches` on one model (the Base Model, or PLM-Net told each run's own latency) go through that model
+in one ``steer_batch`` call; the expert and other callables are called per run. A run that ends drops out of the
+batch, the others go on.
+
+Why the project's own envs in a list and not gymnasium's vector API: ``SyncVectorEnv`` steps the
+same envs one after another in one process, like this loop, but every run here ends at its own
+step (leaving the road, the end of the track), which its autoreset modes handle by resetting the
+env (``NEXT_STEP``/``SAME_STEP``) or by leaving a finished env in the batch (``DISABLED``, with
+``reset_mask``); it also stacks every info dict into arrays each step, which this module would
+only have to undo. ``plm-highway bench sweep`` drives the same 16 runs both ways in one run: on a
+loaded 2-core machine (load average 7-11) the own loop took 17.0 s and SyncVectorEnv 18.6 s (earlier, at load 17,
+16.8 s and 18.0 s against 32.5 s one env at a time). The forward pass costs 10-20x the env step, so the
+vector API's bookkeeping is small but never a gain. ``AsyncVectorEnv`` puts one env per
+subprocess: on 2 cores a process pool (:mod:`plm_highway.rollout.backends`) already uses both.
+
+Same results in a batch as alone: env stepping, resets, latency realisations and image noise are per run and
+seeded by the run's seed, and the named model policies run batch-invariantly
+(:mod:`plm_highway.models.batch_invariant`: a sample's output does not depend on the rest of its batch), so every
+logged column of a run equals its one-run result bit for bit, whatever ``batch_size`` or ``threads``
+(``tests/test_batched.py``). A caller's policy object built without ``batch_invariant`` runs PyTorch's own
+kernels: equal up to float rounding, or bit-identical with ``run_cells(..., batch_invariant=True)``.
 
 A run given a ``latency_estimation`` (:class:`~plm_highway.estimation.latency_stream.LatencyEstimation`)
 estimates its latency from the stream (no capture timestamps) and logs :data:`ESTIMATE_COLUMNS` beside the
@@ -13,6 +40,10 @@ true ``observation_age_s``; PLM-Net told ``latency_source="estimated"`` reads th
 
 from __future__ import annotations
 
+import copy
+import threading
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
@@ -39,6 +70,23 @@ class Policy(Protocol):
     def reset(self) -> None: ...
 
     def __call__(self, frame: np.ndarray, info: dict) -> float: ...
+
+
+@runtime_checkable
+class SteersInBatches(Protocol):
+    """A policy whose model steers many runs in one forward pass
+    (:class:`~plm_highway.rollout.policies.VisionPolicy`): runs whose policies share one ``model_policy`` are
+    stepped together, each told its own latency."""
+
+    model_policy: object
+
+    def reset(self) -> None: ...
+
+    def latency_s(self, info: dict) -> float: ...
+
+    def model_input(self, frame: np.ndarray, info: dict) -> np.ndarray: ...
+
+    def output(self, steering: float, info: dict) -> float: ...
 
 
 @runtime_checkable
@@ -128,35 +176,148 @@ def add_image_noise(frame: np.ndarray, std: float, rng: np.random.Generator) -> 
 def drive(name: str, policy: Policy, track: TrackSpec | str = "test", latency: LatencyProfile | str = "const:0",
           seed: int = 0, camera: dict | None = None, env_config: dict | None = None, max_steps: int | None = None,
           injection: str = "time", image_noise_std: float = 0.0, latency_estimation=None) -> RunLog:
-    """Drive one run until the track ends, the car leaves the road or ``max_steps``; the env is closed after."""
-    env = make_env(track, latency, camera, env_config, injection, latency_estimation)
-    noise_rng = np.random.default_rng([seed, NOISE_STREAM])
-    try:
-        obs, info = env.reset(seed=seed)
-        policy.reset()
-        rows: dict[str, list] = {column: [] for column in LOG_COLUMNS}
-        terminated = False
-        step = 0
-        while max_steps is None or step < max_steps:
-            frame = add_image_noise(obs, image_noise_std, noise_rng) if image_noise_std > 0 else obs
-            steering = float(policy(frame, info))
-            rows["steering"].append(steering)
-            for column in LOG_COLUMNS[2:]:
-                rows[column].append(info[column])
-            rows["t_s"].append(info["time_s"])
-            log_estimate(rows, info)
-            obs, _, terminated, truncated, info = env.step(np.array([steering], dtype=np.float32))
-            step += 1
-            if terminated or truncated:
-                break
-    finally:
-        env.close()
-    columns = {column: np.asarray(values) for column, values in rows.items()}
-    extras = {"latency_clamped_steps": int(policy.clamped_count)} if isinstance(policy, CountsClampedLatency) else {}
-    return RunLog(name, columns, bool(terminated), float(info["completed_fraction"]), extras)
+    """Drive one run until the track ends, the car leaves the road or ``max_steps``; the env is closed after.
+    The loop of :func:`drive_batched` with this one run."""
+    cell = RunCell(name, policy, track, latency, seed, camera=camera, env_config=env_config, max_steps=max_steps,
+                   injection=injection, image_noise_std=image_noise_std, latency_estimation=latency_estimation)
+    return drive_cell(cell, policy)
 
 
 def drive_cell(cell: RunCell, policy: Policy) -> RunLog:
     """:func:`drive` the run ``cell`` describes, with ``policy`` (the cell's policy made an object)."""
-    return drive(cell.name, policy, cell.track, cell.latency, cell.seed, cell.camera, cell.env_config, cell.max_steps,
-                 cell.injection, cell.image_noise_std, cell.latency_estimation)
+    return drive_batched([cell], [policy], batch_size=1)[0]
+
+
+def drive_batched(cells: Sequence[RunCell], policies: Sequence[Policy], batch_size: int, batch_invariant: bool = False,
+                  on_done: Callable[[int, RunLog], None] | None = None, threads: int = 1) -> list[RunLog]:
+    """Drive every cell with its policy (``policies[i]`` for ``cells[i]``), ``batch_size`` envs at a time; the logs
+    in the order of ``cells``.
+
+    ``on_done(index, log)`` is called as each run ends. ``threads`` > 1 splits the cells over that many Python
+    threads, each stepping its own batch and sharing the models: the forward passes (which release the GIL) of
+    one batch run while another batch's envs step, which uses a second core without a process or a second copy
+    of the model. With batch-invariant models the logs do not depend on ``batch_size`` or ``threads``.
+    """
+    logs: list[RunLog | None] = [None] * len(cells)
+    parts = [list(range(len(cells)))[k::threads] for k in range(min(threads, len(cells)))]
+    if len(parts) <= 1:
+        _drive_part(parts[0] if parts else [], cells, policies, batch_size, batch_invariant, logs, on_done)
+        return logs
+    lock = threading.Lock()
+
+    def done(index: int, log: RunLog) -> None:
+        with lock:
+            on_done(index, log)
+
+    with ThreadPoolExecutor(len(parts)) as pool:
+        futures = [pool.submit(_drive_part, part, cells, policies, batch_size, batch_invariant, logs,
+                               None if on_done is None else done) for part in parts]
+        for future in futures:
+            future.result()
+    return logs
+
+
+@dataclass
+class _Run:
+    """One live env of the batch and what has been logged of it."""
+
+    cell: RunCell
+    env: object
+    policy: object
+    obs: np.ndarray
+    info: dict
+    noise_rng: np.random.Generator
+    rows: dict[str, list] = field(default_factory=lambda: {column: [] for column in LOG_COLUMNS})
+    step: int = 0
+    clamped_steps: int = 0
+    done: bool = False
+    terminated: bool = False
+
+    def frame(self) -> np.ndarray:
+        """The observation as the policy sees it (with the run's image noise)."""
+        std = self.cell.image_noise_std
+        return add_image_noise(self.obs, std, self.noise_rng) if std > 0 else self.obs
+
+    def record(self, steering: float) -> None:
+        self.rows["steering"].append(steering)
+        for column in LOG_COLUMNS[2:]:
+            self.rows[column].append(self.info[column])
+        self.rows["t_s"].append(self.info["time_s"])
+        log_estimate(self.rows, self.info)
+
+    def advance(self, steering: float) -> None:
+        self.obs, _, self.terminated, truncated, self.info = self.env.step(np.array([steering], dtype=np.float32))
+        self.step += 1
+        self.done = bool(self.terminated or truncated or self.at_step_limit())
+
+    def at_step_limit(self) -> bool:
+        return self.cell.max_steps is not None and self.step >= self.cell.max_steps
+
+    def log(self) -> RunLog:
+        columns = {column: np.asarray(values) for column, values in self.rows.items()}
+        policy = self.policy
+        if isinstance(policy, SteersInBatches):
+            extras = {"latency_clamped_steps": self.clamped_steps}  # counted per run: its model is shared
+        elif isinstance(policy, CountsClampedLatency):
+            extras = {"latency_clamped_steps": int(policy.clamped_count)}
+        else:
+            extras = {}
+        self.env.close()
+        return RunLog(self.cell.name, columns, bool(self.terminated), float(self.info["completed_fraction"]), extras)
+
+
+def _drive_part(indices: list[int], cells: Sequence[RunCell], policies: Sequence[Policy], batch_size: int,
+                batch_invariant: bool, logs: list, on_done) -> None:
+    """The cells ``indices``, ``batch_size`` envs at a time, refilling the batch as runs end."""
+    pending = list(indices)
+    live: dict[int, _Run] = {}
+    try:
+        while pending or live:
+            while pending and len(live) < batch_size:
+                index = pending.pop(0)
+                live[index] = _start(cells[index], policies[index])
+            _steer_and_step([run for run in live.values() if not run.done], batch_invariant)
+            for index in [i for i, run in live.items() if run.done]:
+                logs[index] = live.pop(index).log()
+                if on_done is not None:
+                    on_done(index, logs[index])
+    finally:
+        for run in live.values():  # an error: close what is still open
+            run.env.close()
+
+
+def _start(cell: RunCell, policy: Policy) -> _Run:
+    env = make_env(cell.track, cell.latency, cell.camera, cell.env_config, cell.injection, cell.latency_estimation)
+    obs, info = env.reset(seed=cell.seed)
+    policy.reset()
+    run = _Run(cell, env, policy, obs, info, np.random.default_rng([cell.seed, NOISE_STREAM]))
+    run.done = run.at_step_limit()  # max_steps 0: logged without a step
+    return run
+
+
+def _steer_and_step(runs: list[_Run], batch_invariant: bool) -> None:
+    """One policy step of every live run: batched model calls, then each env steps."""
+    steering: dict[int, float] = {}
+    by_model: dict[int, list[_Run]] = {}
+    for run in runs:
+        if isinstance(run.policy, SteersInBatches):
+            by_model.setdefault(id(run.policy.model_policy), []).append(run)
+        else:
+            steering[id(run)] = float(run.policy(run.frame(), run.info))
+    for group in by_model.values():
+        model = group[0].policy.model_policy
+        # float32 as the model takes it: the same rounding whatever the batch
+        latencies_s = np.asarray([run.policy.latency_s(run.info) for run in group], dtype=np.float32)
+        frames = np.stack([run.policy.model_input(run.frame(), run.info) for run in group])
+        speeds_mps = np.asarray([run.info["speed_mps"] for run in group])
+        if batch_invariant and not model.batch_invariant:  # a caller's policy object, left as it was
+            model = copy.copy(model)
+            model.batch_invariant = True
+        actions = model.steer_batch(frames, speeds_mps, latencies_s)
+        above_grid = latencies_s > np.float32(model.max_latency_s)
+        for run, action, clamped in zip(group, actions, above_grid):
+            steering[id(run)] = run.policy.output(float(action), run.info)
+            run.clamped_steps += int(clamped)
+    for run in runs:
+        run.record(steering[id(run)])
+        run.advance(steering[id(run)])

@@ -115,6 +115,8 @@ class VisionPolicy:
         return int(getattr(self.model_policy, "clamped_latency_count", 0))
 
     def __call__(self, frame, info) -> float:
+        """The steering for one frame outside the closed loop (which steers its runs in batches through
+        :meth:`model_input`, :meth:`latency_s` and :meth:`output`)."""
         steering = float(self.model_policy(self.model_input(frame, info), info["speed_mps"], self.latency_s(info)))
         return self.output(steering, info)
 
