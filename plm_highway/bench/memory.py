@@ -84,16 +84,16 @@ def memory_run(steps: int = DEFAULT_STEPS, latency: str = "steps:0.0-0.35:1.0", 
                progress: Callable[[int], None] | None = None) -> MemoryRun:
     """Drive ``steps`` policy steps after ``warmup_steps``, recording RSS; see the module docstring."""
     from plm_highway.errors import BadInput
-    from plm_highway.latency import parse_profile
+    from plm_highway.latency.profiles import check_specs
 
     if not MIN_STEPS <= steps <= MAX_STEPS:
         raise BadInput(f"--steps {steps}: outside the accepted range [{MIN_STEPS:,}, {MAX_STEPS:,}]")
     if not 0 <= warmup_steps <= MAX_STEPS or not 1 <= sample_every <= steps:
         raise BadInput(f"--warmup-steps {warmup_steps} / --sample-every {sample_every}: warm-up in [0, "
                        f"{MAX_STEPS:,}], sampling interval in [1, --steps]")
-    profile = parse_profile(latency)  # refuses a bad spec before the env is built
+    check_specs([latency])  # refused before the env is built
     rss_start = rss_mib()
-    env, policy = _expert_on_wrapped_env(track, profile)
+    env, policy = _expert_on_wrapped_env(track, latency)
     try:
         state = {"obs_info": env.reset(seed=seed), "episodes": 1}
 
@@ -121,17 +121,17 @@ def memory_run(steps: int = DEFAULT_STEPS, latency: str = "steps:0.0-0.35:1.0", 
         wall_s = time.perf_counter() - started
     finally:
         env.close()
-    return MemoryRun(steps, warmup_steps, profile.spec or str(latency), track, state["episodes"], wall_s,
+    return MemoryRun(steps, warmup_steps, env.profile.spec or str(latency), track, state["episodes"], wall_s,
                      rss_start, rss_warm, samples[-1][1], peak, samples)
 
 
-def _expert_on_wrapped_env(track: str, profile):
+def _expert_on_wrapped_env(track: str, latency: str):
     import gymnasium
 
     from plm_highway.expert import ExpertPolicy
     from plm_highway.latency import LatencyWrapper
 
-    env = LatencyWrapper(gymnasium.make("plm_highway/LaneKeeping-v0", config={"track": track}), profile)
+    env = LatencyWrapper(gymnasium.make("plm_highway/LaneKeeping-v0", config={"track": track}), latency)
     expert = ExpertPolicy()
     return env, lambda obs, info: np.array([expert(obs, info)], dtype=np.float32)
 

@@ -51,24 +51,23 @@ def bench_sweep(n_envs: int = 16, steps: int = 100, policy: str = "plm", latency
     machine two torch threads at batch size 1 can take 20x longer than one)."""
     import torch
 
-    from plm_highway.latency.profiles import parse_profile
     from plm_highway.road.track import resolve_track
     from plm_highway.rollout.cells import RunCell, run_cells
     from plm_highway.rollout.policies import VisionPolicy, make_policy, single_threaded_inference
 
     if not 1 <= repeats <= 100:
         raise ValueError(f"repeats {repeats}: must lie in [1, 100]")
-    # the latency and track are read again by every side; a bad one is refused before the pool starts
-    parse_profile(latency)
-    resolve_track(track)
+    # read once and shared by every side's cells; a bad one is refused before any model loads or the pool starts
+    track_spec = resolve_track(track)
+    profile = RunCell("check", "expert", track_spec, latency).latency
     load = os.getloadavg()[0]
     vision = make_policy(policy)
     default_kernels = make_policy(policy)
     default_kernels.model_policy.batch_invariant = False
-    cells = [RunCell(f"seed {seed}", vision, track, latency, seed, max_steps=steps) for seed in range(n_envs)]
+    cells = [RunCell(f"seed {seed}", vision, track_spec, profile, seed, max_steps=steps) for seed in range(n_envs)]
 
     def serial(policy_object: VisionPolicy) -> np.ndarray:
-        return _steering(run_cells([RunCell(c.name, policy_object, track, latency, c.seed, max_steps=steps)
+        return _steering(run_cells([RunCell(c.name, policy_object, track_spec, profile, c.seed, max_steps=steps)
                                     for c in cells], serial=True))
 
     pool_side = f"process pool ({workers} workers, batched), cold"

@@ -2,7 +2,7 @@
 
 Every random draw takes the caller's :class:`numpy.random.Generator`.
 
-Camera processing delay (``parse_camera_delay``): any kit latency profile
+Camera processing delay (:func:`plm_highway.latency.profiles.parse_camera_delay`): any kit latency profile
 (:func:`plm_highway.latency.parse_profile`: ``const:0.3``, ``steps:LO-HI:PERIOD``, ``sine:...``,
 ``ramp:...``, ``trace:...``, looked up at the frame's capture time) or ``frame:LO-HI``: a new delay
 drawn uniformly from [LO, HI] s for every frame, like the paper's measured ~0.3 s per frame
@@ -20,9 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plm_highway.latency.profiles import LatencyProfile, _range, parse_profile
-
-MAX_CAMERA_DELAY_S = 5.0
+from plm_highway.latency.profiles import parse_camera_delay
 
 
 @dataclass(frozen=True)
@@ -100,42 +98,6 @@ class LaneMeasurementNoise:
                 state = keep * state + np.sqrt(1.0 - keep ** 2) * std * draws[k]
             out[k] = state
         return out + np.asarray(self.bias)
-
-
-class PerFrameDelay(LatencyProfile):
-    """A new processing delay for every frame, uniform in [low_s, high_s]: call once per frame."""
-
-    def __init__(self, low_s: float, high_s: float, spec: str = ""):
-        self.low_s, self.high_s, self.spec = low_s, high_s, spec
-        self._rng: np.random.Generator | None = None
-
-    def reset(self, rng: np.random.Generator) -> None:
-        self._rng = rng
-
-    def latency_s(self, t_s: float) -> float:
-        if self._rng is None:
-            raise RuntimeError(f"{self.spec}: reset(rng) must be called before use")
-        return float(self._rng.uniform(self.low_s, self.high_s))
-
-    @property
-    def max_latency_s(self) -> float:
-        return self.high_s
-
-
-def parse_camera_delay(spec: str | float | LatencyProfile) -> LatencyProfile:
-    """A camera processing delay: ``frame:LO-HI`` (per-frame uniform) or any kit latency profile."""
-    if isinstance(spec, str) and spec.strip().startswith("frame:"):
-        text = spec.strip()
-        low_s, high_s = _range(text.partition(":")[2], text, "range")
-        if high_s < low_s:
-            raise ValueError(f"camera delay {spec!r}: range ends below its start")
-        profile: LatencyProfile = PerFrameDelay(low_s, high_s, text)
-    else:
-        profile = parse_profile(spec)
-    if profile.max_latency_s > MAX_CAMERA_DELAY_S:
-        raise ValueError(f"camera delay {profile.spec!r}: reaches {profile.max_latency_s} s; at most "
-                         f"{MAX_CAMERA_DELAY_S} s is accepted")
-    return profile
 
 
 @dataclass(frozen=True)

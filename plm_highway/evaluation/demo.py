@@ -11,9 +11,8 @@ import numpy as np
 
 from plm_highway.evaluation.plots import draw_road
 from plm_highway.io import FIGURE, check_target, pyplot, save_figure
-from plm_highway.latency import parse_profile
 from plm_highway.road.track import resolve_track
-from plm_highway.rollout.closed_loop import drive
+from plm_highway.rollout.closed_loop import RunCell, drive
 from plm_highway.rollout.policies import make_policy
 
 
@@ -30,12 +29,12 @@ def _choose_policy(name: str):
 def zigzag(latency="const:0.25", track="test", policy="auto", seed=0, out="figures/zigzag.png",
            overwrite=False) -> dict:
     check_target(out, FIGURE, overwrite=overwrite)
-    profile = parse_profile(latency if not _is_number(latency) else f"const:{latency}")
+    delayed = RunCell("baseline", policy, "test", latency if not _is_number(latency) else f"const:{latency}", seed)
     policy = _choose_policy(policy)
     track_spec = resolve_track(track)
     runs = {
         "no latency": drive("reference", make_policy(policy), track_spec, "const:0", seed),
-        f"latency {profile.spec}": drive("baseline", make_policy(policy), track_spec, profile, seed),
+        f"latency {delayed.latency.spec}": drive("baseline", make_policy(policy), track_spec, delayed.latency, seed),
     }
     _plot(track_spec, runs, policy, out, overwrite)
     return {name: log.summary() for name, log in runs.items()} | {"policy": policy, "figure": str(out)}

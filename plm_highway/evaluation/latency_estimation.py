@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.errors import BadInput
-from plm_highway.latency.profiles import JitteredProfile, LatencyProfile, parse_profile
+from plm_highway.latency.profiles import JitteredProfile, LatencyProfile, check_specs
 from plm_highway.latency.scoring import (
     claim_step_metrics,
     lock_metrics,
@@ -103,8 +103,7 @@ class LatencySuite:
         unknown = [c for c in self.conditions if c not in CONDITIONS]
         if unknown:
             raise BadInput(f"conditions {unknown}: expected from {list(CONDITIONS)}")
-        for spec in (*self.profiles, *self.mitigation_profiles, self.robustness_setting, *self.probe_settings):
-            parse_profile(spec)
+        check_specs((*self.profiles, *self.mitigation_profiles, self.robustness_setting, *self.probe_settings))
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise BadInput(f"seeds {self.seeds!r}: need distinct seeds")
 

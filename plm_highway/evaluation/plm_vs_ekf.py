@@ -68,15 +68,14 @@ class CompareConfig:
     max_steps: int | None = None  # None: the whole scored track
 
     def __post_init__(self):
-        from plm_highway.latency import parse_profile
+        from plm_highway.latency.profiles import check_specs
         from plm_highway.rollout.conditions import CONDITIONS
 
         if self.conditions not in CONDITIONS:
             raise BadInput(f"--conditions {self.conditions!r}: expected one of {list(CONDITIONS)}")
         if not self.settings:
             raise BadInput("--settings: at least one latency setting is needed")
-        for spec in (*self.settings, self.bias_latency):
-            parse_profile(spec)
+        check_specs((*self.settings, self.bias_latency))
         if NO_LATENCY in self.settings:
             raise BadInput(f"--settings: {NO_LATENCY} is always driven (the reference); give the latencies only")
         for bias in self.biases_s:

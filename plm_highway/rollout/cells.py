@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 from tqdm import tqdm
 
-from plm_highway.latency import LatencyProfile, parse_profile
+from plm_highway.latency import LatencyProfile
 from plm_highway.models.device import resolve_device
 from plm_highway.road.spec import TrackSpec
 from plm_highway.rollout.backends import LocalPool
@@ -100,14 +100,13 @@ def runs_under(cells: Sequence[Cell], track_spec: TrackSpec, conditions: Conditi
 
     A cell's policy is ``policies[cell.policy]`` where given (an object, told its cell's latency bias), else
     the policy named ``cell.policy`` (loaded by :func:`run_cells`, PLM-Net told the latency the conditions say).
-    Each latency spec is parsed once, here, and the runs carry its profile (every env keeps a private copy).
+    Each latency spec is parsed once (by its first run cell) and the runs of that spec share its profile (every env
+    keeps a private copy).
     """
     steps = scored_steps(track_spec, conditions, max_steps)
     profiles: dict[str, LatencyProfile] = {}
     runs = []
     for cell in cells:
-        if cell.latency not in profiles:
-            profiles[cell.latency] = parse_profile(cell.latency)
         policy = (policies or {}).get(cell.policy)
         if policy is None:
             if cell.policy not in POLICY_NAMES:
@@ -116,9 +115,11 @@ def runs_under(cells: Sequence[Cell], track_spec: TrackSpec, conditions: Conditi
             policy = cell.policy
         else:
             policy = biased(policy, cell.latency_bias_s)
-        runs.append(RunCell(cell.name, policy, track_spec, profiles[cell.latency], cell.seed,
-                            latency_bias_s=cell.latency_bias_s,
-                            latency_source=conditions.latency_source, **drive_options(cell, conditions, steps)))
+        run = RunCell(cell.name, policy, track_spec, profiles.get(cell.latency, cell.latency), cell.seed,
+                      latency_bias_s=cell.latency_bias_s, latency_source=conditions.latency_source,
+                      **drive_options(cell, conditions, steps))
+        profiles.setdefault(cell.latency, run.latency)
+        runs.append(run)
     return runs
 
 

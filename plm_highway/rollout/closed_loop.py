@@ -52,7 +52,7 @@ import numpy as np
 
 from plm_highway.envs import ENV_ID, register_envs
 from plm_highway.estimation.latency_stream import ESTIMATE_KEYS, STREAM_KEYS, LatencyEstimateWrapper
-from plm_highway.latency import LatencyProfile, LatencyWrapper
+from plm_highway.latency import LatencyProfile, LatencyWrapper, parse_profile
 from plm_highway.road.spec import TrackSpec
 
 LOG_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_m", "heading_rad", "speed_mps",
@@ -125,8 +125,11 @@ class RunLog:
 
 @dataclass(frozen=True)
 class RunCell:
-    """One closed-loop run, :func:`drive`'s arguments as data. ``policy`` is a name of
-    :data:`~plm_highway.rollout.policies.POLICY_NAMES` or a policy object.
+    """One closed-loop run described completely, :func:`drive`'s arguments as data: the typed description every
+    driving command builds and the loop runs. ``policy`` is a name of
+    :data:`~plm_highway.rollout.policies.POLICY_NAMES` or a policy object; ``latency`` is given as a spec or a
+    profile and held as the parsed :class:`~plm_highway.latency.LatencyProfile` (parsed here, once per run; the
+    env keeps a private copy of it, so runs may share one).
 
     A policy object is either a :class:`~plm_highway.rollout.policies.VisionPolicy` (batched runs sharing its
     model go through it together) or any ``policy(frame, info)`` callable with ``reset()``, called per env: a
@@ -146,6 +149,9 @@ class RunCell:
     injection: str = "time"  # LatencyWrapper injection, as for drive()
     image_noise_std: float = 0.0  # Gaussian pixel noise [grey levels], seeded as drive() seeds it
     latency_estimation: object = None  # a LatencyEstimation: the run estimates its latency, as for drive()
+
+    def __post_init__(self):
+        object.__setattr__(self, "latency", parse_profile(self.latency))
 
 
 def make_env(track: TrackSpec | str, latency: LatencyProfile | str, camera: dict | None = None,

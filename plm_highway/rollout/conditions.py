@@ -28,7 +28,7 @@ import numpy as np
 from plm_highway.camera.pinhole import PAPER_CAMERA, CameraConfig
 from plm_highway.envs.config import MAX_PROCESSING_DELAY_STEPS, MAX_STEERING_TIME_CONSTANT_S
 from plm_highway.errors import BadInput
-from plm_highway.latency.profiles import ConstantProfile, FramesProfile, StepsProfile, parse_profile
+from plm_highway.latency.profiles import legacy_baseline_spec
 from plm_highway.road.spec import TrackSpec
 from plm_highway.vehicle.models import PARAM_RANGES, checked_params, kinematic_car_with_friction, vehicle_model
 
@@ -215,28 +215,6 @@ def baseline_latency(spec: str, conditions: Conditions) -> str:
     """The latency the BM baseline of setting ``spec`` runs at: ``spec``, except under the legacy FIFO, where the
     original's BM saw a constant latency (:func:`legacy_baseline_spec`)."""
     return legacy_baseline_spec(spec) if conditions.injection == "legacy-fifo" else spec
-
-
-def legacy_baseline_spec(spec: str) -> str:
-    """The constant latency the BM baseline of setting ``spec`` runs at under the legacy FIFO.
-
-    In the original code's time-variant run (``run_neural_..._synced_rand.py``) the random delta was drawn,
-    published and printed, but the BM's input buffer was cut to the *configured* constant delta: the BM
-    never saw a varying latency. Which constant the configuration held is not in the published code; the
-    paper's time-variant BM MAE (0.3336) equals its 0.25-s BM MAE (0.3347) to 0.3%, which is what a BM run
-    at the middle of 9..21 frames (15: 0.25 s in the paper's 60-fps reading) gives. The middle of the
-    profile's range is taken: ``(low + high) / 2`` for ``steps:``, the middle frame count for ``frames:``;
-    a constant setting is its own.
-    """
-    profile = parse_profile(spec)
-    if isinstance(profile, ConstantProfile):
-        return spec
-    if isinstance(profile, StepsProfile):
-        return f"const:{(profile.low_s + profile.high_s) / 2:g}"
-    if isinstance(profile, FramesProfile):
-        return f"const:{(profile.low_frames + profile.high_frames) // 2 / profile.rate_hz:g}"
-    raise BadInput(f"setting {spec!r}: the legacy FIFO runs the BM baseline at a constant latency, defined for "
-                   "'steps:' and 'frames:' profiles (the original's); use --injection time for this profile")
 
 
 # (item, value here, source) for the report and README: what ``--conditions paper`` sets, and what it does not

@@ -128,7 +128,7 @@ class SweepGrid:
 
 def check_grid(grid: SweepGrid) -> None:
     """Raise BadInput naming the field when a value is out of range, before any run starts."""
-    from plm_highway.latency import parse_profile
+    from plm_highway.latency.profiles import check_specs
     from plm_highway.road.track import load_track
 
     for name in ("latencies", "tracks", "policies"):
@@ -151,10 +151,7 @@ def check_grid(grid: SweepGrid) -> None:
         if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
             raise BadInput(f"sweep grid: seed {seed!r} must be an integer in [0, 2**32-1]")
     for spec in grid.latencies:
-        try:
-            parse_profile(spec)
-        except ValueError as exc:
-            raise BadInput(f"sweep grid: latency {spec!r}: {exc}") from None
+        check_specs([spec], f"sweep grid: latency {spec!r}")
     for track in grid.tracks:
         try:
             load_track(track)
