@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from plm_highway.sim2real.physics.effect_spec import Effect, FitContext, Parameter
+from plm_highway.sim2real.physics.effect_spec import ChainField, ChainMove, Effect, FitContext, Parameter
 
 
 def _no_synthesis(**kwargs) -> dict:
@@ -64,6 +64,7 @@ TERMS: dict[str, Effect] = {e.name: e for e in (
         public_keys=("dead_band_rad",),
         fingerprint="small corrections do nothing: the yaw rate answers large steering and ignores small, in "
                     "both directions",
+        chain_fields=(ChainField("dead_band_rad", 0.0),),
         set_params=lambda v, ctx: {"dead_band_rad": v["dead_band_rad"]},
         read_params=lambda p, ctx: {"dead_band_rad": p.dead_band_rad},
         report=lambda p, ctx: {"dead_band_rad": p.dead_band_rad},
@@ -79,6 +80,7 @@ TERMS: dict[str, Effect] = {e.name: e for e in (
         public_keys=("play_rad",),
         fingerprint="after every reversal the wheels wait: a lag that depends on the amplitude, not the frequency, "
                     "and none in a held turn",
+        chain_fields=(ChainField("play_rad", 0.0),),
         set_params=lambda v, ctx: {"play_rad": v["play_rad"]},
         read_params=lambda p, ctx: {"play_rad": p.play_rad},
         report=lambda p, ctx: {"play_rad": p.play_rad},
@@ -95,6 +97,7 @@ TERMS: dict[str, Effect] = {e.name: e for e in (
         public_keys=("saturation_rad",),
         fingerprint="the yaw rate stops growing with the steering above one angle, in both directions and at every "
                     "speed",
+        chain_fields=(ChainField("saturation_rad", math.inf),),
         set_params=lambda v, ctx: {"saturation_rad": v["saturation_rad"]},
         read_params=lambda p, ctx: {"saturation_rad": p.saturation_rad},
         report=lambda p, ctx: {"saturation_rad": p.saturation_rad},
@@ -104,9 +107,11 @@ TERMS: dict[str, Effect] = {e.name: e for e in (
     ),
     Effect(
         name="steering_asymmetry", term="delta <- delta + a |delta| (left commands 1 + a, right ones 1 - a)",
-        parameters=(Parameter("asymmetry", "1", (-0.6, 0.6), 0.02, linear=True),),
+        parameters=(Parameter("asymmetry", "1", (-0.6, 0.6), 0.02, linear=True,
+                              move=ChainMove("asymmetry", 1e-3, (-0.6, 0.6))),),
         public_keys=("asymmetry", "left_right_ratio"),
         fingerprint="left and right turns of the same command give different yaw rates, at every speed",
+        chain_fields=(ChainField("asymmetry", 0.0),),
         set_params=lambda v, ctx: {"asymmetry": v["asymmetry"]},
         read_params=lambda p, ctx: {"asymmetry": p.asymmetry},
         report=lambda p, ctx: {"asymmetry": p.asymmetry,
@@ -118,10 +123,12 @@ TERMS: dict[str, Effect] = {e.name: e for e in (
     ),
     Effect(
         name="speed_dependent_steering", term="delta <- delta (1 + k (v - v_ref))",
-        parameters=(Parameter("speed_gain_slope", "1/(m/s)", (-0.1, 0.1), 0.002, linear=True),),
+        parameters=(Parameter("speed_gain_slope", "1/(m/s)", (-0.1, 0.1), 0.002, linear=True,
+                              move=ChainMove("speed_gain_slope", 1e-4, (-0.1, 0.1))),),
         public_keys=("gain_slope_per_mps", "speed_ref_mps"),
         fingerprint="the yaw gain changes linearly with speed, also in small steady turns (tire slip bends it "
                     "only with lateral acceleration and as u/(L + K u^2))",
+        chain_fields=(ChainField("speed_gain_slope", 0.0), ChainField("speed_ref_mps", 0.0)),
         set_params=lambda v, ctx: {"speed_gain_slope": v["speed_gain_slope"], "speed_ref_mps": ctx.speed_median_mps},
         read_params=lambda p, ctx: {"speed_gain_slope": p.speed_gain_slope},
         report=lambda p, ctx: {"gain_slope_per_mps": p.speed_gain_slope, "speed_ref_mps": p.speed_ref_mps},
@@ -133,10 +140,12 @@ TERMS: dict[str, Effect] = {e.name: e for e in (
     ),
     Effect(
         name="gyro_bias", term="recorded yaw_rate <- yaw rate + b (the gyro only)",
-        parameters=(Parameter("gyro_bias_radps", "rad/s", (-0.5, 0.5), 0.002, linear=True),),
+        parameters=(Parameter("gyro_bias_radps", "rad/s", (-0.5, 0.5), 0.002, linear=True,
+                              move=ChainMove("gyro_bias_radps", 1e-4, (-0.5, 0.5))),),
         public_keys=("bias_radps",),
         fingerprint="the gyro is off by the same amount at every speed and steering; the heading and the "
                     "positions are not (a steering offset would grow with speed and move them too)",
+        chain_fields=(ChainField("gyro_bias_radps", 0.0, gyro_only=True),),
         set_params=lambda v, ctx: {"gyro_bias_radps": v["gyro_bias_radps"]},
         read_params=lambda p, ctx: {"gyro_bias_radps": p.gyro_bias_radps},
         report=lambda p, ctx: {"bias_radps": p.gyro_bias_radps},
