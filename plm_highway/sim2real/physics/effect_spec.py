@@ -121,6 +121,10 @@ class Effect:
     refines: str | None = None  # an effect this one contains as a special case (its simpler version)
     separated_from: dict[str, str] = field(default_factory=dict)  # other effect -> the drive that tells them apart
     joint_grid: Callable[[FitContext], np.ndarray] | None = None  # (G, p) grid when parameters are coupled
+    # The benchmark's tolerance per public parameter: |estimate - truth| <= max(absolute, relative x |truth|).
+    tolerances: dict[str, tuple[float, float]] = field(default_factory=dict)
+    # (public estimates, context) -> why a size no working car has makes the estimate doubtful ([] when none).
+    doubts: Callable[[dict, FitContext], list[str]] | None = None
 
     @property
     def dof(self) -> int:

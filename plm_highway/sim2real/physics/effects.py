@@ -159,7 +159,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         report=lambda p, ctx: {"delay_s": p.delay_s},
         sentence=lambda p, ci: f"the car steers late by {p['delay_s']:.3f} s +- {pm(ci['delay_s']):.3f} s "
                                "(transport delay)",
-        group="delay",
+        group="delay", tolerances={"delay_s": (0.010, 0.10)},
         separated_from={
             "actuator_lag": "quick steering (above ~1 Hz) separates them: a delay keeps the yaw-rate amplitude, "
                             "a lag cuts it",
@@ -174,6 +174,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         parameters=(Parameter("time_constant_s", "s", (0.0, 0.8), 0.05, grid=LAG_GRID_S),),
         public_keys=("time_constant_s",),
         fingerprint="gain rolling off above 1/(2 pi tau), phase lag at most 90 deg",
+        tolerances={"time_constant_s": (0.0, 0.20)},
         concealed="a first-order servo between the command and the wheels (exact for a piecewise-linear input)",
         synth_defaults={"time_constant_s": 0.15}, synth_bounds={"time_constant_s": (0.0, 2.0)},
         conceal={"time_constant_s": ChainField("time_constant_s", 0.0)},
@@ -202,7 +203,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         synth_bounds={"understeer_gradient_rad_per_mps2": (-0.002, 0.02)},
         conceal={"understeer_gradient_rad_per_mps2": CONCEALED_UNDERSTEER}, chain_fields=TIRES,
         set_params=_tire_set, read_params=_tire_read, report=_tire_report, sentence=_tire_sentence,
-        group="tires", joint_grid=_tire_grid,
+        group="tires", joint_grid=_tire_grid, tolerances={"understeer_gradient_rad_per_mps2": (0.0, 0.20)},
         separated_from={"steering_gain": "the same turn at 10 and at 30 m/s separates them: a gain error is the same "
                                          "at every speed, understeer grows with speed"},
     ),
@@ -211,7 +212,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         parameters=(Parameter("gain", "1", (0.2, 5.0), 0.1, linear=True, move=ChainMove("gain", 1e-3, (0.2, 5.0)),
                               neutral=1.0),),
         public_keys=("gain",),
-        fingerprint="constant ratio between observed and expected yaw rate",
+        fingerprint="constant ratio between observed and expected yaw rate", tolerances={"gain": (0.0, 0.03)},
         concealed="the command is multiplied by the gain before the wheels",
         synth_defaults={"gain": 0.90}, synth_bounds={"gain": (0.2, 5.0)},
         conceal={"gain": ChainField("gain", 1.0)}, chain_fields=(ChainField("gain", 1.0),),
@@ -228,7 +229,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         parameters=(Parameter("offset_rad", "rad", (-0.2, 0.2), 0.005, linear=True,
                               move=ChainMove("offset_rad", 1e-4, (-0.2, 0.2))),),
         public_keys=("offset_rad",),
-        fingerprint="constant yaw-rate error proportional to speed",
+        fingerprint="constant yaw-rate error proportional to speed", tolerances={"offset_rad": (0.002, 0.0)},
         concealed="a constant is added to the command before the wheels",
         synth_defaults={"offset_rad": 0.006}, synth_bounds={"offset_rad": (-0.2, 0.2)},
         conceal={"offset_rad": ChainField("offset_rad", 0.0)}, chain_fields=(ChainField("offset_rad", 0.0),),
@@ -244,7 +245,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect(
         name="steering_rate_limit", term="|delta'| <= max_rate (after the servo)",
         parameters=(Parameter("log_rate", "log(rad/s)", _rate_bounds, 0.1, grid=lambda ctx: np.log(_rate_grid(ctx))),),
-        public_keys=("max_rate_radps",),
+        public_keys=("max_rate_radps",), tolerances={"max_rate_radps": (0.0, 0.15)},
         fingerprint="the wheels fall behind only when the command changes faster than the limit: the error sits "
                     "at the peaks of the steering rate and grows with amplitude x frequency; slow or small "
                     "corrections pass unchanged (a delay or a lag would shift them too)",
@@ -285,6 +286,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
                                 f"{p['friction_coefficient'] * GRAVITY_MPS2:.1f} m/s^2); "
                                 + _tire_sentence(p, ci).replace("the tires slip: ", "linear part: ")),
         group="tires", refines="tire_slip",
+        tolerances={"friction_coefficient": (0.0, 0.10), "understeer_gradient_rad_per_mps2": (0.0, 0.20)},
         joint_grid=_saturation_grid,
         separated_from={"tire_slip": "harder cornering separates them: saturation appears near the friction limit"},
     ),
@@ -324,7 +326,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         sentence=lambda p, ci: (f"the road is banked by {p['bank_rad']:+.4f} +- {pm(ci['bank_rad']):.4f} rad "
                                 f"({math.degrees(p['bank_rad']):+.2f} deg; it falls to the "
                                 f"{'left' if p['bank_rad'] > 0 else 'right'}): the car crabs downhill"),
-        needs_group="tires",
+        needs_group="tires", tolerances={"bank_rad": (0.005, 0.15)},
     ),
     Effect(
         name="delay_jitter", term="delta(t) <- delta(t - delay - jitter(t)), jitter white with std jitter_s",
@@ -344,7 +346,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         sentence=lambda p, ci: (f"the car steers late by {p['delay_s']:.3f} s +- {pm(ci['delay_s']):.3f} s, and the "
                                 f"delay jitters by {p['jitter_s']:.3f} s +- {pm(ci['jitter_s']):.3f} s (std): the "
                                 "error scatter grows with the steering rate"),
-        group="delay", refines="transport_delay",
+        group="delay", refines="transport_delay", tolerances={"delay_s": (0.010, 0.10), "jitter_s": (0.005, 0.25)},
         varies_noise=True,
         separated_from={"transport_delay": "fast steering separates them: only a jittering delay scatters the yaw "
                                            "rate in proportion to the steering rate"},

@@ -48,6 +48,10 @@ def _large_commands(ctx: FitContext) -> np.ndarray:
     return np.geomspace(lo, hi, 10)
 
 
+# A working gyro's bias is a few hundredths of this.
+MAX_GYRO_BIAS_RADPS = 0.05
+
+
 def _deg(rad: float) -> float:
     return math.degrees(rad)
 
@@ -71,6 +75,9 @@ TERMS: dict[str, Effect] = {e.name: e for e in (
         sentence=lambda p, ci: (f"the steering has a dead band of +-{p['dead_band_rad']:.4f} rad "
                                 f"(+-{_deg(p['dead_band_rad']):.2f} deg; {_interval(ci['dead_band_rad'])}) around the "
                                 "centre: smaller commands do not move the wheels"),
+        doubts=lambda p, ctx: [f"a dead band of +-{p['dead_band_rad']:.4f} rad is over half the median command "
+                               f"({ctx.steer_quantile(0.5):.4f} rad): the car could hardly steer"]
+        if p["dead_band_rad"] > 0.5 * ctx.steer_quantile(0.5) else [],
         **_no_synthesis(),
     ),
     Effect(
@@ -87,6 +94,8 @@ TERMS: dict[str, Effect] = {e.name: e for e in (
         sentence=lambda p, ci: (f"the steering has {p['play_rad']:.4f} rad ({_deg(p['play_rad']):.2f} deg; "
                                 f"{_interval(ci['play_rad'])}) of free play (backlash): after a reversal the wheels "
                                 "wait until the command has crossed it"),
+        doubts=lambda p, ctx: [f"a play of {p['play_rad']:.4f} rad exceeds the median command "
+                               f"({ctx.steer_quantile(0.5):.4f} rad)"] if p["play_rad"] > ctx.steer_quantile(0.5) else [],
         **_no_synthesis(),
     ),
     Effect(
@@ -103,6 +112,9 @@ TERMS: dict[str, Effect] = {e.name: e for e in (
         report=lambda p, ctx: {"saturation_rad": p.saturation_rad},
         sentence=lambda p, ci: (f"the wheels stop at +-{p['saturation_rad']:.4f} rad (+-{_deg(p['saturation_rad']):.2f}"
                                 f" deg; {_interval(ci['saturation_rad'])}): larger commands are clipped"),
+        doubts=lambda p, ctx: [f"end stops at {p['saturation_rad']:.4f} rad would clip most commands "
+                               f"(median {ctx.steer_quantile(0.5):.4f} rad)"]
+        if p["saturation_rad"] < ctx.steer_quantile(0.5) else [],
         **_no_synthesis(),
     ),
     Effect(
@@ -151,6 +163,9 @@ TERMS: dict[str, Effect] = {e.name: e for e in (
         report=lambda p, ctx: {"bias_radps": p.gyro_bias_radps},
         sentence=lambda p, ci: (f"the gyro reads {p['bias_radps']:+.4f} rad/s ({_deg(p['bias_radps']):+.3f} deg/s; "
                                 f"{_interval(ci['bias_radps'])}) off at every speed: a sensor bias"),
+        doubts=lambda p, ctx: [f"a gyro bias of {p['bias_radps']:+.3f} rad/s is over {MAX_GYRO_BIAS_RADPS} rad/s "
+                               "(a working gyro's is a few hundredths of that)"]
+        if abs(p["bias_radps"]) > MAX_GYRO_BIAS_RADPS else [],
         needs_channel="yaw_rate",
         **_no_synthesis(),
     ),
