@@ -16,7 +16,8 @@ from hypothesis import strategies as st
 from plm_highway.sim2real.diagnose import diagnose
 from plm_highway.sim2real.fit.plausibility import delay_doubts, size_doubts
 from plm_highway.sim2real.fit.problem import make_problem
-from plm_highway.sim2real.physics.chain import EffectParams, steering_map
+from plm_highway.sim2real.physics.chain import steering_map
+from plm_highway.sim2real.physics.effects import EffectParams
 from plm_highway.sim2real.physics.terms import TERMS
 from plm_highway.sim2real.record.consistency import check_consistency
 from plm_highway.sim2real.rendering import to_json

@@ -14,19 +14,31 @@ from plm_highway.sim2real.fit.grid import GridChannel, LinearDirection, grid_sta
 from plm_highway.sim2real.physics.chain import (
     CarParams,
     Drive,
-    EffectParams,
     _delayed,
     _jittered,
     _lagged,
     _servo,
-    chain_grid,
     simulate,
-    simulate_yaw_rate,
 )
-from plm_highway.sim2real.physics.effects import EFFECTS, FitContext, coordinates_of, params_from
+from plm_highway.sim2real.physics.effects import (
+    EFFECTS,
+    EffectParams,
+    FitContext,
+    chain_grid,
+    coordinates_of,
+    params_from,
+)
 from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE, KinematicBicycleParams, kinematic_bicycle_rates
 
 DT = 0.02
+
+
+def simulate_yaw_rate(steer, speed, dt, delay_s, tau_s, gain, offset_rad, cf, cr, a_m, b_m, k2, with_slip=True):
+    """Yaw rate [rad/s] and slip angle [rad] for the five classic effects (cf = 0: kinematic)."""
+    params = EffectParams(delay_s=delay_s, time_constant_s=tau_s, gain=gain, offset_rad=offset_rad,
+                          cf_per_kg=cf if cf > 0 else None, cr_per_kg=cr if cf > 0 else None)
+    r, _, slip = simulate(steer, speed, dt, params, a_m, b_m, k2)
+    return r, slip
 
 
 def _inputs(n=1500, seed=0, jitter=0.002):
@@ -230,7 +242,7 @@ def test_an_effect_registered_at_run_time_is_concealed_named_and_recovered(monke
         public_keys=("time_constant_ms",),
         # make-recording's side keeps the concealed physics' own field (seconds).
         synth_defaults={"time_constant_s": 0.15}, synth_bounds={"time_constant_s": (0.0, 2.0)},
-        conceal={"time_constant_s": "time_constant_s"},
+        conceal={"time_constant_s": lag.conceal["time_constant_s"]},
         set_params=lambda v, ctx: {"time_constant_s": v["time_constant_ms"] / 1000.0},
         read_params=lambda p, ctx: {"time_constant_ms": 1000.0 * p.time_constant_s},
         report=lambda p, ctx: {"time_constant_ms": 1000.0 * p.time_constant_s},

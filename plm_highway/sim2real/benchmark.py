@@ -27,21 +27,12 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from plm_highway.sim2real.diagnose import diagnose
+from plm_highway.sim2real.physics.effects import EFFECTS
 from plm_highway.sim2real.physics.synth import as_read, make_recording
 from plm_highway.sim2real.rendering import to_json
 
-# Per-parameter tolerance: |estimate - truth| <= max(absolute, relative x |truth|).
-TOLERANCES = {
-    "delay_s": (0.010, 0.10),
-    "time_constant_s": (0.0, 0.20),
-    "gain": (0.0, 0.03),
-    "offset_rad": (0.002, 0.0),
-    "understeer_gradient_rad_per_mps2": (0.0, 0.20),
-    "max_rate_radps": (0.0, 0.15),
-    "friction_coefficient": (0.0, 0.10),
-    "bank_rad": (0.005, 0.15),
-    "jitter_s": (0.005, 0.25),
-}
+# Per public parameter, from the registry: |estimate - truth| <= max(absolute, relative x |truth|).
+TOLERANCES = {key: tolerance for e in EFFECTS.values() for key, tolerance in e.tolerances.items()}
 
 
 def within_tolerance(key: str, estimate: float, truth: float) -> bool:

@@ -59,7 +59,7 @@ from plm_highway.sim2real.fit.folds import MIN_BLOCKS, check_block_s, default_bl
 from plm_highway.sim2real.fit.plausibility import library_doubts
 from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem, make_problem
 from plm_highway.sim2real.fit.selection import Selection, fit_candidates, select
-from plm_highway.sim2real.physics.chain import EffectParams
+from plm_highway.sim2real.physics.effects import EffectParams
 from plm_highway.sim2real.physics.replay import (
     ANCHOR_S,
     MIN_NOISE_SAMPLES,

@@ -18,8 +18,7 @@ from plm_highway.sim2real.fit.jitter import JITTER_ITERATIONS, JITTER_MAX_S, del
 from plm_highway.sim2real.fit.polish import coordinates, polish, public_estimates
 from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem, heldout_mask
 from plm_highway.sim2real.fit.scoring import PENALTY_PER_PARAMETER, _mse, combined_score
-from plm_highway.sim2real.physics.chain import EffectParams
-from plm_highway.sim2real.physics.effects import SPECS, coordinates_of, params_from
+from plm_highway.sim2real.physics.effects import SPECS, EffectParams, coordinates_of, params_from
 
 
 def _candidate_dof(effects: tuple[str, ...]) -> int:

@@ -5,8 +5,9 @@ on a grid; its linear parameters (gain, offset, bank) enter the signal linearly 
 every grid point the best values follow from a weighted Gram matrix of the residual and the
 signal's sensitivities to them (:func:`grid_statistics`, then :func:`profile_linear`). One
 simulation serves every cross-validation fold (a weight row per fold). Grid points are a
-structured array of :data:`~plm_highway.sim2real.physics.chain.CHAIN_DTYPE`; a linear coordinate is a
-direction in that space (:class:`LinearDirection`).
+structured array of :data:`~plm_highway.sim2real.physics.effects.CHAIN_DTYPE` (its fields are the
+registry's); a linear coordinate is a direction in that space (:class:`LinearDirection`). Nothing
+here names a parameter: the kernels of :mod:`~plm_highway.sim2real.physics.chain` read them.
 """
 
 from __future__ import annotations
@@ -17,20 +18,24 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
+from numba.np.unsafe.ndarray import to_fixed_tuple
 
 from plm_highway.sim2real.physics.chain import (
-    CHAIN_DTYPE,
     CarParams,
     ChainOutputs,
-    ChainParams,
     Drive,
     TireTable,
-    _delayed,
+    gyro_channel,
+    linear_tire_points,
     simulate_chain,
     tire_maps,
     unit_bank_response,
 )
-from plm_highway.sim2real.physics.filters import fir_filter
+from plm_highway.sim2real.physics.effects import CHAIN_DTYPE, CHAIN_FIELDS, GYRO_ONLY_NEUTRAL, ChainParams
+
+# Fields per parameter set: a compile-time constant of the kernels below. Their cached machine code is
+# keyed on the grid's structured dtype, so a changed set of fields compiles them afresh.
+N_CHAIN_FIELDS = len(CHAIN_FIELDS)
 
 
 class GridChannel(NamedTuple):
@@ -61,46 +66,24 @@ class TireTables(NamedTuple):
 
 @numba.njit(cache=True, nogil=True)
 def _chain_at(points, g):
-    """Grid point ``g`` (a record of CHAIN_DTYPE) as :class:`ChainParams`."""
-    q = points[g]
-    return ChainParams(q.gain, q.offset_rad, q.delay_s, q.time_constant_s, q.max_rate_radps, q.cf_per_kg,
-                       q.cr_per_kg, q.friction_coefficient, q.bank_accel_mps2, q.sensor_delay_s, q.jitter_s,
-                       q.speed_gain_slope, q.speed_ref_mps, q.asymmetry, q.dead_band_rad, q.play_rad,
-                       q.saturation_rad, q.gyro_bias_radps)
+    """Grid point ``g`` (a record of CHAIN_DTYPE: all fields float64) as :class:`ChainParams`."""
+    values = points.view(np.float64)
+    return ChainParams(*to_fixed_tuple(values[g * N_CHAIN_FIELDS:(g + 1) * N_CHAIN_FIELDS], N_CHAIN_FIELDS))
 
 
 @numba.njit(cache=True, nogil=True)
-def _moved(p, d):
-    """``p`` moved by the record ``d`` (zero except along one linear coordinate)."""
-    return ChainParams(p.gain + d.gain, p.offset_rad + d.offset_rad, p.delay_s + d.delay_s,
-                       p.time_constant_s + d.time_constant_s, p.max_rate_radps + d.max_rate_radps,
-                       p.cf_per_kg + d.cf_per_kg, p.cr_per_kg + d.cr_per_kg,
-                       p.friction_coefficient + d.friction_coefficient, p.bank_accel_mps2 + d.bank_accel_mps2,
-                       p.sensor_delay_s + d.sensor_delay_s, p.jitter_s + d.jitter_s,
-                       p.speed_gain_slope + d.speed_gain_slope, p.speed_ref_mps + d.speed_ref_mps,
-                       p.asymmetry + d.asymmetry, p.dead_band_rad + d.dead_band_rad, p.play_rad + d.play_rad,
-                       p.saturation_rad + d.saturation_rad, p.gyro_bias_radps + d.gyro_bias_radps)
-
-
-@numba.njit(cache=True, nogil=True)
-def _channel(r, dt, sensor_delay_s, bias, taps, lo, out):
-    """A model's yaw rate as a recorded rotation channel sees it: late by the sensor delay, filtered,
-    plus the sensor's bias (the gyro's; zero for the other channels)."""
-    if sensor_delay_s > 0.0:
-        late = np.empty(r.shape[0])
-        _delayed(r, sensor_delay_s / dt, late)
-        fir_filter(late, taps, lo, out)
-    else:
-        fir_filter(r, taps, lo, out)
-    if bias != 0.0:
-        for k in range(out.shape[0]):
-            out[k] += bias
+def _moved(points, g, moves, j):
+    """Grid point ``g`` moved by ``moves[j]`` (zero except along one linear coordinate)."""
+    values = points.view(np.float64)
+    move = moves.view(np.float64)
+    row = values[g * N_CHAIN_FIELDS:(g + 1) * N_CHAIN_FIELDS] + move[j * N_CHAIN_FIELDS:(j + 1) * N_CHAIN_FIELDS]
+    return ChainParams(*to_fixed_tuple(row, N_CHAIN_FIELDS))
 
 
 @numba.njit(cache=True, nogil=True)
 def _grid_into(drive, car, points, tires, channel, moves, step_sizes, weight, same_chain, first, last, gram):
     """Rows ``first:last`` of :func:`grid_statistics`; releases the GIL. ``same_chain[g]``: point g differs from
-    point g-1 only in what acts on the channel (sensor delay, gyro bias), so its chain's yaw rate is the one
+    point g-1 only in what acts on the gyro alone (:data:`GYRO_ONLY_NEUTRAL`), so its chain's yaw rate is the one
     simulated for g-1."""
     n = drive.steer.shape[0]
     n_lin = moves.shape[0]
@@ -120,14 +103,14 @@ def _grid_into(drive, car, points, tires, channel, moves, step_sizes, weight, sa
             simulate_chain(drive, p, car, tire, out, 0)
             for k in range(n):
                 r[k] = out.r[k]
-        _channel(r, drive.dt_s, p.sensor_delay_s, p.gyro_bias_radps, taps, lo, pred)
+        gyro_channel(r, drive.dt_s, p, taps, lo, pred)
         for k in range(n):
             columns[0, k] = y[k] - pred[k]
         for j in range(n_lin):
-            q = _moved(p, moves[j])
+            q = _moved(points, g, moves, j)
             simulate_chain(drive, q, car, tire, out, 0)
             other = np.empty(n)
-            _channel(out.r, drive.dt_s, q.sensor_delay_s, q.gyro_bias_radps, taps, lo, other)
+            gyro_channel(out.r, drive.dt_s, q, taps, lo, other)
             for k in range(n):
                 columns[j + 1, k] = (other[k] - pred[k]) / step_sizes[j]
         for f in range(weight.shape[0]):
@@ -198,13 +181,11 @@ def grid_statistics(drive: Drive, car: CarParams, points: np.ndarray, channel: G
     """
     points = np.ascontiguousarray(points, CHAIN_DTYPE)
     n_points = points.shape[0]
-    linear_tires = (points["cf_per_kg"] > 0) & ~np.isfinite(points["friction_coefficient"])
+    linear_tires, stiffness, with_bank = linear_tire_points(points, [d.field for d in linear])
     tires = TireTables(np.full(n_points, -1, np.int64), np.zeros((1, 0, 8)), np.zeros((1, 0)), np.zeros((1, 0)),
                        np.zeros((1, 0)))
     if linear_tires.any():
-        stiffness = np.column_stack([points["cf_per_kg"], points["cr_per_kg"]])[linear_tires]
         distinct, inverse = np.unique(stiffness, axis=0, return_inverse=True)
-        with_bank = bool(np.any(points["bank_accel_mps2"] != 0) or any(d.field == "bank_accel_mps2" for d in linear))
         table = tire_tables(drive, car, np.ascontiguousarray(distinct[:, 0]), np.ascontiguousarray(distinct[:, 1]),
                             with_bank)
         index = np.full(n_points, -1, np.int64)
@@ -226,16 +207,13 @@ def grid_statistics(drive: Drive, car: CarParams, points: np.ndarray, channel: G
     return out
 
 
-CHANNEL_ONLY_FIELDS = ("sensor_delay_s", "gyro_bias_radps")  # simulate_chain reads neither: see _channel
-
-
 def _chain_groups(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """An order of ``points`` in which points with the same chain (every field but :data:`CHANNEL_ONLY_FIELDS`) are
+    """An order of ``points`` in which points with the same chain (every field but the gyro's alone) are
     adjacent, first-seen chains first and each group in its points' order; and, in that order, whether a point's
     chain is its predecessor's."""
     chains = points.copy()
-    for name in CHANNEL_ONLY_FIELDS:
-        chains[name] = 0.0
+    for name, neutral in GYRO_ONLY_NEUTRAL.items():
+        chains[name] = neutral
     keys = chains.view(np.dtype((np.void, chains.dtype.itemsize)))
     _, first_of, group = np.unique(keys, return_index=True, return_inverse=True)
     group = group.ravel()

@@ -13,10 +13,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from plm_highway.sim2real.fit.grid import profile_linear
-from plm_highway.sim2real.fit.polish import LINEAR_COORDINATES, Coordinate, coordinates, neutral_value
+from plm_highway.sim2real.fit.polish import Coordinate, coordinates
 from plm_highway.sim2real.fit.problem import FitProblem
-from plm_highway.sim2real.physics.chain import ChainParams, EffectParams, chain_grid
-from plm_highway.sim2real.physics.effects import SPECS, FitContext, coordinates_of, params_from
+from plm_highway.sim2real.physics.effects import (
+    SPECS,
+    ChainParams,
+    EffectParams,
+    FitContext,
+    chain_grid,
+    coordinates_of,
+    params_from,
+)
 
 MAX_GRID_POINTS = 1200
 SEED_POINTS = 6
@@ -65,7 +72,7 @@ def _chain_points(effects: tuple[str, ...], coords: list[Coordinate], rows: np.n
     chains = []
     for row in rows:
         values = {c.key: float(v) for c, v in zip(nonlinear, row)}
-        values |= {c.key: neutral_value(c) for c in coords if c.linear}
+        values |= {c.key: c.neutral for c in coords if c.linear}
         chains.append(params_from(effects, values, ctx).chain())
     return chain_grid(chains)
 
@@ -76,15 +83,14 @@ def _linear_of(coords: list[Coordinate]) -> list[Coordinate]:
 
 
 def _linear_bounds(linear: list[Coordinate]) -> tuple[np.ndarray, np.ndarray]:
-    return (np.array([LINEAR_COORDINATES[c.name].bounds[0] for c in linear]),
-            np.array([LINEAR_COORDINATES[c.name].bounds[1] for c in linear]))
+    return (np.array([c.move.bounds[0] for c in linear]), np.array([c.move.bounds[1] for c in linear]))
 
 
 def _linear_values(points: np.ndarray, linear: list[Coordinate]) -> np.ndarray:
     """The chain parameters the linear coordinates set, per grid point: (G, L)."""
     if not linear:
         return np.zeros((len(points), 0))
-    return np.column_stack([points[LINEAR_COORDINATES[c.name].field] for c in linear])
+    return np.column_stack([points[c.move.field] for c in linear])
 
 
 def _polish_starts(sse: np.ndarray, rows: np.ndarray, scales: np.ndarray) -> list[int]:
@@ -121,14 +127,14 @@ def fold_starts(problem: FitProblem, effects: tuple[str, ...], coords: list[Coor
     for idx in _polish_starts(sse_all, rows_all, scales):
         point = points_all[idx].copy()
         for j, c in enumerate(linear):
-            point[LINEAR_COORDINATES[c.name].field] = solved_all[idx, j]
+            point[c.move.field] = solved_all[idx, j]
         params = EffectParams.from_chain(ChainParams(*point.item()))
         starts.append(params_from(effects, coordinates_of(effects, params, problem.ctx), problem.ctx))
     return starts
 
 
 def grid_blocks(problem: FitProblem, effects: tuple[str, ...], coords: list[Coordinate], cache: FitCache):
-    directions = [LINEAR_COORDINATES[c.name].direction for c in _linear_of(coords)]
+    directions = [c.direction for c in _linear_of(coords)]
     blocks, grams = [], []
     for rows in _candidate_grid(effects, problem.ctx, cache):
         points = _chain_points(effects, coords, rows, problem.ctx)
@@ -192,7 +198,7 @@ def extended_starts(problem: FitProblem, effects: tuple[str, ...], fold_params: 
     extended = effects + (term,)
     coords = coordinates(extended, ctx)
     linear = _linear_of(coords)
-    directions = [LINEAR_COORDINATES[c.name].direction for c in linear]
+    directions = [c.direction for c in linear]
     lo, hi = _linear_bounds(linear)
     term_nonlinear = [c for c in coords if c.effect == term and not c.linear]
     term_grid = _effect_grid(term, ctx)
@@ -201,7 +207,7 @@ def extended_starts(problem: FitProblem, effects: tuple[str, ...], fold_params: 
         held = coordinates_of(effects, base, ctx)
         chains = []
         for row in term_grid:
-            values = dict(held) | {c.key: neutral_value(c) for c in linear}
+            values = dict(held) | {c.key: c.neutral for c in linear}
             values |= {c.key: float(v) for c, v in zip(term_nonlinear, row)}
             values |= {c.key: 0.0 for c in coords if c.effect == term and c.variance}
             chains.append(params_from(extended, values, ctx).chain())
@@ -211,7 +217,7 @@ def extended_starts(problem: FitProblem, effects: tuple[str, ...], fold_params: 
         best = int(np.argmin(sse))
         point = points[best].copy()
         for j, c in enumerate(linear):
-            point[LINEAR_COORDINATES[c.name].field] = solved[best, j]
+            point[c.move.field] = solved[best, j]
         params = EffectParams.from_chain(ChainParams(*point.item()))
         starts.append([params_from(extended, coordinates_of(extended, params, ctx), ctx)])
     return starts

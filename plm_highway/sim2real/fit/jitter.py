@@ -15,7 +15,7 @@ from scipy.optimize import nnls
 
 from plm_highway.sim2real.fit.problem import FitProblem
 from plm_highway.sim2real.fit.scoring import T_BLOCK_S
-from plm_highway.sim2real.physics.chain import EffectParams
+from plm_highway.sim2real.physics.effects import EffectParams
 
 JITTER_ITERATIONS = 2
 JITTER_MAX_S = 0.5

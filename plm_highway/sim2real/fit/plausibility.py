@@ -7,7 +7,8 @@ A fit can improve held-out data for the wrong reason. Before naming, each term i
   (over 25%) is doubtful;
 * its size must be one a car can have: a dead band over half the median steering command, a play
   over the median command, end stops below the median command (the car could hardly steer), a gyro
-  bias over 0.05 rad/s (3 deg/s), a bank over 0.35 rad (20 deg);
+  bias over 0.05 rad/s (3 deg/s) (each term's check is its registry entry's ``doubts``), a bank over
+  0.35 rad (20 deg);
 * a bank must belong to places: one that falls outwards (or inwards) in every curve, left and right
   alike, follows the curvature and is a handling effect standing in for the road;
 * a delay must fit the recording's own steering-to-turn response (the lag at which the steering
@@ -23,11 +24,11 @@ from __future__ import annotations
 import math
 
 from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem
+from plm_highway.sim2real.physics.terms import TERMS
 from plm_highway.sim2real.record.consistency import Consistency
 
 OFFSET_CHANGE_RAD = 0.005
 GAIN_CHANGE = 0.25
-MAX_GYRO_BIAS_RADPS = 0.05
 MAX_BANK_RAD = 0.35
 DELAY_MARGIN_S = 0.15
 
@@ -56,18 +57,8 @@ def compensation_doubts(before: CandidateFit, after: CandidateFit) -> list[str]:
 
 def size_doubts(problem: FitProblem, name: str, estimates: dict[str, float]) -> list[str]:
     """A term whose size no working car has."""
-    median = problem.ctx.steer_quantile(0.5)
-    if name == "steering_dead_band" and estimates["dead_band_rad"] > 0.5 * median:
-        return [f"a dead band of +-{estimates['dead_band_rad']:.4f} rad is over half the median command "
-                f"({median:.4f} rad): the car could hardly steer"]
-    if name == "steering_backlash" and estimates["play_rad"] > median:
-        return [f"a play of {estimates['play_rad']:.4f} rad exceeds the median command ({median:.4f} rad)"]
-    if name == "steering_saturation" and estimates["saturation_rad"] < median:
-        return [f"end stops at {estimates['saturation_rad']:.4f} rad would clip most commands "
-                f"(median {median:.4f} rad)"]
-    if name == "gyro_bias" and abs(estimates["bias_radps"]) > MAX_GYRO_BIAS_RADPS:
-        return [f"a gyro bias of {estimates['bias_radps']:+.3f} rad/s is over {MAX_GYRO_BIAS_RADPS} rad/s "
-                "(a working gyro's is a few hundredths of that)"]
+    if name in TERMS and TERMS[name].doubts is not None:
+        return TERMS[name].doubts(estimates, problem.ctx)
     if name == "bank_along_track":
         doubts = []
         if estimates["max_abs_bank_rad"] > MAX_BANK_RAD:

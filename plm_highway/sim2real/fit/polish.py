@@ -1,8 +1,8 @@
 """A candidate's coordinates and their polish: bounded least squares on every recorded channel.
 
 A candidate's coordinates are its effects' parameters (``effect.parameter``) as the registry
-defines them. Linear ones (gain, offset, bank) set one chain parameter each and are solved in
-closed form on the grid (:data:`LINEAR_COORDINATES`); the jitter is a variance parameter, fitted
+defines them. Linear ones (gain, offset, bank) move one chain parameter each (their registry
+``move``) and are solved in closed form on the grid; a variance parameter (the jitter) is fitted
 from the scatter (:mod:`.jitter`), not by least squares. :func:`polish` refines the mean
 coordinates with ``scipy.optimize.least_squares`` (trust-region reflective, bounded) on all
 channels, each weighted by the inverse of the plain model's mean-square error on it.
@@ -18,38 +18,10 @@ from scipy.optimize import least_squares
 
 from plm_highway.sim2real.fit.grid import LinearDirection
 from plm_highway.sim2real.fit.problem import FitProblem
-from plm_highway.sim2real.physics.chain import EffectParams
-from plm_highway.sim2real.physics.effects import SPECS, FitContext, effect_report, params_from
-from plm_highway.vehicle.tires import GRAVITY_MPS2
+from plm_highway.sim2real.physics.effect_spec import ChainMove
+from plm_highway.sim2real.physics.effects import SPECS, EffectParams, FitContext, effect_report, params_from
 
 MAX_POLISH_EVALUATIONS = 40
-
-
-@dataclass(frozen=True)
-class LinearCoordinate:
-    """A coordinate that enters the signal linearly: the chain parameter it sets, its
-    finite-difference step there, and its bounds there."""
-
-    field: str
-    step: float
-    bounds: tuple[float, float]
-
-    @property
-    def direction(self) -> LinearDirection:
-        return LinearDirection(self.field, self.step)
-
-
-LINEAR_COORDINATES = {
-    "gain": LinearCoordinate("gain", 1e-3, (0.2, 5.0)),
-    "offset_rad": LinearCoordinate("offset_rad", 1e-4, (-0.2, 0.2)),
-    "bank_rad": LinearCoordinate("bank_accel_mps2", 1e-3,
-                                 (GRAVITY_MPS2 * math.sin(-0.3), GRAVITY_MPS2 * math.sin(0.3))),
-    # Residual discovery's linear terms (terms.TERMS).
-    "asymmetry": LinearCoordinate("asymmetry", 1e-3, (-0.6, 0.6)),
-    "speed_gain_slope": LinearCoordinate("speed_gain_slope", 1e-4, (-0.1, 0.1)),
-    "gyro_bias_radps": LinearCoordinate("gyro_bias_radps", 1e-4, (-0.5, 0.5)),
-}
-VARIANCE_PARAMETERS = {"jitter_s"}
 
 
 @dataclass(frozen=True)
@@ -62,6 +34,13 @@ class Coordinate:
     hi: float
     linear: bool
     variance: bool
+    neutral: float  # the value that leaves the chain as the simulator
+    move: ChainMove | None  # a linear mean coordinate's move of the chain
+
+    @property
+    def direction(self) -> LinearDirection:
+        """The chain direction the grid solves this linear coordinate along."""
+        return LinearDirection(self.move.field, self.move.step)
 
 
 def coordinates(effects: tuple[str, ...], ctx: FitContext) -> list[Coordinate]:
@@ -69,13 +48,9 @@ def coordinates(effects: tuple[str, ...], ctx: FitContext) -> list[Coordinate]:
     for e in effects:
         for p in SPECS[e].parameters:
             lo, hi = p.bounds_for(ctx)
-            out.append(Coordinate(f"{e}.{p.name}", e, p.name, p.scale, lo, hi, p.linear,
-                                  p.name in VARIANCE_PARAMETERS))
+            out.append(Coordinate(f"{e}.{p.name}", e, p.name, p.scale, lo, hi, p.linear, p.variance, p.neutral,
+                                  p.move))
     return out
-
-
-def neutral_value(c: Coordinate) -> float:
-    return 1.0 if c.name == "gain" else 0.0
 
 
 def public_estimates(problem: FitProblem, effects: tuple[str, ...], params: EffectParams) -> dict[tuple[str, str], float]:

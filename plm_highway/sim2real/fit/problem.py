@@ -15,8 +15,9 @@ import numpy as np
 
 from plm_highway.sim2real.fit.folds import default_block_s, make_folds
 from plm_highway.sim2real.fit.grid import GridChannel, LinearDirection, grid_statistics
-from plm_highway.sim2real.physics.chain import CarParams, Drive, EffectParams
+from plm_highway.sim2real.physics.chain import CarParams, Drive
 from plm_highway.sim2real.physics.effect_spec import STEER_QUANTILES, FitContext
+from plm_highway.sim2real.physics.effects import GYRO_ONLY_NEUTRAL, EffectParams
 from plm_highway.sim2real.physics.replay import FitSignal, channel_prediction, model_outputs, recorded_channels
 from plm_highway.sim2real.record.recording import Recording
 
@@ -102,10 +103,10 @@ class FitProblem:
         """Grid statistics on the primary channel (see ``grid.grid_statistics``)."""
         weight = np.ascontiguousarray(np.array([train for train, _ in self.folds], dtype=float))
         c = self.signal
-        if not c.late:  # a sensor delay and a sensor bias act on the gyro only
+        if not c.late:  # what acts on the gyro alone leaves the other channels as they are
             points = points.copy()
-            points["sensor_delay_s"] = 0.0
-            points["gyro_bias_radps"] = 0.0
+            for name, neutral in GYRO_ONLY_NEUTRAL.items():
+                points[name] = neutral
         ctx = self.ctx
         return grid_statistics(Drive(self.steer, self.speed, self.dt), CarParams(ctx.a_m, ctx.b_m, ctx.k2_m2,
                                                                                  ctx.u_min_mps),

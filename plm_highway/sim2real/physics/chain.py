@@ -9,125 +9,39 @@ the terms a real car adds, in a fixed order,
             (first-order lag, rate limit) -> vehicle (kinematic | linear tires | saturating tires; road
             bank) -> sensors (a late or biased gyro: applied per recorded channel, see ``replay``)
 
-with its parameters named in :class:`EffectParams` (``None`` tires: the kinematic bicycle) and, for
-the numba kernels, in :class:`ChainParams` (plain floats under the same names). All parameters at
-their neutral values give the simulator's model exactly. The kernels release the GIL, so a grid of
-parameter sets runs on all cores in threads (:mod:`.grid`).
+with its parameters named by the registry: each entry of :mod:`.effects` and :mod:`.terms` declares
+the fields it sets, and the records are built from those declarations (``effects.EffectParams``,
+``None`` tires: the kinematic bicycle; for the numba kernels ``effects.ChainParams``, plain floats
+under the same names). The kernels here read the fields by name. All parameters at their neutral
+values give the simulator's model exactly. The kernels release the GIL, so a grid of parameter sets
+runs on all cores in threads (:mod:`.grid`).
+
+The steering map acts on the calibrated command before the delay: the gain changes by
+``speed_gain_slope`` per m/s away from ``speed_ref_mps``, left commands are ``1 + asymmetry`` and
+right ones ``1 - asymmetry`` times as effective, ``dead_band_rad`` either side of the centre does
+nothing, ``play_rad`` is the total free play (backlash) the command crosses on reversing, and
+``saturation_rad`` is where the wheels stop. ``cf_per_kg``/``cr_per_kg``: axle cornering stiffness
+per unit mass [N/rad/kg] (0: no tires); ``friction_coefficient`` inf: linear tires. ``jitter_s`` is
+the standard deviation of a jittering delay: the expected response is the delayed command smoothed
+by a Gaussian of that width. The sensor delay and ``gyro_bias_radps`` act on the recorded gyro
+only (:func:`gyro_channel`, :func:`gyro_view`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import numba
 import numpy as np
 
+from plm_highway.sim2real.physics.filters import fir_filter
 from plm_highway.vehicle.single_track import single_track_steady_state, single_track_tustin_map
 from plm_highway.vehicle.tires import saturating_single_track_replay
 
 # Default speed below which the tire models hold the speed (their slip angles divide by it); a
 # recording's own floor comes from its speed distribution and wheelbase (recording.speed_floor_mps).
 TIRE_MIN_SPEED_MPS = 0.5
-
-
-class ChainParams(NamedTuple):
-    """The chain's parameters as the kernels take them: named floats (``cf_per_kg`` 0: no tires)."""
-
-    gain: float = 1.0
-    offset_rad: float = 0.0
-    delay_s: float = 0.0
-    time_constant_s: float = 0.0
-    max_rate_radps: float = math.inf
-    cf_per_kg: float = 0.0
-    cr_per_kg: float = 0.0
-    friction_coefficient: float = math.inf
-    bank_accel_mps2: float = 0.0
-    sensor_delay_s: float = 0.0
-    jitter_s: float = 0.0
-    speed_gain_slope: float = 0.0
-    speed_ref_mps: float = 0.0
-    asymmetry: float = 0.0
-    dead_band_rad: float = 0.0
-    play_rad: float = 0.0
-    saturation_rad: float = math.inf
-    gyro_bias_radps: float = 0.0
-
-
-# A grid of parameter sets is a structured array with one named field per chain parameter.
-CHAIN_DTYPE = np.dtype([(name, np.float64) for name in ChainParams._fields])
-
-
-def chain_grid(params: list[ChainParams]) -> np.ndarray:
-    """Parameter sets as a structured array of :data:`CHAIN_DTYPE` (what grid kernels take)."""
-    return np.array([tuple(p) for p in params], dtype=CHAIN_DTYPE)
-
-
-@dataclass(frozen=True)
-class EffectParams:
-    """The simulator's model plus every effect; the defaults are the plain simulator.
-
-    ``cf_per_kg``/``cr_per_kg``: axle cornering stiffness per unit mass [N/rad/kg], None means no
-    tire slip (the kinematic bicycle). ``friction_coefficient`` inf: linear tires. ``jitter_s`` is
-    the standard deviation of a jittering delay: the expected response is the delayed command
-    smoothed by a Gaussian of that width, and the error variance grows with it.
-
-    The steering map acts on the calibrated command before the delay: the gain changes by
-    ``speed_gain_slope`` per m/s away from ``speed_ref_mps``, left commands are ``1 + asymmetry``
-    and right ones ``1 - asymmetry`` times as effective, ``dead_band_rad`` either side of the centre
-    does nothing, ``play_rad`` is the total free play (backlash) the command crosses on reversing,
-    and ``saturation_rad`` is where the wheels stop. ``gyro_bias_radps`` is added to the recorded
-    yaw rate (the gyro only).
-    """
-
-    delay_s: float = 0.0
-    time_constant_s: float = 0.0
-    gain: float = 1.0
-    offset_rad: float = 0.0
-    cf_per_kg: float | None = None
-    cr_per_kg: float | None = None
-    max_rate_radps: float = math.inf
-    friction_coefficient: float = math.inf
-    bank_accel_mps2: float = 0.0
-    sensor_delay_s: float = 0.0
-    jitter_s: float = 0.0
-    speed_gain_slope: float = 0.0
-    speed_ref_mps: float = 0.0
-    asymmetry: float = 0.0
-    dead_band_rad: float = 0.0
-    play_rad: float = 0.0
-    saturation_rad: float = math.inf
-    gyro_bias_radps: float = 0.0
-
-    @property
-    def has_tire_slip(self) -> bool:
-        return self.cf_per_kg is not None
-
-    def chain(self) -> ChainParams:
-        """The same parameters as the kernels take them."""
-        return ChainParams(
-            gain=float(self.gain), offset_rad=float(self.offset_rad), delay_s=float(self.delay_s),
-            time_constant_s=float(self.time_constant_s), max_rate_radps=float(self.max_rate_radps),
-            cf_per_kg=0.0 if self.cf_per_kg is None else float(self.cf_per_kg),
-            cr_per_kg=0.0 if self.cr_per_kg is None else float(self.cr_per_kg),
-            friction_coefficient=float(self.friction_coefficient), bank_accel_mps2=float(self.bank_accel_mps2),
-            sensor_delay_s=float(self.sensor_delay_s), jitter_s=float(self.jitter_s),
-            speed_gain_slope=float(self.speed_gain_slope), speed_ref_mps=float(self.speed_ref_mps),
-            asymmetry=float(self.asymmetry), dead_band_rad=float(self.dead_band_rad), play_rad=float(self.play_rad),
-            saturation_rad=float(self.saturation_rad), gyro_bias_radps=float(self.gyro_bias_radps))
-
-    @classmethod
-    def from_chain(cls, p: ChainParams) -> EffectParams:
-        tires = p.cf_per_kg > 0
-        return cls(gain=float(p.gain), offset_rad=float(p.offset_rad), delay_s=float(p.delay_s),
-                   time_constant_s=float(p.time_constant_s), max_rate_radps=float(p.max_rate_radps),
-                   cf_per_kg=float(p.cf_per_kg) if tires else None, cr_per_kg=float(p.cr_per_kg) if tires else None,
-                   friction_coefficient=float(p.friction_coefficient), bank_accel_mps2=float(p.bank_accel_mps2),
-                   sensor_delay_s=float(p.sensor_delay_s), jitter_s=float(p.jitter_s),
-                   speed_gain_slope=float(p.speed_gain_slope), speed_ref_mps=float(p.speed_ref_mps),
-                   asymmetry=float(p.asymmetry), dead_band_rad=float(p.dead_band_rad), play_rad=float(p.play_rad),
-                   saturation_rad=float(p.saturation_rad), gyro_bias_radps=float(p.gyro_bias_radps))
 
 
 class Drive(NamedTuple):
@@ -256,7 +170,7 @@ def _maps_steering(p):
 
 @numba.njit(cache=True, nogil=True)
 def steering_map(u, speed, p, out):
-    """The steering map of ``p`` applied to the calibrated command ``u`` (see :class:`EffectParams`):
+    """The steering map of ``p`` applied to the calibrated command ``u`` (see the module's text):
     speed-dependent ratio, asymmetry, dead band, backlash (a play operator, starting centred on the
     first command), then the end stops."""
     half_play = 0.5 * p.play_rad
@@ -386,11 +300,11 @@ def simulate_chain(drive, p, car, tire, out, need=2):
 NO_TIRE_TABLE = TireTable(np.zeros((0, 8)), np.zeros(0), np.zeros(0), np.zeros(0))
 
 
-def simulate(steer: np.ndarray, speed: np.ndarray, dt: float, params: EffectParams, a_m: float, b_m: float,
+def simulate(steer: np.ndarray, speed: np.ndarray, dt: float, params, a_m: float, b_m: float,
              k2: float, u_min: float = TIRE_MIN_SPEED_MPS, with_slip: bool = True
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(yaw rate [rad/s], lateral velocity [m/s], slip angle [rad]) at each sample for one parameter
-    set (the slip left unset without ``with_slip``)."""
+    set (an ``effects.EffectParams``; the slip left unset without ``with_slip``)."""
     steer = np.ascontiguousarray(steer, float)
     speed = np.ascontiguousarray(speed, float)
     n = steer.shape[0]
@@ -401,9 +315,51 @@ def simulate(steer: np.ndarray, speed: np.ndarray, dt: float, params: EffectPara
     return out.r, out.vy, out.slip
 
 
-def simulate_yaw_rate(steer, speed, dt, delay_s, tau_s, gain, offset_rad, cf, cr, a_m, b_m, k2, with_slip=True):
-    """Yaw rate [rad/s] and slip angle [rad] for the five classic effects (cf = 0: kinematic)."""
-    params = EffectParams(delay_s=delay_s, time_constant_s=tau_s, gain=gain, offset_rad=offset_rad,
-                          cf_per_kg=cf if cf > 0 else None, cr_per_kg=cr if cf > 0 else None)
-    r, _, slip = simulate(steer, speed, dt, params, a_m, b_m, k2)
-    return r, slip
+def calibrated(params, steer: np.ndarray) -> np.ndarray:
+    """The command after the calibration (gain, offset), as :func:`simulate_chain` computes it."""
+    return params.gain * steer + params.offset_rad
+
+
+def command_change(params, wheel_change_rad: float) -> float:
+    """The command change that moves the calibrated angle by ``wheel_change_rad``."""
+    return wheel_change_rad / params.gain
+
+
+# ----------------------------------------------------------------------------------------------
+# The recorded gyro: a sensor delay and a bias act on that channel only, after the chain.
+
+
+@numba.njit(cache=True, nogil=True)
+def gyro_channel(r, dt, p, taps, lo, out):
+    """A model's yaw rate as a recorded rotation channel sees it: late by ``p``'s sensor delay,
+    filtered (``taps`` from offset ``lo``), plus its gyro bias (a caller gives neutral values for
+    the channels other than the gyro)."""
+    if p.sensor_delay_s > 0.0:
+        late = np.empty(r.shape[0])
+        _delayed(r, p.sensor_delay_s / dt, late)
+        fir_filter(late, taps, lo, out)
+    else:
+        fir_filter(r, taps, lo, out)
+    if p.gyro_bias_radps != 0.0:
+        for k in range(out.shape[0]):
+            out[k] += p.gyro_bias_radps
+
+
+def gyro_view(r: np.ndarray, dt: float, params) -> tuple[np.ndarray, float]:
+    """The model's yaw rate as the gyro reads it before its filter (late by the sensor delay), and
+    the bias the gyro adds after it."""
+    if params.sensor_delay_s > 0:
+        late = np.empty(len(r))
+        _delayed(np.ascontiguousarray(r, float), params.sensor_delay_s / dt, late)
+        r = late
+    return r, params.gyro_bias_radps
+
+
+def linear_tire_points(points: np.ndarray, moved_fields: list[str]) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Which points of a grid (a structured array of chain parameters) have linear tires, their
+    (front, rear) stiffness [N/rad/kg] (K, 2), and whether any point, or a linear move along
+    ``moved_fields``, needs the tires' response to a bank (their tables are then computed with it)."""
+    mask = (points["cf_per_kg"] > 0) & ~np.isfinite(points["friction_coefficient"])
+    stiffness = np.column_stack([points["cf_per_kg"], points["cr_per_kg"]])[mask]
+    with_bank = bool(np.any(points["bank_accel_mps2"] != 0) or "bank_accel_mps2" in moved_fields)
+    return mask, stiffness, with_bank

@@ -10,10 +10,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from plm_highway.sim2real.physics.chain import TIRE_MIN_SPEED_MPS, EffectParams
+from plm_highway.sim2real.physics.chain import TIRE_MIN_SPEED_MPS
+
+# An EffectParams record: built from the registry's chain fields in :mod:`.effects`, which imports this module.
+Params = Any
 
 # Quantiles of |steering command| a FitContext carries (the steering map's grids are set from them).
 STEER_QUANTILES = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.99)
@@ -44,9 +48,38 @@ class FitContext:
 
 
 @dataclass(frozen=True)
+class ChainField:
+    """A named value of a parameter record, at its neutral value (the plain simulator; None: absent).
+
+    The chain's fields are the kernels' parameters (:class:`~.effects.ChainParams`, and
+    :class:`~.effects.EffectParams` for everything else); the concealed fields are make-recording's
+    (``synth.ConcealedEffects``). ``absent_unless``: in EffectParams the field is None unless that
+    chain field is positive (the kernels take 0.0). ``gyro_only``: it acts on the recorded gyro
+    channel only, after the chain (the chain's simulation does not read it).
+    """
+
+    name: str
+    neutral: float | None
+    absent_unless: str | None = None
+    gyro_only: bool = False
+
+
+@dataclass(frozen=True)
+class ChainMove:
+    """How a linear coordinate moves the chain: the chain field it sets, the finite-difference step
+    there (the grid's sensitivities) and its bounds there (where the closed-form solution is clipped)."""
+
+    field: str
+    step: float
+    bounds: tuple[float, float]
+
+
+@dataclass(frozen=True)
 class Parameter:
     """A fitted coordinate of an effect. ``linear``: enters the signal linearly (or nearly), solved in
-    closed form at every grid point; otherwise tried on the effect's grid, then polished."""
+    closed form at every grid point (by ``move``, unless it is a ``variance`` parameter: one that
+    shapes the error variance, fitted from the scatter, not by least squares); otherwise tried on the
+    effect's grid, then polished. ``neutral``: the value that leaves the chain as the simulator."""
 
     name: str
     unit: str
@@ -54,6 +87,9 @@ class Parameter:
     scale: float  # typical size: finite-difference steps and the optimiser's variable scaling
     linear: bool = False
     grid: tuple[float, ...] | Callable[[FitContext], np.ndarray] = ()
+    move: ChainMove | None = None  # a linear mean coordinate's move of the chain
+    neutral: float = 0.0
+    variance: bool = False
 
     def bounds_for(self, ctx: FitContext) -> tuple[float, float]:
         return self.bounds(ctx) if callable(self.bounds) else self.bounds
@@ -72,10 +108,11 @@ class Effect:
     concealed: str  # how make-recording conceals it
     synth_defaults: dict[str, float]  # make-recording's parameters (public names, first = NAME=VALUE)
     synth_bounds: dict[str, tuple[float, float]]
-    conceal: dict[str, str]  # make-recording parameter -> field of synth.ConcealedEffects it sets
+    conceal: dict[str, ChainField]  # make-recording parameter -> field of synth.ConcealedEffects it sets
+    chain_fields: tuple[ChainField, ...]  # the chain fields set_params sets (the records are built from them)
     set_params: Callable[[dict, FitContext], dict]  # fitted coordinates -> EffectParams fields
-    read_params: Callable[[EffectParams, FitContext], dict]  # EffectParams -> fitted coordinates
-    report: Callable[[EffectParams, FitContext], dict]  # EffectParams -> public names
+    read_params: Callable[[Params, FitContext], dict]  # EffectParams -> fitted coordinates
+    report: Callable[[Params, FitContext], dict]  # EffectParams -> public names
     sentence: Callable[[dict, dict], str]  # (public estimates, their 95% intervals) -> words
     group: str | None = None  # at most one effect of a group in a candidate
     needs_group: str | None = None  # the group must be present; if not, this effect is added
@@ -84,6 +121,10 @@ class Effect:
     refines: str | None = None  # an effect this one contains as a special case (its simpler version)
     separated_from: dict[str, str] = field(default_factory=dict)  # other effect -> the drive that tells them apart
     joint_grid: Callable[[FitContext], np.ndarray] | None = None  # (G, p) grid when parameters are coupled
+    # The benchmark's tolerance per public parameter: |estimate - truth| <= max(absolute, relative x |truth|).
+    tolerances: dict[str, tuple[float, float]] = field(default_factory=dict)
+    # (public estimates, context) -> why a size no working car has makes the estimate doubtful ([] when none).
+    doubts: Callable[[dict, FitContext], list[str]] | None = None
 
     @property
     def dof(self) -> int:

@@ -8,9 +8,11 @@ Each candidate effect inserts one physical term into the model chain (:mod:`.cha
 and every effect is one entry of :data:`EFFECTS`: its parameters (units, bounds, the values tried
 before polishing), the chain parameters (:class:`~plm_highway.sim2real.physics.chain.EffectParams` fields)
 it sets, the public parameter names it reports, its fingerprint, how ``make-recording`` conceals
-it, and its sentence in a summary. ``selection``, ``diagnose`` and ``synth`` read only this table;
-adding an effect that the chain can already express touches one entry (a new kind of physics also
-adds its term to :func:`~plm_highway.sim2real.physics.chain.simulate_chain`).
+it, and its sentence in a summary. ``selection``, ``diagnose`` and ``synth`` read only this table,
+and the parameter records are built from it (:data:`ChainParams`, :data:`EffectParams`,
+:data:`CHAIN_DTYPE`, and make-recording's concealed fields): adding an effect that the chain can
+already express touches one entry; a new kind of physics also adds its term to the kernels
+(:func:`~plm_highway.sim2real.physics.chain.simulate_chain`), which read the fields by name.
 
 =================== ============================================= ============================================
 effect              term                                          parameters (public names)
@@ -39,8 +41,13 @@ from collections import ChainMap
 
 import numpy as np
 
-from plm_highway.sim2real.physics.chain import EffectParams
-from plm_highway.sim2real.physics.effect_spec import Effect, FitContext, Parameter, pm
+from plm_highway.sim2real.physics.effect_spec import ChainField, ChainMove, Effect, FitContext, Parameter, pm
+from plm_highway.sim2real.physics.records import (
+    fit_record,
+    kernel_record,
+    merged_fields,
+    structured_dtype,
+)
 from plm_highway.sim2real.physics.terms import TERMS
 from plm_highway.vehicle.single_track import understeer_gradient
 from plm_highway.vehicle.tires import GRAVITY_MPS2
@@ -56,6 +63,13 @@ def front_stiffness_from(understeer: float, cr: float, a: float, b: float) -> fl
         return MAX_STIFFNESS_PER_KG
     return max(b / denominator, 1.0)
 
+
+# Chain fields more than one effect sets. Absent tires (None) are the kinematic bicycle.
+DELAY = ChainField("delay_s", 0.0)
+TIRES = (ChainField("cf_per_kg", 0.0, absent_unless="cf_per_kg"), ChainField("cr_per_kg", 0.0, absent_unless="cf_per_kg"))
+FRICTION = ChainField("friction_coefficient", math.inf)  # inf: linear tires
+# make-recording's tires: the understeer gradient it gives the car (None: the car's own tires).
+CONCEALED_UNDERSTEER = ChainField("understeer_rad_per_mps2", None)
 
 UNDERSTEER_GRID = (-0.001, 0.0, 0.0005, 0.001, 0.0015, 0.002, 0.003, 0.004, 0.006, 0.009, 0.014, 0.02)
 REAR_STIFFNESS_GRID_PER_KG = (25.0, 70.0, 200.0)
@@ -76,12 +90,12 @@ def _tire_set(v: dict, ctx: FitContext) -> dict:
     return {"cf_per_kg": front_stiffness_from(v["understeer"], cr, ctx.a_m, ctx.b_m), "cr_per_kg": cr}
 
 
-def _tire_read(p: EffectParams, ctx: FitContext) -> dict:
+def _tire_read(p, ctx: FitContext) -> dict:
     return {"understeer": understeer_gradient(p.cf_per_kg, p.cr_per_kg, ctx.a_m, ctx.b_m),
             "log_cr": math.log(p.cr_per_kg)}
 
 
-def _tire_report(p: EffectParams, ctx: FitContext) -> dict:
+def _tire_report(p, ctx: FitContext) -> dict:
     out = {"understeer_gradient_rad_per_mps2": understeer_gradient(p.cf_per_kg, p.cr_per_kg, ctx.a_m, ctx.b_m)}
     if ctx.inertia_known and ctx.mass_kg is not None:
         out["cornering_stiffness_front"] = p.cf_per_kg * ctx.mass_kg
@@ -139,13 +153,13 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
                     "the heading and the position lag as much as the yaw rate",
         concealed="the steering command is shifted by the delay (fine grid, linear interpolation)",
         synth_defaults={"delay_s": 0.20}, synth_bounds={"delay_s": (0.0, 1.0)},
-        conceal={"delay_s": "delay_s"},
+        conceal={"delay_s": DELAY}, chain_fields=(DELAY,),
         set_params=lambda v, ctx: {"delay_s": v["delay_s"]},
         read_params=lambda p, ctx: {"delay_s": p.delay_s},
         report=lambda p, ctx: {"delay_s": p.delay_s},
         sentence=lambda p, ci: f"the car steers late by {p['delay_s']:.3f} s +- {pm(ci['delay_s']):.3f} s "
                                "(transport delay)",
-        group="delay",
+        group="delay", tolerances={"delay_s": (0.010, 0.10)},
         separated_from={
             "actuator_lag": "quick steering (above ~1 Hz) separates them: a delay keeps the yaw-rate amplitude, "
                             "a lag cuts it",
@@ -160,9 +174,11 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         parameters=(Parameter("time_constant_s", "s", (0.0, 0.8), 0.05, grid=LAG_GRID_S),),
         public_keys=("time_constant_s",),
         fingerprint="gain rolling off above 1/(2 pi tau), phase lag at most 90 deg",
+        tolerances={"time_constant_s": (0.0, 0.20)},
         concealed="a first-order servo between the command and the wheels (exact for a piecewise-linear input)",
         synth_defaults={"time_constant_s": 0.15}, synth_bounds={"time_constant_s": (0.0, 2.0)},
-        conceal={"time_constant_s": "time_constant_s"},
+        conceal={"time_constant_s": ChainField("time_constant_s", 0.0)},
+        chain_fields=(ChainField("time_constant_s", 0.0),),
         set_params=lambda v, ctx: {"time_constant_s": v["time_constant_s"]},
         read_params=lambda p, ctx: {"time_constant_s": p.time_constant_s},
         report=lambda p, ctx: {"time_constant_s": p.time_constant_s},
@@ -185,20 +201,21 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
                   "own tires)",
         synth_defaults={"understeer_gradient_rad_per_mps2": math.nan},
         synth_bounds={"understeer_gradient_rad_per_mps2": (-0.002, 0.02)},
-        conceal={"understeer_gradient_rad_per_mps2": "understeer_rad_per_mps2"},
+        conceal={"understeer_gradient_rad_per_mps2": CONCEALED_UNDERSTEER}, chain_fields=TIRES,
         set_params=_tire_set, read_params=_tire_read, report=_tire_report, sentence=_tire_sentence,
-        group="tires", joint_grid=_tire_grid,
+        group="tires", joint_grid=_tire_grid, tolerances={"understeer_gradient_rad_per_mps2": (0.0, 0.20)},
         separated_from={"steering_gain": "the same turn at 10 and at 30 m/s separates them: a gain error is the same "
                                          "at every speed, understeer grows with speed"},
     ),
     Effect(
         name="steering_gain", term="delta <- gain delta",
-        parameters=(Parameter("gain", "1", (0.2, 5.0), 0.1, linear=True),),
+        parameters=(Parameter("gain", "1", (0.2, 5.0), 0.1, linear=True, move=ChainMove("gain", 1e-3, (0.2, 5.0)),
+                              neutral=1.0),),
         public_keys=("gain",),
-        fingerprint="constant ratio between observed and expected yaw rate",
+        fingerprint="constant ratio between observed and expected yaw rate", tolerances={"gain": (0.0, 0.03)},
         concealed="the command is multiplied by the gain before the wheels",
         synth_defaults={"gain": 0.90}, synth_bounds={"gain": (0.2, 5.0)},
-        conceal={"gain": "gain"},
+        conceal={"gain": ChainField("gain", 1.0)}, chain_fields=(ChainField("gain", 1.0),),
         set_params=lambda v, ctx: {"gain": v["gain"]},
         read_params=lambda p, ctx: {"gain": p.gain},
         report=lambda p, ctx: {"gain": p.gain},
@@ -209,12 +226,13 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     ),
     Effect(
         name="steering_offset", term="delta <- delta + offset",
-        parameters=(Parameter("offset_rad", "rad", (-0.2, 0.2), 0.005, linear=True),),
+        parameters=(Parameter("offset_rad", "rad", (-0.2, 0.2), 0.005, linear=True,
+                              move=ChainMove("offset_rad", 1e-4, (-0.2, 0.2))),),
         public_keys=("offset_rad",),
-        fingerprint="constant yaw-rate error proportional to speed",
+        fingerprint="constant yaw-rate error proportional to speed", tolerances={"offset_rad": (0.002, 0.0)},
         concealed="a constant is added to the command before the wheels",
         synth_defaults={"offset_rad": 0.006}, synth_bounds={"offset_rad": (-0.2, 0.2)},
-        conceal={"offset_rad": "offset_rad"},
+        conceal={"offset_rad": ChainField("offset_rad", 0.0)}, chain_fields=(ChainField("offset_rad", 0.0),),
         set_params=lambda v, ctx: {"offset_rad": v["offset_rad"]},
         read_params=lambda p, ctx: {"offset_rad": p.offset_rad},
         report=lambda p, ctx: {"offset_rad": p.offset_rad},
@@ -227,13 +245,14 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect(
         name="steering_rate_limit", term="|delta'| <= max_rate (after the servo)",
         parameters=(Parameter("log_rate", "log(rad/s)", _rate_bounds, 0.1, grid=lambda ctx: np.log(_rate_grid(ctx))),),
-        public_keys=("max_rate_radps",),
+        public_keys=("max_rate_radps",), tolerances={"max_rate_radps": (0.0, 0.15)},
         fingerprint="the wheels fall behind only when the command changes faster than the limit: the error sits "
                     "at the peaks of the steering rate and grows with amplitude x frequency; slow or small "
                     "corrections pass unchanged (a delay or a lag would shift them too)",
         concealed="the front-wheel angle moves at most max_rate towards the command (fine grid)",
         synth_defaults={"max_rate_radps": 0.12}, synth_bounds={"max_rate_radps": (1e-3, 50.0)},
-        conceal={"max_rate_radps": "max_rate_radps"},
+        conceal={"max_rate_radps": ChainField("max_rate_radps", math.inf)},
+        chain_fields=(ChainField("max_rate_radps", math.inf),),
         set_params=lambda v, ctx: {"max_rate_radps": math.exp(v["log_rate"])},
         read_params=lambda p, ctx: {"log_rate": math.log(p.max_rate_radps)},
         report=lambda p, ctx: {"max_rate_radps": p.max_rate_radps},
@@ -257,8 +276,8 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
                   "the limit), the linear part the car's own tires",
         synth_defaults={"friction_coefficient": 0.4, "understeer_gradient_rad_per_mps2": math.nan},
         synth_bounds={"friction_coefficient": (0.05, 3.0), "understeer_gradient_rad_per_mps2": (-0.002, 0.02)},
-        conceal={"friction_coefficient": "friction_coefficient",
-                 "understeer_gradient_rad_per_mps2": "understeer_rad_per_mps2"},
+        conceal={"friction_coefficient": FRICTION, "understeer_gradient_rad_per_mps2": CONCEALED_UNDERSTEER},
+        chain_fields=(*TIRES, FRICTION),
         set_params=lambda v, ctx: _tire_set(v, ctx) | {"friction_coefficient": v["friction_coefficient"]},
         read_params=lambda p, ctx: _tire_read(p, ctx) | {"friction_coefficient": p.friction_coefficient},
         report=lambda p, ctx: {"friction_coefficient": p.friction_coefficient} | _tire_report(p, ctx),
@@ -267,6 +286,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
                                 f"{p['friction_coefficient'] * GRAVITY_MPS2:.1f} m/s^2); "
                                 + _tire_sentence(p, ci).replace("the tires slip: ", "linear part: ")),
         group="tires", refines="tire_slip",
+        tolerances={"friction_coefficient": (0.0, 0.10), "understeer_gradient_rad_per_mps2": (0.0, 0.20)},
         joint_grid=_saturation_grid,
         separated_from={"tire_slip": "harder cornering separates them: saturation appears near the friction limit"},
     ),
@@ -278,7 +298,8 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
                     "late or filtered gyro channel, not a late car",
         concealed="the yaw_rate column is sampled late by the delay; heading and position are on time",
         synth_defaults={"delay_s": 0.10}, synth_bounds={"delay_s": (0.0, 1.0)},
-        conceal={"delay_s": "sensor_delay_s"},
+        conceal={"delay_s": ChainField("sensor_delay_s", 0.0)},
+        chain_fields=(ChainField("sensor_delay_s", 0.0, gyro_only=True),),
         set_params=lambda v, ctx: {"sensor_delay_s": v["sensor_delay_s"]},
         read_params=lambda p, ctx: {"sensor_delay_s": p.sensor_delay_s},
         report=lambda p, ctx: {"delay_s": p.sensor_delay_s},
@@ -288,7 +309,9 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     ),
     Effect(
         name="road_bank", term="vy' += g sin(bank) (needs tires: a kinematic bicycle cannot slip sideways)",
-        parameters=(Parameter("bank_rad", "rad", (-0.3, 0.3), 0.01, linear=True),),
+        parameters=(Parameter("bank_rad", "rad", (-0.3, 0.3), 0.01, linear=True,
+                              move=ChainMove("bank_accel_mps2", 1e-3,
+                                             (GRAVITY_MPS2 * math.sin(-0.3), GRAVITY_MPS2 * math.sin(0.3)))),),
         public_keys=("bank_rad",),
         fingerprint="a constant lateral force: the car crabs sideways (course minus heading shifts by a "
                     "speed-independent angle set by the rear tires) and pulls like a steering offset of "
@@ -296,33 +319,34 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
         concealed="the single-track car drives on a cross slope: g sin(bank) is added to its lateral "
                   "acceleration (positive: the road falls to the left)",
         synth_defaults={"bank_rad": 0.05}, synth_bounds={"bank_rad": (-0.3, 0.3)},
-        conceal={"bank_rad": "bank_rad"},
+        conceal={"bank_rad": ChainField("bank_rad", 0.0)}, chain_fields=(ChainField("bank_accel_mps2", 0.0),),
         set_params=lambda v, ctx: {"bank_accel_mps2": GRAVITY_MPS2 * math.sin(v["bank_rad"])},
         read_params=lambda p, ctx: {"bank_rad": math.asin(max(-1.0, min(1.0, p.bank_accel_mps2 / GRAVITY_MPS2)))},
         report=lambda p, ctx: {"bank_rad": math.asin(max(-1.0, min(1.0, p.bank_accel_mps2 / GRAVITY_MPS2)))},
         sentence=lambda p, ci: (f"the road is banked by {p['bank_rad']:+.4f} +- {pm(ci['bank_rad']):.4f} rad "
                                 f"({math.degrees(p['bank_rad']):+.2f} deg; it falls to the "
                                 f"{'left' if p['bank_rad'] > 0 else 'right'}): the car crabs downhill"),
-        needs_group="tires",
+        needs_group="tires", tolerances={"bank_rad": (0.005, 0.15)},
     ),
     Effect(
         name="delay_jitter", term="delta(t) <- delta(t - delay - jitter(t)), jitter white with std jitter_s",
         parameters=(Parameter("delay_s", "s", (0.0, 0.8), 0.05, grid=DELAY_GRID_S),
-                    Parameter("jitter_s", "s", (0.0, 0.5), 0.01, linear=True)),
+                    Parameter("jitter_s", "s", (0.0, 0.5), 0.01, linear=True, variance=True)),
         public_keys=("delay_s", "jitter_s"),
         fingerprint="a transport delay whose error variance grows with the square of the steering rate: "
                     "the mean response is the delay's, the residual scatter is jitter x d(yaw rate)/dt",
         concealed="each sample's command arrives late by delay + jitter, the jitter drawn white per sample "
                   "(Gaussian, clipped at zero delay)",
         synth_defaults={"jitter_s": 0.03, "delay_s": 0.10}, synth_bounds={"jitter_s": (0.0, 0.3), "delay_s": (0.0, 1.0)},
-        conceal={"jitter_s": "jitter_s", "delay_s": "delay_s"},
+        conceal={"jitter_s": ChainField("jitter_s", 0.0), "delay_s": DELAY},
+        chain_fields=(DELAY, ChainField("jitter_s", 0.0)),
         set_params=lambda v, ctx: {"delay_s": v["delay_s"], "jitter_s": v["jitter_s"]},
         read_params=lambda p, ctx: {"delay_s": p.delay_s, "jitter_s": p.jitter_s},
         report=lambda p, ctx: {"delay_s": p.delay_s, "jitter_s": p.jitter_s},
         sentence=lambda p, ci: (f"the car steers late by {p['delay_s']:.3f} s +- {pm(ci['delay_s']):.3f} s, and the "
                                 f"delay jitters by {p['jitter_s']:.3f} s +- {pm(ci['jitter_s']):.3f} s (std): the "
                                 "error scatter grows with the steering rate"),
-        group="delay", refines="transport_delay",
+        group="delay", refines="transport_delay", tolerances={"delay_s": (0.010, 0.10), "jitter_s": (0.005, 0.25)},
         varies_noise=True,
         separated_from={"transport_delay": "fast steering separates them: only a jittering delay scatters the yaw "
                                            "rate in proportion to the steering rate"},
@@ -345,8 +369,34 @@ def separating_text(a: str, b: str) -> str:
 # Every entry a candidate may hold: the library's effects and the terms residual discovery tries.
 SPECS = ChainMap(EFFECTS, TERMS)
 
+# The parameter records, built from the fields the entries declare (in the entries' order).
+CHAIN_FIELDS = merged_fields(f for spec in (*EFFECTS.values(), *TERMS.values()) for f in spec.chain_fields)
+ChainParams = kernel_record("ChainParams", CHAIN_FIELDS, __name__)
+ChainParams.__doc__ = "The chain's parameters as the numba kernels take them: named floats (``cf_per_kg`` 0: no tires)."
+EffectParams = fit_record("EffectParams", CHAIN_FIELDS, ChainParams, __name__, """The simulator's model plus every
+    effect and discovery term, as the entries of :data:`SPECS` set them; the defaults are the plain simulator.
 
-def params_from(effects: tuple[str, ...], values: dict[str, float], ctx: FitContext) -> EffectParams:
+    A field declared ``absent_unless`` is None while that part of the car is absent (no tires: the
+    kinematic bicycle); ``chain()`` gives the kernels' :data:`ChainParams`, ``from_chain`` the way back.""")
+# A grid of parameter sets is a structured array with one named float field per chain parameter.
+CHAIN_DTYPE = structured_dtype(CHAIN_FIELDS)
+# Fields that act on the recorded gyro only (the chain's simulation does not read them), at their neutral values.
+GYRO_ONLY_NEUTRAL = {f.name: f.neutral for f in CHAIN_FIELDS if f.gyro_only}
+# make-recording's concealed physics: the fields the effects' ``conceal`` maps set.
+CONCEALED_FIELDS = merged_fields(f for e in EFFECTS.values() for f in e.conceal.values())
+
+
+def chain_grid(params: list) -> np.ndarray:
+    """Parameter sets (:data:`ChainParams`) as a structured array of :data:`CHAIN_DTYPE` (what grid kernels take)."""
+    return np.array([tuple(p) for p in params], dtype=CHAIN_DTYPE)
+
+
+def neutral_of(name: str) -> dict:
+    """The chain fields entry ``name`` sets, at their neutral values: the chain without it."""
+    return {f.name: (None if f.absent_unless else f.neutral) for f in SPECS[name].chain_fields}
+
+
+def params_from(effects: tuple[str, ...], values: dict[str, float], ctx: FitContext):
     """EffectParams for a candidate from its fitted coordinates (keyed ``effect.parameter``)."""
     kwargs: dict = {}
     for name in effects:
@@ -355,7 +405,7 @@ def params_from(effects: tuple[str, ...], values: dict[str, float], ctx: FitCont
     return EffectParams(**kwargs)
 
 
-def coordinates_of(effects: tuple[str, ...], params: EffectParams, ctx: FitContext) -> dict[str, float]:
+def coordinates_of(effects: tuple[str, ...], params, ctx: FitContext) -> dict[str, float]:
     out = {}
     for name in effects:
         for key, value in SPECS[name].read_params(params, ctx).items():
@@ -363,7 +413,7 @@ def coordinates_of(effects: tuple[str, ...], params: EffectParams, ctx: FitConte
     return out
 
 
-def effect_report(name: str, params: EffectParams, ctx: FitContext) -> dict[str, float]:
+def effect_report(name: str, params, ctx: FitContext) -> dict[str, float]:
     """An effect's parameters under their fixed public names."""
     if name not in SPECS:
         raise KeyError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}, {', '.join(TERMS)}")

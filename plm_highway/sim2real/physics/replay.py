@@ -39,7 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import savgol_coeffs
 
-from plm_highway.sim2real.physics.chain import EffectParams, _delayed, simulate
+from plm_highway.sim2real.physics.chain import gyro_view, simulate
+from plm_highway.sim2real.physics.effects import EffectParams
 from plm_highway.sim2real.physics.filters import fir_filter, fir_filter_at, lateral_fir_at, lateral_fir_at_turned
 from plm_highway.sim2real.record.recording import HEADING_DERIVATIVE_WINDOW_S, Recording
 from plm_highway.vehicle.kinematic import integrate_pose_euler
@@ -303,12 +304,7 @@ def channel_prediction(signal: FitSignal, recording: Recording, params: EffectPa
         else:
             lateral_fir_at_turned(*inputs, *known, True)
         return out
-    source = r
-    if signal.late and params.sensor_delay_s > 0:
-        late = np.empty(len(source))
-        _delayed(np.ascontiguousarray(source, float), params.sensor_delay_s / recording.dt_s, late)
-        source = late
-    bias = params.gyro_bias_radps if signal.late else 0.0
+    source, bias = gyro_view(r, recording.dt_s, params) if signal.late else (r, 0.0)
     if index is None:
         out = filtered(signal, source)
     elif signal.taps.shape[0] == 1 and signal.lo == 0:

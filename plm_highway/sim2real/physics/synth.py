@@ -35,7 +35,9 @@ import numpy as np
 from scipy.signal import lfilter
 
 from plm_highway.sim2real.physics.chain import _servo
-from plm_highway.sim2real.physics.effects import EFFECTS
+from plm_highway.sim2real.physics.effect_spec import ChainField
+from plm_highway.sim2real.physics.effects import CONCEALED_FIELDS, EFFECTS
+from plm_highway.sim2real.physics.records import plain_record
 from plm_highway.sim2real.record.recording import (
     SIMULATOR_VEHICLE,
     Recording,
@@ -89,26 +91,10 @@ class NoiseLevels:
         return NoiseLevels(**{k: v * factor for k, v in asdict(self).items()})
 
 
-@dataclass(frozen=True)
-class ConcealedEffects:
-    """Physics between the log and the recording (neutral: none). Set from the effect registry."""
-
-    delay_s: float = 0.0
-    time_constant_s: float = 0.0
-    gain: float = 1.0
-    offset_rad: float = 0.0
-    jitter_s: float = 0.0
-    max_rate_radps: float = math.inf
-    understeer_rad_per_mps2: float | None = None  # the car's own tires when None
-    friction_coefficient: float = math.inf
-    bank_rad: float = 0.0
-    sensor_delay_s: float = 0.0
-    backlash_rad: float = 0.0  # outside the library
-
-    @property
-    def on_command(self) -> bool:
-        return (self.delay_s, self.time_constant_s, self.gain, self.offset_rad, self.jitter_s, self.max_rate_radps,
-                self.backlash_rad) != (0.0, 0.0, 1.0, 0.0, 0.0, math.inf, 0.0)
+# Physics between the log and the recording (neutral: none): the fields the registry's effects conceal
+# (``effects.EFFECTS[name].conceal``), plus those of the effects outside the library.
+ConcealedEffects = plain_record("ConcealedEffects", (*CONCEALED_FIELDS, ChainField("backlash_rad", 0.0)), __name__,
+                                "Physics between the log and the recording (neutral: none). Set from the effect registry.")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -487,7 +473,7 @@ def parse_effects(specs: Mapping[str, float | Mapping[str, float] | None]) -> Co
                 continue  # NaN default: the car's own value
             if not (math.isfinite(value) and lo <= value <= hi):
                 raise ValueError(f"effect {name}: {key} = {value!r} is outside {lo:g}-{hi:g}")
-            field_name = effect.conceal[key]
+            field_name = effect.conceal[key].name
             if field_name in values and key not in given and values[field_name] != value:
                 continue  # another effect set it explicitly (e.g. delay_jitter's mean delay)
             values[field_name] = value
@@ -669,7 +655,7 @@ def truth_effects(specs: Mapping, concealed: ConcealedEffects, tires: SingleTrac
         if name not in specs:
             continue
         effect = EFFECTS[name]
-        reported = {key: fields_by_name[effect.conceal[key]] for key in effect.synth_defaults}
+        reported = {key: fields_by_name[effect.conceal[key].name] for key in effect.synth_defaults}
         out[name] = {k: v for k, v in reported.items() if k in effect.public_keys and v is not None}
     if tires is not None:
         tire_values = {"understeer_gradient_rad_per_mps2": tires.understeer_gradient_rad_per_mps2,

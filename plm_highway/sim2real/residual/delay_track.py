@@ -29,7 +29,7 @@ from scipy.linalg import solve_banded
 
 from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem
 from plm_highway.sim2real.fit.scoring import combined_score
-from plm_highway.sim2real.physics.chain import EffectParams
+from plm_highway.sim2real.physics.effects import EffectParams
 from plm_highway.sim2real.physics.replay import FitSignal, channel_prediction, model_outputs
 from plm_highway.sim2real.record.recording import Recording
 

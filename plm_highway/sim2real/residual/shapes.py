@@ -11,20 +11,16 @@ shown as the gyro's mean error per speed band, a delay track over time, a bank f
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import numpy as np
 
 from plm_highway.sim2real.fit.problem import FitProblem
-from plm_highway.sim2real.physics.chain import EffectParams, steering_map
+from plm_highway.sim2real.physics.chain import calibrated, command_change, steering_map
+from plm_highway.sim2real.physics.effects import EffectParams, effect_report, neutral_of
 from plm_highway.sim2real.physics.replay import channel_prediction, model_outputs
 
 BINS = 12
-# The chain parameters each steering-map or sensor term sets, at their neutral values.
-NEUTRAL = {"steering_dead_band": {"dead_band_rad": 0.0}, "steering_backlash": {"play_rad": 0.0},
-           "steering_saturation": {"saturation_rad": math.inf}, "steering_asymmetry": {"asymmetry": 0.0},
-           "speed_dependent_steering": {"speed_gain_slope": 0.0}, "gyro_bias": {"gyro_bias_radps": 0.0}}
 STEP = 1e-4  # rad of offset (or relative gain) per bin for the sensitivities
 
 
@@ -46,7 +42,7 @@ def binned(problem: FitProblem, params: EffectParams, bin_of_sample: np.ndarray,
     columns = []
     for b in range(n_bins):
         inside = (bin_of_sample == b) * sign
-        moved = steer * (1 + STEP * inside) if gain else steer + STEP / params.gain * inside
+        moved = steer * (1 + STEP * inside) if gain else steer + command_change(params, STEP) * inside
         columns.append([(p - q) / STEP for p, q in zip(_predictions(problem, params, moved), base)])
     gram = np.zeros((n_bins, n_bins))
     rhs = np.zeros(n_bins)
@@ -72,14 +68,10 @@ def _quantile_bins(values: np.ndarray, usable: np.ndarray, n: int) -> tuple[np.n
     return np.where(usable, index, -1), edges
 
 
-def _calibrated(params: EffectParams, steer: np.ndarray) -> np.ndarray:
-    return params.gain * steer + params.offset_rad
-
-
 def _mapped(params: EffectParams, steer: np.ndarray, speed: np.ndarray) -> np.ndarray:
-    calibrated = np.ascontiguousarray(_calibrated(params, steer), float)
-    out = np.empty_like(calibrated)
-    steering_map(calibrated, np.ascontiguousarray(speed, float), params.chain(), out)
+    command = np.ascontiguousarray(calibrated(params, steer), float)
+    out = np.empty_like(command)
+    steering_map(command, np.ascontiguousarray(speed, float), params.chain(), out)
     return out
 
 
@@ -98,7 +90,8 @@ def shape_data(problem: FitProblem, found) -> dict:
                 "x_m": rec.x_m, "y_m": rec.y_m}
     after = found.detail["params"]
     # The data's view and the curve in one frame: the discovered model with this term left out.
-    before = replace(after, **NEUTRAL[found.name])
+    before = replace(after, **neutral_of(found.name))
+    estimates = effect_report(found.name, after, problem.ctx)
     if found.name == "gyro_bias":
         gyro = next(i for i, c in enumerate(problem.channels) if c.name == "yaw_rate")
         residual = problem.channels[gyro].values - problem.predictions(before)[gyro]
@@ -107,17 +100,17 @@ def shape_data(problem: FitProblem, found) -> dict:
         errors = np.array([np.std(residual[bins == b]) / np.sqrt(max((bins == b).sum(), 1)) for b in
                            range(len(edges) - 1)])
         return {"kind": "speed", "x": 0.5 * (edges[1:] + edges[:-1]), "y": means, "y_error": errors,
-                "curve_x": edges, "curve_y": np.full(edges.size, after.gyro_bias_radps), "xlabel": "speed [m/s]",
+                "curve_x": edges, "curve_y": np.full(edges.size, estimates["bias_radps"]), "xlabel": "speed [m/s]",
                 "ylabel": "gyro error without the bias [rad/s]"}
     if found.name == "speed_dependent_steering":
         bins, edges = _quantile_bins(rec.speed_mps, usable, BINS)
         estimate, error = binned(problem, before, bins, len(edges) - 1, gain=True)
         speeds = np.linspace(edges[0], edges[-1], 50)
-        ratio = after.speed_gain_slope * (speeds - after.speed_ref_mps)
+        ratio = estimates["gain_slope_per_mps"] * (speeds - estimates["speed_ref_mps"])
         return {"kind": "speed", "x": 0.5 * (edges[1:] + edges[:-1]), "y": estimate, "y_error": error,
                 "curve_x": speeds, "curve_y": ratio, "xlabel": "speed [m/s]",
                 "ylabel": "relative change of the steering gain"}
-    command = _calibrated(before, rec.steer_rad)
+    command = calibrated(before, rec.steer_rad)
     departure = _mapped(after, rec.steer_rad, rec.speed_mps) - _mapped(before, rec.steer_rad, rec.speed_mps)
     if found.name == "steering_backlash":
         # A play's departure depends on how far the command has moved since it last reversed.

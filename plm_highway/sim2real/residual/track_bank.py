@@ -27,8 +27,7 @@ from scipy.spatial import cKDTree
 from plm_highway.sim2real.fit.polish import coordinates
 from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem, heldout_mask
 from plm_highway.sim2real.fit.scoring import combined_score
-from plm_highway.sim2real.physics.chain import EffectParams
-from plm_highway.sim2real.physics.effects import coordinates_of, params_from
+from plm_highway.sim2real.physics.effects import EffectParams, coordinates_of, params_from
 from plm_highway.sim2real.physics.replay import channel_prediction, model_outputs
 from plm_highway.vehicle.single_track import single_track_matrices
 from plm_highway.vehicle.tires import GRAVITY_MPS2
