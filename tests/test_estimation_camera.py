@@ -12,8 +12,8 @@ from plm_highway.camera.pinhole import PinholeCamera
 from plm_highway.estimation.lane_camera import LaneDetector, LaneDetectorConfig
 from plm_highway.estimation.scenarios import SCENARIOS, lane_coordinates, simulate_truth
 from plm_highway.estimation.sensors import CameraTiming, ImuConfig
-from plm_highway.latency.profiles import parse_camera_delay
 from plm_highway.estimation.table3 import TABLE3_CAMERA
+from plm_highway.latency.profiles import parse_camera_delay
 from plm_highway.road.geometry import reference_pose_at
 from plm_highway.road.track import parse_track
 

@@ -29,6 +29,7 @@ import numpy as np
 
 from plm_highway.errors import BadInput
 from plm_highway.evaluation import paper_results as paper
+from plm_highway.evaluation.comparison import RUNS, steering_comparison
 from plm_highway.metrics.intervals import Estimate, mean_ci, too_few
 from plm_highway.metrics.steering import ERROR_NAMES, common_span, reduction_pct, steering_errors
 from plm_highway.vehicle.paper_units import PAPER_FULL_SCALE_DEG, PAPER_STEERING_RATIO
@@ -149,17 +150,12 @@ def penalised_mae(reference: np.ndarray, other: np.ndarray, penalty: float = OFF
 def steering_over_common_span(logs: Mapping) -> dict:
     """Errors of ``baseline`` and ``mitigated`` against ``reference`` over the steps all three reached,
     the reductions, the steps compared, the penalised MAE and each run's off-road outcome."""
-    reference, baseline, mitigated = common_span(*(logs[r].columns["steering"] for r in ("reference", "baseline",
-                                                                                          "mitigated")))
-    result: dict = {"baseline": steering_errors(reference, baseline),
-                    "mitigated": steering_errors(reference, mitigated)}
-    for name in ERROR_NAMES:
-        result[f"{name}_reduction_pct"] = reduction_pct(result["baseline"][name], result["mitigated"][name])
+    result = steering_comparison(logs, span="all")
     full_reference = logs["reference"].columns["steering"]
     for run in ("baseline", "mitigated"):
         result[run]["mae_penalised"] = penalised_mae(full_reference, logs[run].columns["steering"])
         result[run]["off_road"] = off_road_outcome(logs[run])
-    result["steps_compared"] = len(reference)
+    result["steps_compared"] = len(common_span(*(logs[run].columns["steering"] for run in RUNS))[0])
     return result
 
 
