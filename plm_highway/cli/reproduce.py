@@ -77,7 +77,7 @@ def run(args) -> int:
         generalise=None if args.generalise is None else tuple(args.generalise), sweep=args.sweep,
         sweep_max=args.sweep_max, sweep_step=args.sweep_step, workers=args.workers, batch_size=args.batch_size,
         out=args.out, overwrite=args.overwrite, progress=not args.no_progress, command=args.command_line,
-        device=str(device_of(args)))
+        device=device_of(args))
     with single_threaded_inference():
         results = reproduce(options)
     out = output_dir(args.out, args.track, results["track"], args.conditions)

@@ -103,7 +103,7 @@ class ReproduceOptions:
     overwrite: bool = False
     progress: bool = True
     command: str = ""
-    device: str = "cpu"  # where the models run: cpu, cuda, auto (see plm_highway.models.device)
+    device: object = "cpu"  # where the models run: a torch.device, or cpu, cuda, auto (plm_highway.models.device)
 
 
 def output_dir(out, track, track_name: str, conditions: str = "ideal") -> Path:

@@ -170,7 +170,7 @@ def run_cells(cells: Sequence[RunCell], checkpoints=None, *, preset: str = SHIPP
         if cell.max_steps is not None and cell.max_steps < 1:
             raise ValueError(f"cell {i} ({cell.name!r}): max_steps {cell.max_steps} must be at least 1")
     checkpoints = None if checkpoints is None else str(checkpoints)
-    device = str(resolve_device(device))  # refused (cuda without CUDA) before any run; a string travels to workers
+    device = resolve_device(device)  # once, here (cuda without CUDA is refused before any run); workers get it as is
     if backend is not None:
         return _run_on(backend, cells, checkpoints, preset, batch_size, on_done, device)
     models = _load_models(cells, functools.partial(make_policy, checkpoint_dir=checkpoints, preset=preset,
@@ -237,7 +237,7 @@ class _Chunk:
     checkpoints: str | None
     preset: str  # the shipped checkpoint pair (when checkpoints is None)
     batch_size: int
-    device: str = "cpu"  # where the worker's model policies run
+    device: object = "cpu"  # where the worker's model policies run: the caller's resolved torch.device
 
 
 def chunk_count(n_runs: int, workers: int, batch_size: int) -> int:
@@ -249,7 +249,7 @@ def chunk_count(n_runs: int, workers: int, batch_size: int) -> int:
 
 
 def _run_on(backend, cells: Sequence[RunCell], checkpoints: str | None, preset: str, batch_size: int,
-            on_done, device: str = "cpu") -> list[RunLog]:
+            on_done, device) -> list[RunLog]:
     """The cells in chunks over ``backend``'s workers, each chunk batched there; logs in order."""
     for i, cell in enumerate(cells):
         if not isinstance(cell.policy, str):
@@ -280,7 +280,7 @@ def _drive_chunk(chunk: _Chunk) -> list[RunLog]:
 
 
 @functools.lru_cache(maxsize=8)
-def worker_policy(name: str, checkpoints: str | None, preset: str, device: str = "cpu",
+def worker_policy(name: str, checkpoints: str | None, preset: str, device="cpu",
                   contents: str | None = None) -> VisionPolicy:
     """The named model policy, loaded once per process (pool workers keep it across chunks; call it with
     positional arguments, as the workers do, to find what they loaded). ``contents``: the digest of the pair's
