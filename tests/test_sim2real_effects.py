@@ -28,17 +28,10 @@ from plm_highway.sim2real.physics.effects import (
     coordinates_of,
     params_from,
 )
+from plm_highway.sim2real.physics.replay import simulate_yaw_rate
 from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE, KinematicBicycleParams, kinematic_bicycle_rates
 
 DT = 0.02
-
-
-def simulate_yaw_rate(steer, speed, dt, delay_s, tau_s, gain, offset_rad, cf, cr, a_m, b_m, k2, with_slip=True):
-    """Yaw rate [rad/s] and slip angle [rad] for the five classic effects (cf = 0: kinematic)."""
-    params = EffectParams(delay_s=delay_s, time_constant_s=tau_s, gain=gain, offset_rad=offset_rad,
-                          cf_per_kg=cf if cf > 0 else None, cr_per_kg=cr if cf > 0 else None)
-    r, _, slip = simulate(steer, speed, dt, params, a_m, b_m, k2)
-    return r, slip
 
 
 def _inputs(n=1500, seed=0, jitter=0.002):

@@ -6,7 +6,7 @@ Camera processing delay (:func:`plm_highway.latency.profiles.parse_camera_delay`
 (:func:`plm_highway.latency.parse_profile`: ``const:0.3``, ``steps:LO-HI:PERIOD``, ``sine:...``,
 ``ramp:...``, ``trace:...``, looked up at the frame's capture time) or ``frame:LO-HI``: a new delay
 drawn uniformly from [LO, HI] s for every frame, like the paper's measured ~0.3 s per frame
-(Sensors 2025, 25, 6251, Figure 6). Delays are bounded by :data:`MAX_CAMERA_DELAY_S`.
+(Sensors 2025, 25, 6251, Figure 6). Delays are bounded by :data:`plm_highway.latency.profiles.MAX_CAMERA_DELAY_S`.
 
 The processing pipeline has one worker, as in the paper: a frame is captured when the worker is free
 (at the next camera frame tick), and its lane measurement arrives ``delay`` later. So the camera

@@ -238,6 +238,7 @@ class _Run:
     clamped_steps: int = 0
     done: bool = False
     terminated: bool = False
+    in_batches: bool = False  # its policy SteersInBatches (checked once: a protocol check costs as much as a step)
 
     def frame(self) -> np.ndarray:
         """The observation as the policy sees it (with the run's image noise)."""
@@ -262,7 +263,7 @@ class _Run:
     def log(self) -> RunLog:
         columns = {column: np.asarray(values) for column, values in self.rows.items()}
         policy = self.policy
-        if isinstance(policy, SteersInBatches):
+        if self.in_batches:
             extras = {"latency_clamped_steps": self.clamped_steps}  # counted per run: its model is shared
         elif isinstance(policy, CountsClampedLatency):
             extras = {"latency_clamped_steps": int(policy.clamped_count)}
@@ -296,7 +297,8 @@ def _start(cell: RunCell, policy: Policy) -> _Run:
     env = make_env(cell.track, cell.latency, cell.camera, cell.env_config, cell.injection, cell.latency_estimation)
     obs, info = env.reset(seed=cell.seed)
     policy.reset()
-    run = _Run(cell, env, policy, obs, info, np.random.default_rng([cell.seed, NOISE_STREAM]))
+    run = _Run(cell, env, policy, obs, info, np.random.default_rng([cell.seed, NOISE_STREAM]),
+               in_batches=isinstance(policy, SteersInBatches))
     run.done = run.at_step_limit()  # max_steps 0: logged without a step
     return run
 
@@ -306,7 +308,7 @@ def _steer_and_step(runs: list[_Run], batch_invariant: bool) -> None:
     steering: dict[int, float] = {}
     by_model: dict[int, list[_Run]] = {}
     for run in runs:
-        if isinstance(run.policy, SteersInBatches):
+        if run.in_batches:
             by_model.setdefault(id(run.policy.model_policy), []).append(run)
         else:
             steering[id(run)] = float(run.policy(run.frame(), run.info))
