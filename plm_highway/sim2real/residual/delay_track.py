@@ -54,7 +54,7 @@ STEP_SHARE = 0.25
 class DelayTrack:
     """A fitted track: the delay at each sample (the chain's plus the change) and its standard error."""
 
-    delay_s: np.ndarray
+    delay_at_sample_s: np.ndarray
     standard_error_s: np.ndarray
     visible: np.ndarray  # samples whose knot's value is known to VISIBLE_ERROR_S (the steering moves)
     base_delay_s: float
@@ -229,15 +229,15 @@ def _holds(track: DelayTrack, step_s: float, dt_s: float) -> np.ndarray:
     starts = np.flatnonzero(~seen[:-1] & seen[1:])
     stops = np.flatnonzero(seen[:-1] & ~seen[1:])
     for a, b in zip(starts, stops):
-        changes = a + 1 + np.flatnonzero(np.abs(np.diff(track.delay_s[a:b])) > step_s)
+        changes = a + 1 + np.flatnonzero(np.abs(np.diff(track.delay_at_sample_s[a:b])) > step_s)
         holds += list(np.diff(changes) * dt_s)
     return np.array(holds)
 
 
 def describe(track: DelayTrack, dt_s: float) -> tuple[dict[str, float], dict[str, list[float]], str]:
     """Estimates (range, holds), their intervals and the sentence."""
-    seen = track.visible if track.visible.any() else np.ones(track.delay_s.size, bool)
-    values = track.delay_s[seen]
+    seen = track.visible if track.visible.any() else np.ones(track.delay_at_sample_s.size, bool)
+    values = track.delay_at_sample_s[seen]
     lo, mid, hi = (float(np.percentile(values, q)) for q in (5, 50, 95))
     error = float(np.median(track.standard_error_s[seen]))
     holds = _holds(track, max(STEP_SHARE * (hi - lo), 0.01), dt_s)
