@@ -38,10 +38,11 @@ from __future__ import annotations
 
 import math
 from collections import ChainMap
+from dataclasses import replace
 
 import numpy as np
 
-from plm_highway.sim2real.physics.effect_spec import ChainField, ChainMove, Effect, FitContext, Parameter, pm
+from plm_highway.sim2real.physics.effect_spec import ChainField, ChainMove, Effect, FitContext, Parameter, Scatter, pm
 from plm_highway.sim2real.physics.records import (
     fit_record,
     kernel_record,
@@ -66,6 +67,10 @@ def front_stiffness_from(understeer: float, cr: float, a: float, b: float) -> fl
 
 # Chain fields more than one effect sets. Absent tires (None) are the kinematic bicycle.
 DELAY = ChainField("delay_s", 0.0)
+# The delay's jitter (its standard deviation): a variance coordinate, fitted from the scatter it leaves.
+JITTER = ChainField("jitter_s", 0.0)
+# The public name every delay is reported under: the steering's, its jitter's mean and the gyro's.
+DELAY_KEY = "delay_s"
 TIRES = (ChainField("cf_per_kg", 0.0, absent_unless="cf_per_kg"), ChainField("cr_per_kg", 0.0, absent_unless="cf_per_kg"))
 FRICTION = ChainField("friction_coefficient", math.inf)  # inf: linear tires
 # make-recording's tires: the understeer gradient it gives the car (None: the car's own tires).
@@ -331,15 +336,14 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect(
         name="delay_jitter", term="delta(t) <- delta(t - delay - jitter(t)), jitter white with std jitter_s",
         parameters=(Parameter("delay_s", "s", (0.0, 0.8), 0.05, grid=DELAY_GRID_S),
-                    Parameter("jitter_s", "s", (0.0, 0.5), 0.01, linear=True, variance=True)),
+                    Parameter("jitter_s", "s", (0.0, 0.5), 0.01, linear=True, scatter=Scatter(JITTER.name, of=DELAY.name))),
         public_keys=("delay_s", "jitter_s"),
         fingerprint="a transport delay whose error variance grows with the square of the steering rate: "
                     "the mean response is the delay's, the residual scatter is jitter x d(yaw rate)/dt",
         concealed="each sample's command arrives late by delay + jitter, the jitter drawn white per sample "
                   "(Gaussian, clipped at zero delay)",
         synth_defaults={"jitter_s": 0.03, "delay_s": 0.10}, synth_bounds={"jitter_s": (0.0, 0.3), "delay_s": (0.0, 1.0)},
-        conceal={"jitter_s": ChainField("jitter_s", 0.0), "delay_s": DELAY},
-        chain_fields=(DELAY, ChainField("jitter_s", 0.0)),
+        conceal={"jitter_s": JITTER, "delay_s": DELAY}, chain_fields=(DELAY, JITTER),
         set_params=lambda v, ctx: {"delay_s": v["delay_s"], "jitter_s": v["jitter_s"]},
         read_params=lambda p, ctx: {"delay_s": p.delay_s, "jitter_s": p.jitter_s},
         report=lambda p, ctx: {"delay_s": p.delay_s, "jitter_s": p.jitter_s},
@@ -418,3 +422,39 @@ def effect_report(name: str, params, ctx: FitContext) -> dict[str, float]:
     if name not in SPECS:
         raise KeyError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}, {', '.join(TERMS)}")
     return {k: float(v) for k, v in SPECS[name].report(params, ctx).items()}
+
+
+def scatter_of(effects: tuple[str, ...]) -> Parameter | None:
+    """The candidate's variance coordinate (the parameter with a ``scatter``); None when it has none."""
+    return next((p for name in effects for p in SPECS[name].parameters if p.scatter is not None), None)
+
+
+def moved(params, field: str, by: float):
+    """``params`` with chain field ``field`` moved by ``by`` (a finite-difference step along it)."""
+    return replace(params, **{field: getattr(params, field) + by})
+
+
+def transport_delay_s(params) -> float:
+    """The chain's transport delay: the field the steering's delay effects set."""
+    return getattr(params, DELAY.name)
+
+
+def later_by(params, step_s: float):
+    """``params`` with the chain's transport delay longer by ``step_s``."""
+    return moved(params, DELAY.name, step_s)
+
+
+def without_scatter(params):
+    """``params`` with every variance coordinate at its neutral value: the chain's mean, no random variation."""
+    return replace(params, **{p.scatter.field: p.neutral for spec in SPECS.values() for p in spec.parameters
+                              if p.scatter is not None})
+
+
+def delay_estimates(estimates: dict[str, dict[str, float]]) -> dict[str, float]:
+    """The delays [s] among public estimates (entry -> its public values), by entry."""
+    return {name: values[DELAY_KEY] for name, values in estimates.items() if DELAY_KEY in values}
+
+
+def acts_on_gyro(name: str) -> bool:
+    """Whether entry ``name`` acts on the recorded gyro only (a late gyro, not a late car)."""
+    return any(f.gyro_only for f in SPECS[name].chain_fields)

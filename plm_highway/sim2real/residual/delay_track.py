@@ -29,7 +29,7 @@ from scipy.linalg import solve_banded
 
 from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem
 from plm_highway.sim2real.fit.scoring import combined_score
-from plm_highway.sim2real.physics.effects import EffectParams
+from plm_highway.sim2real.physics.effects import EffectParams, later_by, transport_delay_s, without_scatter
 from plm_highway.sim2real.physics.replay import FitSignal, channel_prediction, model_outputs
 from plm_highway.sim2real.record.recording import Recording
 
@@ -119,21 +119,22 @@ def fit_track(problem: FitProblem, params: EffectParams, mask: np.ndarray, penal
     mask = mask & gyro.usable
     change = np.zeros(rec.n)
     curvature = np.ones(n_knots)
-    later = replace(params, delay_s=params.delay_s + SENSITIVITY_STEP_S)
+    later = later_by(params, SENSITIVITY_STEP_S)
+    base_delay_s = transport_delay_s(params)
     for _ in range(GAUSS_NEWTON_ITERATIONS):
-        shifted = warped(rec, change, params.delay_s)
+        shifted = warped(rec, change, base_delay_s)
         pred = _prediction(gyro, shifted, params)
         sensitivity = (_prediction(gyro, shifted, later) - pred) / SENSITIVITY_STEP_S
         step, curvature = _tv_fit(gyro.values - pred, sensitivity, knot, n_knots, mask, penalty)
-        change = np.clip(change + step[knot], -params.delay_s, MAX_CHANGE_S)
-    residual = gyro.values - _prediction(gyro, warped(rec, change, params.delay_s), params)
+        change = np.clip(change + step[knot], -base_delay_s, MAX_CHANGE_S)
+    residual = gyro.values - _prediction(gyro, warped(rec, change, base_delay_s), params)
     variance = float(np.mean(residual[mask] ** 2)) if mask.any() else 1.0
     return change, np.sqrt(variance / curvature)[knot]
 
 
 def _base_params(base: CandidateFit) -> EffectParams:
     """The chain a track replaces the jitter of (the track is the delay's variation)."""
-    return replace(base.params, jitter_s=0.0)
+    return without_scatter(base.params)
 
 
 def interleaved_problem(problem: FitProblem) -> FitProblem:
@@ -165,6 +166,7 @@ def compare(problem: FitProblem, base: CandidateFit) -> tuple[FitProblem, Candid
     gyro = interleaved.channels[0]
     rec = problem.recording
     params = _base_params(base)
+    base_delay_s = transport_delay_s(params)
     plain = _prediction(gyro, rec, base.params)
     base_fit = _candidate(interleaved, base, plain, base.dof)
     best = None
@@ -173,14 +175,14 @@ def compare(problem: FitProblem, base: CandidateFit) -> tuple[FitProblem, Candid
         oof = np.full(rec.n, np.nan)
         for train, test in interleaved.channel_folds[0]:
             change, _ = fit_track(problem, params, train, penalty)
-            oof[test] = _prediction(gyro, warped(rec, change, params.delay_s), params)[test]
+            oof[test] = _prediction(gyro, warped(rec, change, base_delay_s), params)[test]
         fit = _candidate(interleaved, base, oof, base.dof + TRACK_DOF)
         if best is None or fit.score < best[0].score:
             best = (fit, penalty)
     fit, penalty = best
     change, error = fit_track(problem, params, gyro.usable, penalty)
     visible = gyro.usable & (error <= VISIBLE_ERROR_S)
-    track = DelayTrack(params.delay_s + change, error, visible, params.delay_s, penalty,
+    track = DelayTrack(base_delay_s + change, error, visible, base_delay_s, penalty,
                        smoother_mse=_smoother_mse(interleaved, plain))
     return interleaved, base_fit, fit, track
 
@@ -214,7 +216,7 @@ def _penalty_scale(problem: FitProblem, params: EffectParams) -> float:
     _, gyro = _gyro(problem)
     rec = problem.recording
     pred = _prediction(gyro, rec, params)
-    later = replace(params, delay_s=params.delay_s + SENSITIVITY_STEP_S)
+    later = later_by(params, SENSITIVITY_STEP_S)
     sensitivity = (_prediction(gyro, rec, later) - pred) / SENSITIVITY_STEP_S
     knot, n_knots = _knots(rec.n, rec.dt_s)
     a = np.bincount(knot[gyro.usable], weights=sensitivity[gyro.usable] ** 2, minlength=n_knots)
