@@ -42,6 +42,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from plm_highway.sim2real.physics.chain import _servo
 from plm_highway.sim2real.physics.effect_spec import ChainField, ChainMove, Effect, FitContext, Parameter, Scatter, pm
 from plm_highway.sim2real.physics.records import (
     fit_record,
@@ -458,3 +459,56 @@ def delay_estimates(estimates: dict[str, dict[str, float]]) -> dict[str, float]:
 def acts_on_gyro(name: str) -> bool:
     """Whether entry ``name`` acts on the recorded gyro only (a late gyro, not a late car)."""
     return any(f.gyro_only for f in SPECS[name].chain_fields)
+
+
+# make-recording's concealed physics, stage by stage in the chain's order (synth runs them on its fine
+# time grid; ``c`` is a ``synth.ConcealedEffects``). They live beside the entries whose fields they read,
+# so that a new kind of concealed physics is written here, not in the recording maker.
+
+
+def concealed_calibration(c, command_rad: np.ndarray) -> np.ndarray:
+    """steering_gain and steering_offset: the command scaled, then shifted, before the wheels."""
+    return c.gain * command_rad + c.offset_rad
+
+
+def delay_jitters(c) -> bool:
+    """Whether the concealed delay jitters (it then draws from its own random stream)."""
+    return c.jitter_s > 0
+
+
+def concealed_delay(t_s: np.ndarray, delta_rad: np.ndarray, c, jitter_rng: np.random.Generator | None,
+                    frame_s: float | None) -> np.ndarray:
+    """transport_delay and delay_jitter: the wheels follow ``delta_rad`` late (linear interpolation on the
+    uniform grid ``t_s``); a jittering delay draws one delay per recording frame (``frame_s``), clipped at 0."""
+    if delay_jitters(c):
+        frame = np.floor((t_s - t_s[0]) / frame_s).astype(int)
+        delays = np.maximum(c.delay_s + c.jitter_s * jitter_rng.standard_normal(frame.max() + 1), 0.0)
+        return np.interp(t_s - delays[frame], t_s, delta_rad)
+    if c.delay_s > 0:
+        return np.interp(t_s - c.delay_s, t_s, delta_rad)
+    return delta_rad
+
+
+def concealed_servo(delta_rad: np.ndarray, dt_s: float, c) -> np.ndarray:
+    """actuator_lag and steering_rate_limit: a first-order servo whose output moves at most the rate limit."""
+    if c.time_constant_s > 0 or math.isfinite(c.max_rate_radps):
+        out = np.empty_like(delta_rad)
+        _servo(np.ascontiguousarray(delta_rad), dt_s, c.time_constant_s, c.max_rate_radps, out)
+        return out
+    return delta_rad
+
+
+def concealed_understeer(c) -> float | None:
+    """tire_slip: the understeer gradient [rad/(m/s^2)] the car's tires are given (None: its own)."""
+    return c.understeer_rad_per_mps2
+
+
+def concealed_road(c) -> tuple[float, float]:
+    """tire_saturation and road_bank: (the tires' friction coefficient, inf for linear tires; the road's
+    bank [rad]) the single-track car drives with."""
+    return c.friction_coefficient, c.bank_rad
+
+
+def concealed_gyro_delay_s(c) -> float:
+    """sensor_delay: how late the recorded yaw rate is sampled [s]."""
+    return c.sensor_delay_s
