@@ -12,7 +12,10 @@ it, and its sentence in a summary. ``selection``, ``diagnose`` and ``synth`` rea
 and the parameter records are built from it (:data:`ChainParams`, :data:`EffectParams`,
 :data:`CHAIN_DTYPE`, and make-recording's concealed fields): adding an effect that the chain can
 already express touches one entry; a new kind of physics also adds its term to the kernels
-(:func:`~plm_highway.sim2real.physics.chain.simulate_chain`), which read the fields by name.
+(:func:`~plm_highway.sim2real.physics.chain.simulate_chain`), which read the fields by name, and its
+concealment stage (the ``concealed_*`` functions at the end, which make-recording composes). Tools that
+move a parameter reach it here too: the delay helpers (:func:`later_by`, :func:`delay_estimates`) and
+the variance coordinate's :class:`~.effect_spec.Scatter` (:func:`scatter_of`).
 
 =================== ============================================= ============================================
 effect              term                                          parameters (public names)

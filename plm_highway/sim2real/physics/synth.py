@@ -9,8 +9,8 @@ A recording is made in four steps:
    driver "knows". A :class:`Car` scales them: the seed paper's sedan drives 10-30 m/s, the 1:10
    scale car 0.8-4 m/s with half the lateral demand and its steering limit.
 2. **Concealed effects** (:class:`ConcealedEffects`), set from the effect registry
-   (``effects.EFFECTS[name].conceal``), on a fine time grid (10 sub-steps per sample): steering
-   gain and offset, transport delay (optionally jittering per sample), a first-order servo with a
+   (``effects.EFFECTS[name].conceal``), on a fine time grid (10 sub-steps per sample), by the
+   registry's concealment stages (``effects.concealed_*``): steering gain and offset, transport delay (optionally jittering per sample), a first-order servo with a
    rate limit; in the vehicle, tires with a friction peak and a road bank; at the sensors, a late
    gyro. Two effects outside the library (:data:`OUTSIDE_EFFECTS`) test the tool's honesty.
 3. **Vehicle** (:data:`MODELS`, one table): the simulator's own step, a continuous kinematic
