@@ -79,23 +79,23 @@ def scored(problem: FitProblem, effects: tuple[str, ...], fold_params: list[Effe
     n_channels = len(problem.channels)
     oof = [np.full(problem.recording.n, np.nan) for _ in range(n_channels)]
     shapes: list[np.ndarray | None] = [None] * n_channels
-    variance = scatter_of(effects)
+    variance_coord = scatter_of(effects)  # a jitter, fitted from the scatter
     train_sse, train_n = 0.0, 0
     for f, params in enumerate(fold_params):
         preds = problem.predictions(params) if effects else problem.plain_predictions
         train0, test0 = problem.folds[f]
-        if variance is not None:
+        if variance_coord is not None:
             # The jitter shows in the scatter: regress it, then refit the mean (which it smooths).
             for _ in range(JITTER_ITERATIONS if polished else 1):
-                sens = scatter_sensitivity(problem, params, variance.scatter)
+                sens = scatter_sensitivity(problem, params, variance_coord.scatter)
                 s0, j2 = fit_jitter(problem.y - preds[0], sens, train0)
-                params = with_scatter(params, variance.scatter, min(math.sqrt(j2), JITTER_MAX_S))
+                params = with_scatter(params, variance_coord.scatter, min(math.sqrt(j2), JITTER_MAX_S))
                 if polished:
                     params = _polish_fold(problem, effects, [params], f)
                 preds = problem.predictions(params)
-            sens = scatter_sensitivity(problem, params, variance.scatter)
+            sens = scatter_sensitivity(problem, params, variance_coord.scatter)
             s0, j2 = fit_jitter(problem.y - preds[0], sens, train0)
-            fold_params[f] = params = with_scatter(params, variance.scatter, min(math.sqrt(j2), JITTER_MAX_S))
+            fold_params[f] = params = with_scatter(params, variance_coord.scatter, min(math.sqrt(j2), JITTER_MAX_S))
             shape = (s0 + j2 * sens**2) / s0
             if shapes[0] is None:
                 shapes[0] = np.ones(problem.recording.n)
