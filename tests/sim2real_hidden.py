@@ -342,7 +342,7 @@ def shape_error(case: Case, recording: Recording, truth: dict, discovery, name: 
         track = found.detail["track"]
         seen = track.visible
         true = truth["delay_s"][seen]
-        return float(np.sqrt(np.mean((track.delay_s[seen] - true) ** 2)) / np.std(true))
+        return float(np.sqrt(np.mean((track.delay_at_sample_s[seen] - true) ** 2)) / np.std(true))
     if name == "bank_along_track":
         usable = recording.usable_mask
         true = truth["bank_rad"][usable]

@@ -25,6 +25,7 @@ import numpy as np
 
 from plm_highway.latency.estimate import LatencyEstimatorConfig
 from plm_highway.latency.lane_recording import DEFAULT_ESTIMATOR, LANE_COLUMNS, estimate_recording, read_lane_recording
+from plm_highway.sim2real.physics.effects import DELAY_KEY, delay_estimates
 
 
 def diagnosis_delays(diagnosis) -> dict[str, float]:
@@ -32,8 +33,8 @@ def diagnosis_delays(diagnosis) -> dict[str, float]:
     model was fitted (a recording found inconsistent with itself gets no physics)."""
     if diagnosis.selection is None:
         return {}
-    return {f"{effect}/delay_s": float(parameters["delay_s"])
-            for effect, parameters in diagnosis.selection.winner.estimates.items() if "delay_s" in parameters}
+    return {f"{effect}/{DELAY_KEY}": float(delay_s)
+            for effect, delay_s in delay_estimates(diagnosis.selection.winner.estimates).items()}
 
 
 def perception_delay(path: str | os.PathLike, config: LatencyEstimatorConfig = DEFAULT_ESTIMATOR,

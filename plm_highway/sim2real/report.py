@@ -61,8 +61,8 @@ def _excerpt(d: Diagnosis, length_s: float = 20.0) -> slice:
     width = max(2, min(n, round(length_s / d.recording.dt_s)))
     before = np.nan_to_num(d.signal.values - d.before)
     after = np.nan_to_num(d.signal.values - d.after)
-    gain = before**2 - after**2 if d.library_verdict in NAMED else before**2
-    csum = np.concatenate([[0.0], np.cumsum(np.where(d.heldout, gain, 0.0))])
+    sq_error_drop = before**2 - after**2 if d.library_verdict in NAMED else before**2
+    csum = np.concatenate([[0.0], np.cumsum(np.where(d.heldout, sq_error_drop, 0.0))])
     scores = csum[width:] - csum[:-width]
     start = int(np.argmax(scores)) if scores.size else 0
     return slice(start, min(start + width, n))
@@ -229,7 +229,7 @@ def discovery_figure(d: Diagnosis, found, plt):
             f"{removed_words(found.removed_fraction, would=not found.plausible)} of the error left above the noise)"
     if data["kind"] == "time":
         fig, (ax, hist) = plt.subplots(1, 2, figsize=(12, 4), gridspec_kw={"width_ratios": [3, 1]})
-        t, delay, error, seen = data["t_s"], data["delay_s"], data["error_s"], data["visible"]
+        t, delay, error, seen = data["t_s"], data["track_delay_s"], data["error_s"], data["visible"]
         width = min(30.0, t[-1] - t[0])
         density = np.convolve(seen.astype(float), np.ones(max(1, round(width / d.recording.dt_s))), mode="valid")
         start = t[int(np.argmax(density))] if density.size else t[0]
@@ -249,7 +249,7 @@ def discovery_figure(d: Diagnosis, found, plt):
         hist.set_ylabel("delay [s]")
     elif data["kind"] == "place":
         fig, (ax, plan) = plt.subplots(1, 2, figsize=(13, 4.5), gridspec_kw={"width_ratios": [3, 2]})
-        bank = np.degrees(data["bank_rad"])
+        bank = np.degrees(data["anchor_bank_rad"])
         error = np.degrees(1.96 * data["error_rad"])
         order = np.arange(bank.size)
         ax.errorbar(order * data["spacing_m"], bank, yerr=error, fmt="o", ms=3, color="tab:blue", ecolor="0.6",

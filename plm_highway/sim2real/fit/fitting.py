@@ -9,16 +9,21 @@ grid fit (``polished=False``) until :func:`polish_candidate` finishes it.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 
 from plm_highway.sim2real.fit.gridfit import FitCache, fold_starts, grid_blocks, remember_top_rows
-from plm_highway.sim2real.fit.jitter import JITTER_ITERATIONS, JITTER_MAX_S, delay_sensitivity, fit_jitter
+from plm_highway.sim2real.fit.jitter import (
+    JITTER_ITERATIONS,
+    JITTER_MAX_S,
+    fit_jitter,
+    scatter_sensitivity,
+    with_scatter,
+)
 from plm_highway.sim2real.fit.polish import coordinates, polish, public_estimates
 from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem, heldout_mask
 from plm_highway.sim2real.fit.scoring import PENALTY_PER_PARAMETER, _mse, combined_score
-from plm_highway.sim2real.physics.effects import SPECS, EffectParams, coordinates_of, params_from
+from plm_highway.sim2real.physics.effects import SPECS, EffectParams, coordinates_of, params_from, scatter_of
 
 
 def _candidate_dof(effects: tuple[str, ...]) -> int:
@@ -74,23 +79,23 @@ def scored(problem: FitProblem, effects: tuple[str, ...], fold_params: list[Effe
     n_channels = len(problem.channels)
     oof = [np.full(problem.recording.n, np.nan) for _ in range(n_channels)]
     shapes: list[np.ndarray | None] = [None] * n_channels
-    variance = any(SPECS[e].varies_noise for e in effects)
+    variance_coord = scatter_of(effects)  # a jitter, fitted from the scatter
     train_sse, train_n = 0.0, 0
     for f, params in enumerate(fold_params):
         preds = problem.predictions(params) if effects else problem.plain_predictions
         train0, test0 = problem.folds[f]
-        if variance:
+        if variance_coord is not None:
             # The jitter shows in the scatter: regress it, then refit the mean (which it smooths).
             for _ in range(JITTER_ITERATIONS if polished else 1):
-                sens = delay_sensitivity(problem, params)
+                sens = scatter_sensitivity(problem, params, variance_coord.scatter)
                 s0, j2 = fit_jitter(problem.y - preds[0], sens, train0)
-                params = replace(params, jitter_s=min(math.sqrt(j2), JITTER_MAX_S))
+                params = with_scatter(params, variance_coord.scatter, min(math.sqrt(j2), JITTER_MAX_S))
                 if polished:
                     params = _polish_fold(problem, effects, [params], f)
                 preds = problem.predictions(params)
-            sens = delay_sensitivity(problem, params)
+            sens = scatter_sensitivity(problem, params, variance_coord.scatter)
             s0, j2 = fit_jitter(problem.y - preds[0], sens, train0)
-            fold_params[f] = params = replace(params, jitter_s=min(math.sqrt(j2), JITTER_MAX_S))
+            fold_params[f] = params = with_scatter(params, variance_coord.scatter, min(math.sqrt(j2), JITTER_MAX_S))
             shape = (s0 + j2 * sens**2) / s0
             if shapes[0] is None:
                 shapes[0] = np.ones(problem.recording.n)

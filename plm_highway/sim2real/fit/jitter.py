@@ -1,8 +1,10 @@
-"""The jittering delay's variance model: the residual's scatter grows with the delay sensitivity.
+"""The variance model of a jittering chain field: the residual's scatter grows with the signal's sensitivity.
 
 A delay that jitters with standard deviation ``j`` leaves a residual whose variance is the noise's
 plus ``j^2 (d signal / d delay)^2``: regressed by non-negative least squares on the train blocks,
-refitted with the mean, and bootstrapped over 1-s blocks for its interval.
+refitted with the mean, and bootstrapped over 1-s blocks for its interval. Which chain field jitters
+and which holds the standard deviation, the registry entry's variance coordinate says (its
+:class:`~plm_highway.sim2real.physics.effect_spec.Scatter`).
 """
 
 from __future__ import annotations
@@ -15,16 +17,23 @@ from scipy.optimize import nnls
 
 from plm_highway.sim2real.fit.problem import FitProblem
 from plm_highway.sim2real.fit.scoring import T_BLOCK_S
-from plm_highway.sim2real.physics.effects import EffectParams
+from plm_highway.sim2real.physics.effect_spec import Scatter
+from plm_highway.sim2real.physics.effects import EffectParams, moved
 
 JITTER_ITERATIONS = 2
 JITTER_MAX_S = 0.5
 
 
-def delay_sensitivity(problem: FitProblem, params: EffectParams, step_s: float = 1e-3) -> np.ndarray:
-    """d(primary channel)/d(delay): the yaw-rate scatter per second of delay jitter."""
+def scatter_sensitivity(problem: FitProblem, params: EffectParams, scatter: Scatter, step: float = 1e-3
+                        ) -> np.ndarray:
+    """d(primary channel)/d(the jittering field): for a delay, the yaw-rate scatter per second of jitter."""
     base = problem.predict(params)
-    return (problem.predict(replace(params, delay_s=params.delay_s + step_s)) - base) / step_s
+    return (problem.predict(moved(params, scatter.of, step)) - base) / step
+
+
+def with_scatter(params: EffectParams, scatter: Scatter, std: float) -> EffectParams:
+    """``params`` with the jitter's standard deviation set to ``std``."""
+    return replace(params, **{scatter.field: std})
 
 
 def fit_jitter(residual: np.ndarray, sensitivity: np.ndarray, mask: np.ndarray) -> tuple[float, float]:
@@ -40,10 +49,11 @@ def fit_jitter(residual: np.ndarray, sensitivity: np.ndarray, mask: np.ndarray) 
     return float(s0), float(coef[1] * scale_e / scale_g)
 
 
-def jitter_interval(problem: FitProblem, params: EffectParams, mask: np.ndarray, rng: np.random.Generator
-                     ) -> tuple[float, list[float]]:
+def jitter_interval(problem: FitProblem, params: EffectParams, scatter: Scatter, mask: np.ndarray,
+                    rng: np.random.Generator) -> tuple[float, list[float]]:
+    """The jitter's standard deviation on ``mask`` and its 95% interval (block bootstrap)."""
     residual = problem.y - problem.predict(params)
-    sens = delay_sensitivity(problem, params)
+    sens = scatter_sensitivity(problem, params, scatter)
     _, j2 = fit_jitter(residual, sens, mask)
     block = np.floor((problem.recording.t_s - problem.recording.t_s[0]) / T_BLOCK_S).astype(int)
     ids = np.unique(block[mask])

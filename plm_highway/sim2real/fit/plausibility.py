@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 
 from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem
+from plm_highway.sim2real.physics.effects import acts_on_gyro, delay_estimates
 from plm_highway.sim2real.physics.terms import TERMS
 from plm_highway.sim2real.record.consistency import Consistency
 
@@ -74,17 +75,17 @@ def size_doubts(problem: FitProblem, name: str, estimates: dict[str, float]) -> 
     return []
 
 
-def delay_doubts(delay_s: float, what: str, consistency: Consistency | None, gyro: bool = False) -> list[str]:
-    """A delay longer than the recording's own response allows."""
+def delay_doubts(estimate_s: float, what: str, consistency: Consistency | None, gyro: bool = False) -> list[str]:
+    """A delay (``estimate_s``) longer than the recording's own response allows."""
     if consistency is None:
         return []
     check = consistency.check("yaw_rate_vs_heading" if gyro else "steer_vs_turning")
     if check.status != "consistent" or not math.isfinite(check.lag_s):
         return []
     limit = max(check.lag_s, 0.0) + DELAY_MARGIN_S
-    if delay_s > limit:
+    if estimate_s > limit:
         against = "the gyro runs behind the heading" if gyro else "the heading answers the steering"
-        return [f"{what} of {delay_s:.3f} s is longer than the recording allows: {against} within "
+        return [f"{what} of {estimate_s:.3f} s is longer than the recording allows: {against} within "
                 f"{max(check.lag_s, 0.0):.2f} s"]
     return []
 
@@ -92,9 +93,9 @@ def delay_doubts(delay_s: float, what: str, consistency: Consistency | None, gyr
 def library_doubts(winner: CandidateFit, consistency: Consistency | None) -> list[str]:
     """Doubts about the delays the library named, against the recording's own responses."""
     doubts = []
-    for name in ("transport_delay", "delay_jitter"):
-        if name in winner.effects:
-            doubts += delay_doubts(winner.estimates[name]["delay_s"], f"{name.replace('_', ' ')}", consistency)
-    if "sensor_delay" in winner.effects:
-        doubts += delay_doubts(winner.estimates["sensor_delay"]["delay_s"], "a late gyro", consistency, gyro=True)
+    # The car's delays first, then the gyro's (a late car and a late gyro are judged against different lags).
+    delays = sorted(delay_estimates(winner.estimates).items(), key=lambda item: acts_on_gyro(item[0]))
+    for name, estimate_s in delays:
+        gyro = acts_on_gyro(name)
+        doubts += delay_doubts(estimate_s, "a late gyro" if gyro else name.replace("_", " "), consistency, gyro=gyro)
     return doubts

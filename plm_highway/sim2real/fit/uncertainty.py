@@ -7,11 +7,9 @@ method; the jitter from a block bootstrap of its variance regression (:mod:`.jit
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
-from plm_highway.sim2real.fit.jitter import jitter_interval
+from plm_highway.sim2real.fit.jitter import jitter_interval, with_scatter
 from plm_highway.sim2real.fit.polish import Polished, coordinates, polish, public_estimates
 from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem
 from plm_highway.sim2real.physics.effects import SPECS, coordinates_of, params_from
@@ -65,10 +63,11 @@ def refit(problem: FitProblem, fit: CandidateFit, rng: np.random.Generator | Non
     fit.params = params_from(fit.effects, best.values, problem.ctx)
     fit.estimates, fit.ci95 = _uncertainty(problem, fit.effects, best)
     for e in fit.effects:
-        if SPECS[e].varies_noise:
-            jitter, interval = jitter_interval(problem, fit.params, masks[0], rng)
-            fit.params = replace(fit.params, jitter_s=jitter)
-            fit.estimates[e]["jitter_s"] = jitter
-            fit.ci95[e]["jitter_s"] = interval
+        for p in SPECS[e].parameters:
+            if p.scatter is not None:  # fitted from the scatter, reported under its own name
+                std, interval = jitter_interval(problem, fit.params, p.scatter, masks[0], rng)
+                fit.params = with_scatter(fit.params, p.scatter, std)
+                fit.estimates[e][p.name] = std
+                fit.ci95[e][p.name] = interval
     fit.refitted = True
     return fit

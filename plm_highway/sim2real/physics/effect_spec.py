@@ -75,11 +75,22 @@ class ChainMove:
 
 
 @dataclass(frozen=True)
+class Scatter:
+    """How a variance coordinate acts on the chain: it is the standard deviation of a random variation
+    of chain field ``of`` and is held in chain field ``field``. The residual's variance grows by its
+    square times the square of the signal's sensitivity to ``of`` (so the fit needs only the names)."""
+
+    field: str
+    of: str
+
+
+@dataclass(frozen=True)
 class Parameter:
     """A fitted coordinate of an effect. ``linear``: enters the signal linearly (or nearly), solved in
-    closed form at every grid point (by ``move``, unless it is a ``variance`` parameter: one that
-    shapes the error variance, fitted from the scatter, not by least squares); otherwise tried on the
-    effect's grid, then polished. ``neutral``: the value that leaves the chain as the simulator."""
+    closed form at every grid point (by ``move``, unless it is a variance parameter, one with a
+    ``scatter``: it shapes the error variance, is fitted from the scatter, not by least squares, and is
+    reported under its own name); otherwise tried on the effect's grid, then polished. ``neutral``: the
+    value that leaves the chain as the simulator."""
 
     name: str
     unit: str
@@ -89,7 +100,11 @@ class Parameter:
     grid: tuple[float, ...] | Callable[[FitContext], np.ndarray] = ()
     move: ChainMove | None = None  # a linear mean coordinate's move of the chain
     neutral: float = 0.0
-    variance: bool = False
+    scatter: Scatter | None = None  # a variance coordinate's action on the chain
+
+    @property
+    def variance(self) -> bool:
+        return self.scatter is not None
 
     def bounds_for(self, ctx: FitContext) -> tuple[float, float]:
         return self.bounds(ctx) if callable(self.bounds) else self.bounds

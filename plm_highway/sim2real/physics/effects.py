@@ -12,7 +12,10 @@ it, and its sentence in a summary. ``selection``, ``diagnose`` and ``synth`` rea
 and the parameter records are built from it (:data:`ChainParams`, :data:`EffectParams`,
 :data:`CHAIN_DTYPE`, and make-recording's concealed fields): adding an effect that the chain can
 already express touches one entry; a new kind of physics also adds its term to the kernels
-(:func:`~plm_highway.sim2real.physics.chain.simulate_chain`), which read the fields by name.
+(:func:`~plm_highway.sim2real.physics.chain.simulate_chain`), which read the fields by name, and its
+concealment stage (the ``concealed_*`` functions at the end, which make-recording composes). Tools that
+move a parameter reach it here too: the delay helpers (:func:`later_by`, :func:`delay_estimates`) and
+the variance coordinate's :class:`~.effect_spec.Scatter` (:func:`scatter_of`).
 
 =================== ============================================= ============================================
 effect              term                                          parameters (public names)
@@ -38,10 +41,12 @@ from __future__ import annotations
 
 import math
 from collections import ChainMap
+from dataclasses import replace
 
 import numpy as np
 
-from plm_highway.sim2real.physics.effect_spec import ChainField, ChainMove, Effect, FitContext, Parameter, pm
+from plm_highway.sim2real.physics.chain import _servo
+from plm_highway.sim2real.physics.effect_spec import ChainField, ChainMove, Effect, FitContext, Parameter, Scatter, pm
 from plm_highway.sim2real.physics.records import (
     fit_record,
     kernel_record,
@@ -66,6 +71,10 @@ def front_stiffness_from(understeer: float, cr: float, a: float, b: float) -> fl
 
 # Chain fields more than one effect sets. Absent tires (None) are the kinematic bicycle.
 DELAY = ChainField("delay_s", 0.0)
+# The delay's jitter (its standard deviation): a variance coordinate, fitted from the scatter it leaves.
+JITTER = ChainField("jitter_s", 0.0)
+# The public name every delay is reported under: the steering's, its jitter's mean and the gyro's.
+DELAY_KEY = "delay_s"
 TIRES = (ChainField("cf_per_kg", 0.0, absent_unless="cf_per_kg"), ChainField("cr_per_kg", 0.0, absent_unless="cf_per_kg"))
 FRICTION = ChainField("friction_coefficient", math.inf)  # inf: linear tires
 # make-recording's tires: the understeer gradient it gives the car (None: the car's own tires).
@@ -331,15 +340,14 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect(
         name="delay_jitter", term="delta(t) <- delta(t - delay - jitter(t)), jitter white with std jitter_s",
         parameters=(Parameter("delay_s", "s", (0.0, 0.8), 0.05, grid=DELAY_GRID_S),
-                    Parameter("jitter_s", "s", (0.0, 0.5), 0.01, linear=True, variance=True)),
+                    Parameter("jitter_s", "s", (0.0, 0.5), 0.01, linear=True, scatter=Scatter(JITTER.name, of=DELAY.name))),
         public_keys=("delay_s", "jitter_s"),
         fingerprint="a transport delay whose error variance grows with the square of the steering rate: "
                     "the mean response is the delay's, the residual scatter is jitter x d(yaw rate)/dt",
         concealed="each sample's command arrives late by delay + jitter, the jitter drawn white per sample "
                   "(Gaussian, clipped at zero delay)",
         synth_defaults={"jitter_s": 0.03, "delay_s": 0.10}, synth_bounds={"jitter_s": (0.0, 0.3), "delay_s": (0.0, 1.0)},
-        conceal={"jitter_s": ChainField("jitter_s", 0.0), "delay_s": DELAY},
-        chain_fields=(DELAY, ChainField("jitter_s", 0.0)),
+        conceal={"jitter_s": JITTER, "delay_s": DELAY}, chain_fields=(DELAY, JITTER),
         set_params=lambda v, ctx: {"delay_s": v["delay_s"], "jitter_s": v["jitter_s"]},
         read_params=lambda p, ctx: {"delay_s": p.delay_s, "jitter_s": p.jitter_s},
         report=lambda p, ctx: {"delay_s": p.delay_s, "jitter_s": p.jitter_s},
@@ -418,3 +426,92 @@ def effect_report(name: str, params, ctx: FitContext) -> dict[str, float]:
     if name not in SPECS:
         raise KeyError(f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}, {', '.join(TERMS)}")
     return {k: float(v) for k, v in SPECS[name].report(params, ctx).items()}
+
+
+def scatter_of(effects: tuple[str, ...]) -> Parameter | None:
+    """The candidate's variance coordinate (the parameter with a ``scatter``); None when it has none."""
+    return next((p for name in effects for p in SPECS[name].parameters if p.scatter is not None), None)
+
+
+def moved(params, field: str, by: float):
+    """``params`` with chain field ``field`` moved by ``by`` (a finite-difference step along it)."""
+    return replace(params, **{field: getattr(params, field) + by})
+
+
+def transport_delay_s(params) -> float:
+    """The chain's transport delay: the field the steering's delay effects set."""
+    return getattr(params, DELAY.name)
+
+
+def later_by(params, step_s: float):
+    """``params`` with the chain's transport delay longer by ``step_s``."""
+    return moved(params, DELAY.name, step_s)
+
+
+def without_scatter(params):
+    """``params`` with every variance coordinate at its neutral value: the chain's mean, no random variation."""
+    return replace(params, **{p.scatter.field: p.neutral for spec in SPECS.values() for p in spec.parameters
+                              if p.scatter is not None})
+
+
+def delay_estimates(estimates: dict[str, dict[str, float]]) -> dict[str, float]:
+    """The delays [s] among public estimates (entry -> its public values), by entry."""
+    return {name: values[DELAY_KEY] for name, values in estimates.items() if DELAY_KEY in values}
+
+
+def acts_on_gyro(name: str) -> bool:
+    """Whether entry ``name`` acts on the recorded gyro only (a late gyro, not a late car)."""
+    return any(f.gyro_only for f in SPECS[name].chain_fields)
+
+
+# make-recording's concealed physics, stage by stage in the chain's order (synth runs them on its fine
+# time grid; ``c`` is a ``synth.ConcealedEffects``). They live beside the entries whose fields they read,
+# so that a new kind of concealed physics is written here, not in the recording maker.
+
+
+def concealed_calibration(c, command_rad: np.ndarray) -> np.ndarray:
+    """steering_gain and steering_offset: the command scaled, then shifted, before the wheels."""
+    return c.gain * command_rad + c.offset_rad
+
+
+def delay_jitters(c) -> bool:
+    """Whether the concealed delay jitters (it then draws from its own random stream)."""
+    return c.jitter_s > 0
+
+
+def concealed_delay(t_s: np.ndarray, delta_rad: np.ndarray, c, jitter_rng: np.random.Generator | None,
+                    frame_s: float | None) -> np.ndarray:
+    """transport_delay and delay_jitter: the wheels follow ``delta_rad`` late (linear interpolation on the
+    uniform grid ``t_s``); a jittering delay draws one delay per recording frame (``frame_s``), clipped at 0."""
+    if delay_jitters(c):
+        frame = np.floor((t_s - t_s[0]) / frame_s).astype(int)
+        delays = np.maximum(c.delay_s + c.jitter_s * jitter_rng.standard_normal(frame.max() + 1), 0.0)
+        return np.interp(t_s - delays[frame], t_s, delta_rad)
+    if c.delay_s > 0:
+        return np.interp(t_s - c.delay_s, t_s, delta_rad)
+    return delta_rad
+
+
+def concealed_servo(delta_rad: np.ndarray, dt_s: float, c) -> np.ndarray:
+    """actuator_lag and steering_rate_limit: a first-order servo whose output moves at most the rate limit."""
+    if c.time_constant_s > 0 or math.isfinite(c.max_rate_radps):
+        out = np.empty_like(delta_rad)
+        _servo(np.ascontiguousarray(delta_rad), dt_s, c.time_constant_s, c.max_rate_radps, out)
+        return out
+    return delta_rad
+
+
+def concealed_understeer(c) -> float | None:
+    """tire_slip: the understeer gradient [rad/(m/s^2)] the car's tires are given (None: its own)."""
+    return c.understeer_rad_per_mps2
+
+
+def concealed_road(c) -> tuple[float, float]:
+    """tire_saturation and road_bank: (the tires' friction coefficient, inf for linear tires; the road's
+    bank [rad]) the single-track car drives with."""
+    return c.friction_coefficient, c.bank_rad
+
+
+def concealed_gyro_delay_s(c) -> float:
+    """sensor_delay: how late the recorded yaw rate is sampled [s]."""
+    return c.sensor_delay_s

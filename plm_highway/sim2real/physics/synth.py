@@ -9,8 +9,8 @@ A recording is made in four steps:
    driver "knows". A :class:`Car` scales them: the seed paper's sedan drives 10-30 m/s, the 1:10
    scale car 0.8-4 m/s with half the lateral demand and its steering limit.
 2. **Concealed effects** (:class:`ConcealedEffects`), set from the effect registry
-   (``effects.EFFECTS[name].conceal``), on a fine time grid (10 sub-steps per sample): steering
-   gain and offset, transport delay (optionally jittering per sample), a first-order servo with a
+   (``effects.EFFECTS[name].conceal``), on a fine time grid (10 sub-steps per sample), by the
+   registry's concealment stages (``effects.concealed_*``): steering gain and offset, transport delay (optionally jittering per sample), a first-order servo with a
    rate limit; in the vehicle, tires with a friction peak and a road bank; at the sensors, a late
    gyro. Two effects outside the library (:data:`OUTSIDE_EFFECTS`) test the tool's honesty.
 3. **Vehicle** (:data:`MODELS`, one table): the simulator's own step, a continuous kinematic
@@ -34,9 +34,18 @@ import numba
 import numpy as np
 from scipy.signal import lfilter
 
-from plm_highway.sim2real.physics.chain import _servo
 from plm_highway.sim2real.physics.effect_spec import ChainField
-from plm_highway.sim2real.physics.effects import CONCEALED_FIELDS, EFFECTS
+from plm_highway.sim2real.physics.effects import (
+    CONCEALED_FIELDS,
+    EFFECTS,
+    concealed_calibration,
+    concealed_delay,
+    concealed_gyro_delay_s,
+    concealed_road,
+    concealed_servo,
+    concealed_understeer,
+    delay_jitters,
+)
 from plm_highway.sim2real.physics.records import plain_record
 from plm_highway.sim2real.record.recording import (
     SIMULATOR_VEHICLE,
@@ -251,20 +260,11 @@ def apply_effects(t_s: np.ndarray, command_rad: np.ndarray, effects: ConcealedEf
     A jittering delay draws one delay per recording frame (``frame_s``) from ``jitter_rng``.
     """
     dt = t_s[1] - t_s[0]
-    delta = effects.gain * command_rad + effects.offset_rad
-    if effects.jitter_s > 0:
-        frame = np.floor((t_s - t_s[0]) / frame_s).astype(int)
-        delays = np.maximum(effects.delay_s + effects.jitter_s * jitter_rng.standard_normal(frame.max() + 1), 0.0)
-        delta = np.interp(t_s - delays[frame], t_s, delta)
-    elif effects.delay_s > 0:
-        delta = np.interp(t_s - effects.delay_s, t_s, delta)
-    if effects.backlash_rad > 0:
+    delta = concealed_calibration(effects, command_rad)
+    delta = concealed_delay(t_s, delta, effects, jitter_rng, frame_s)
+    if effects.backlash_rad > 0:  # outside the library: before the servo, as a worn steering column's play
         delta = _play(delta, effects.backlash_rad)
-    if effects.time_constant_s > 0 or math.isfinite(effects.max_rate_radps):
-        out = np.empty_like(delta)
-        _servo(np.ascontiguousarray(delta), dt, effects.time_constant_s, effects.max_rate_radps, out)
-        delta = out
-    return delta
+    return concealed_servo(delta, dt, effects)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -409,7 +409,7 @@ def _fine_kinematic(delta, speed, dt, car, geometry, heading0, concealed):
 
 
 def _fine_single_track(delta, speed, dt, car, geometry, heading0, concealed):
-    return _single_track_fine(delta, speed, dt, car, heading0, concealed.friction_coefficient, concealed.bank_rad)
+    return _single_track_fine(delta, speed, dt, car, heading0, *concealed_road(concealed))
 
 
 def _fine_commonroad(name):
@@ -477,8 +477,6 @@ def parse_effects(specs: Mapping[str, float | Mapping[str, float] | None]) -> Co
             if field_name in values and key not in given and values[field_name] != value:
                 continue  # another effect set it explicitly (e.g. delay_jitter's mean delay)
             values[field_name] = value
-    if values.get("gain", 1.0) <= 0:
-        raise ValueError("steering_gain must be positive")
     return ConcealedEffects(**values)
 
 
@@ -556,7 +554,7 @@ def make_recording(
     t_rec = np.arange(n) * dt
     heading0 = rng.uniform(-math.pi, math.pi)
 
-    tires = seed_paper_car(concealed.understeer_rad_per_mps2, chosen_car.tires)
+    tires = seed_paper_car(concealed_understeer(concealed), chosen_car.tires)
     if vehicle_model.fixed_car:
         geometry = _bmw_320i()
     elif vehicle_model.has_tires:
@@ -581,7 +579,7 @@ def make_recording(
         n_lead = round(LEAD_IN_S / dt_fine)
         t_fine = (np.arange(n_lead + (n - 1) * SUBSTEPS + 1) - n_lead) * dt_fine
         command_fine, speed_fine = driver_inputs(t_fine, rng, geometry.wheelbase_m, car=chosen_car)
-        jitter_rng = rng.spawn(1)[0] if concealed.jitter_s > 0 else None
+        jitter_rng = rng.spawn(1)[0] if delay_jitters(concealed) else None
         delta_fine = apply_effects(t_fine, command_fine, concealed, jitter_rng, dt)
         fine = vehicle_model.fine(delta_fine, speed_fine, dt_fine, tires, geometry, heading0, concealed)
         t_sample = t_rec
@@ -598,7 +596,7 @@ def make_recording(
 
         x, y, heading, yaw_rate, speed_true, lat_accel = fine
         signals = {"x": at(x) - at(x)[0], "y": at(y) - at(y)[0], "heading": at(heading),
-                   "yaw_rate": at(yaw_rate, concealed.sensor_delay_s), "speed": at(speed_true),
+                   "yaw_rate": at(yaw_rate, concealed_gyro_delay_s(concealed)), "speed": at(speed_true),
                    "lat_accel": at(lat_accel), "steer": at(command_fine)}
         if t_sample is t_rec:  # on the grid exactly (bit for bit the samples, no interpolation)
             pick = np.arange(n_lead, len(t_fine), SUBSTEPS)
@@ -607,7 +605,7 @@ def make_recording(
                 signals[key] = values[pick]
             signals["x"] = signals["x"] - signals["x"][0]
             signals["y"] = signals["y"] - signals["y"][0]
-            if concealed.sensor_delay_s == 0:
+            if concealed_gyro_delay_s(concealed) == 0:
                 signals["yaw_rate"] = yaw_rate[pick]
     m = len(t_sample)
     rec = Recording(
@@ -661,6 +659,7 @@ def truth_effects(specs: Mapping, concealed: ConcealedEffects, tires: SingleTrac
         tire_values = {"understeer_gradient_rad_per_mps2": tires.understeer_gradient_rad_per_mps2,
                        "cornering_stiffness_front": tires.cornering_stiffness_front,
                        "cornering_stiffness_rear": tires.cornering_stiffness_rear}
-        key = "tire_saturation" if math.isfinite(concealed.friction_coefficient) else "tire_slip"
+        friction, _bank_rad = concealed_road(concealed)
+        key = "tire_saturation" if math.isfinite(friction) else "tire_slip"
         out[key] = out.get(key, {}) | tire_values
     return {name: out[name] for name in EFFECTS if name in out}

@@ -102,7 +102,7 @@ class Check:
     ratio: float = math.nan  # the first channel over what the others imply
     correlation: float = math.nan
     lag_s: float = math.nan
-    offset_rad: float = math.nan
+    heading_offset_rad: float = math.nan  # heading minus the direction of travel
     seconds: float = 0.0  # of samples compared
 
 
@@ -331,7 +331,7 @@ def check_consistency(rec: Recording) -> Consistency:
         text = (f"the direction of travel turns {ratio:+.3g} x the heading's rate (rho = {rho:+.2f}{over}) and "
                 f"differs from the heading by {math.degrees(offset):+.1f} deg")
         checks.append(Check("heading_vs_course", ("heading", "x, y"), status, text, ratio=ratio, correlation=rho,
-                            offset_rad=offset, seconds=_seconds(turning, dt)))
+                            heading_offset_rad=offset, seconds=_seconds(turning, dt)))
     else:
         checks.append(Check("heading_vs_course", ("heading", "x, y"), "not checked", no_turns))
 
@@ -461,7 +461,7 @@ def blame(consistency: Consistency) -> list[Contradiction]:
                                      f"{name or 'a scale error'}"))
     if heading.status == "contradicts" and heading.correlation > 0:
         out.append(Contradiction("heading", "frame", f"the heading differs from the direction of travel by "
-                                 f"{math.degrees(heading.offset_rad):+.0f} deg (measured from another axis, e.g. "
+                                 f"{math.degrees(heading.heading_offset_rad):+.0f} deg (measured from another axis, e.g. "
                                  "north, or the car's rear?)"))
     if not out:  # a check failed in a way none of the above names
         out += [Contradiction(" and ".join(c.channels), "scale", c.text) for c in consistency.checks

@@ -29,7 +29,7 @@ from scipy.linalg import solve_banded
 
 from plm_highway.sim2real.fit.problem import CandidateFit, FitProblem
 from plm_highway.sim2real.fit.scoring import combined_score
-from plm_highway.sim2real.physics.effects import EffectParams
+from plm_highway.sim2real.physics.effects import EffectParams, later_by, transport_delay_s, without_scatter
 from plm_highway.sim2real.physics.replay import FitSignal, channel_prediction, model_outputs
 from plm_highway.sim2real.record.recording import Recording
 
@@ -54,7 +54,7 @@ STEP_SHARE = 0.25
 class DelayTrack:
     """A fitted track: the delay at each sample (the chain's plus the change) and its standard error."""
 
-    delay_s: np.ndarray
+    delay_at_sample_s: np.ndarray
     standard_error_s: np.ndarray
     visible: np.ndarray  # samples whose knot's value is known to VISIBLE_ERROR_S (the steering moves)
     base_delay_s: float
@@ -119,21 +119,22 @@ def fit_track(problem: FitProblem, params: EffectParams, mask: np.ndarray, penal
     mask = mask & gyro.usable
     change = np.zeros(rec.n)
     curvature = np.ones(n_knots)
-    later = replace(params, delay_s=params.delay_s + SENSITIVITY_STEP_S)
+    later = later_by(params, SENSITIVITY_STEP_S)
+    base_delay_s = transport_delay_s(params)
     for _ in range(GAUSS_NEWTON_ITERATIONS):
-        shifted = warped(rec, change, params.delay_s)
+        shifted = warped(rec, change, base_delay_s)
         pred = _prediction(gyro, shifted, params)
         sensitivity = (_prediction(gyro, shifted, later) - pred) / SENSITIVITY_STEP_S
         step, curvature = _tv_fit(gyro.values - pred, sensitivity, knot, n_knots, mask, penalty)
-        change = np.clip(change + step[knot], -params.delay_s, MAX_CHANGE_S)
-    residual = gyro.values - _prediction(gyro, warped(rec, change, params.delay_s), params)
+        change = np.clip(change + step[knot], -base_delay_s, MAX_CHANGE_S)
+    residual = gyro.values - _prediction(gyro, warped(rec, change, base_delay_s), params)
     variance = float(np.mean(residual[mask] ** 2)) if mask.any() else 1.0
     return change, np.sqrt(variance / curvature)[knot]
 
 
 def _base_params(base: CandidateFit) -> EffectParams:
     """The chain a track replaces the jitter of (the track is the delay's variation)."""
-    return replace(base.params, jitter_s=0.0)
+    return without_scatter(base.params)
 
 
 def interleaved_problem(problem: FitProblem) -> FitProblem:
@@ -165,6 +166,7 @@ def compare(problem: FitProblem, base: CandidateFit) -> tuple[FitProblem, Candid
     gyro = interleaved.channels[0]
     rec = problem.recording
     params = _base_params(base)
+    base_delay_s = transport_delay_s(params)
     plain = _prediction(gyro, rec, base.params)
     base_fit = _candidate(interleaved, base, plain, base.dof)
     best = None
@@ -173,14 +175,14 @@ def compare(problem: FitProblem, base: CandidateFit) -> tuple[FitProblem, Candid
         oof = np.full(rec.n, np.nan)
         for train, test in interleaved.channel_folds[0]:
             change, _ = fit_track(problem, params, train, penalty)
-            oof[test] = _prediction(gyro, warped(rec, change, params.delay_s), params)[test]
+            oof[test] = _prediction(gyro, warped(rec, change, base_delay_s), params)[test]
         fit = _candidate(interleaved, base, oof, base.dof + TRACK_DOF)
         if best is None or fit.score < best[0].score:
             best = (fit, penalty)
     fit, penalty = best
     change, error = fit_track(problem, params, gyro.usable, penalty)
     visible = gyro.usable & (error <= VISIBLE_ERROR_S)
-    track = DelayTrack(params.delay_s + change, error, visible, params.delay_s, penalty,
+    track = DelayTrack(base_delay_s + change, error, visible, base_delay_s, penalty,
                        smoother_mse=_smoother_mse(interleaved, plain))
     return interleaved, base_fit, fit, track
 
@@ -214,7 +216,7 @@ def _penalty_scale(problem: FitProblem, params: EffectParams) -> float:
     _, gyro = _gyro(problem)
     rec = problem.recording
     pred = _prediction(gyro, rec, params)
-    later = replace(params, delay_s=params.delay_s + SENSITIVITY_STEP_S)
+    later = later_by(params, SENSITIVITY_STEP_S)
     sensitivity = (_prediction(gyro, rec, later) - pred) / SENSITIVITY_STEP_S
     knot, n_knots = _knots(rec.n, rec.dt_s)
     a = np.bincount(knot[gyro.usable], weights=sensitivity[gyro.usable] ** 2, minlength=n_knots)
@@ -229,15 +231,15 @@ def _holds(track: DelayTrack, step_s: float, dt_s: float) -> np.ndarray:
     starts = np.flatnonzero(~seen[:-1] & seen[1:])
     stops = np.flatnonzero(seen[:-1] & ~seen[1:])
     for a, b in zip(starts, stops):
-        changes = a + 1 + np.flatnonzero(np.abs(np.diff(track.delay_s[a:b])) > step_s)
+        changes = a + 1 + np.flatnonzero(np.abs(np.diff(track.delay_at_sample_s[a:b])) > step_s)
         holds += list(np.diff(changes) * dt_s)
     return np.array(holds)
 
 
 def describe(track: DelayTrack, dt_s: float) -> tuple[dict[str, float], dict[str, list[float]], str]:
     """Estimates (range, holds), their intervals and the sentence."""
-    seen = track.visible if track.visible.any() else np.ones(track.delay_s.size, bool)
-    values = track.delay_s[seen]
+    seen = track.visible if track.visible.any() else np.ones(track.delay_at_sample_s.size, bool)
+    values = track.delay_at_sample_s[seen]
     lo, mid, hi = (float(np.percentile(values, q)) for q in (5, 50, 95))
     error = float(np.median(track.standard_error_s[seen]))
     holds = _holds(track, max(STEP_SHARE * (hi - lo), 0.01), dt_s)

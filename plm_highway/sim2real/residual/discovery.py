@@ -199,8 +199,8 @@ def discover(problem: FitProblem, selection: Selection, noise_sigma: float, rng:
         for option in sorted(options, key=lambda o: o.ratio):
             better, t_stat = clearly_better(option.problem, option.before, option.after, rng) \
                 if option.ratio < 1 else (False, 0.0)
-            gain = option.before.heldout_mse - option.after.heldout_mse
-            small = (gain < NOISE_FRACTION * noise_sigma**2
+            mse_drop = option.before.heldout_mse - option.after.heldout_mse
+            small = (mse_drop < NOISE_FRACTION * noise_sigma**2
                      and option.after.raw_score > (1 - NOISE_FRACTION) * option.before.raw_score)
             if not better:
                 why = f"held-out score {100 * (option.ratio - 1):+.1f}%" + (

@@ -30,9 +30,9 @@ def _predictions(problem: FitProblem, params: EffectParams, steer: np.ndarray) -
     return [channel_prediction(c, rec, params, out) for c in problem.channels]
 
 
-def binned(problem: FitProblem, params: EffectParams, bin_of_sample: np.ndarray, n_bins: int, gain: bool = False,
+def binned(problem: FitProblem, params: EffectParams, bin_of_sample: np.ndarray, n_bins: int, relative_gain: bool = False,
            sign: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Per bin, the steering offset [rad] (or, with ``gain``, the relative gain change) that the
+    """Per bin, the steering offset [rad] (or, with ``relative_gain``, the relative gain change) that the
     recording's error after ``params`` asks for while the sample is in that bin (times ``sign``
     per sample when given), and its standard error."""
     steer = problem.recording.steer_rad
@@ -42,7 +42,7 @@ def binned(problem: FitProblem, params: EffectParams, bin_of_sample: np.ndarray,
     columns = []
     for b in range(n_bins):
         inside = (bin_of_sample == b) * sign
-        moved = steer * (1 + STEP * inside) if gain else steer + command_change(params, STEP) * inside
+        moved = steer * (1 + STEP * inside) if relative_gain else steer + command_change(params, STEP) * inside
         columns.append([(p - q) / STEP for p, q in zip(_predictions(problem, params, moved), base)])
     gram = np.zeros((n_bins, n_bins))
     rhs = np.zeros(n_bins)
@@ -81,11 +81,11 @@ def shape_data(problem: FitProblem, found) -> dict:
     usable = problem.signal.usable
     if found.name == "delay_track":
         track = found.detail["track"]
-        return {"kind": "time", "t_s": rec.t_s, "delay_s": track.delay_s, "error_s": track.standard_error_s,
+        return {"kind": "time", "t_s": rec.t_s, "track_delay_s": track.delay_at_sample_s, "error_s": track.standard_error_s,
                 "visible": track.visible, "base_delay_s": track.base_delay_s}
     if found.name == "bank_along_track":
         field = found.detail["field"]
-        return {"kind": "place", "bank_rad": field.bank_rad, "error_rad": field.standard_error_rad,
+        return {"kind": "place", "anchor_bank_rad": field.anchor_bank_rad, "error_rad": field.standard_error_rad,
                 "anchors_xy": field.anchors_xy, "curvature": field.curvature, "spacing_m": field.spacing_m,
                 "x_m": rec.x_m, "y_m": rec.y_m}
     after = found.detail["params"]
@@ -104,7 +104,7 @@ def shape_data(problem: FitProblem, found) -> dict:
                 "ylabel": "gyro error without the bias [rad/s]"}
     if found.name == "speed_dependent_steering":
         bins, edges = _quantile_bins(rec.speed_mps, usable, BINS)
-        estimate, error = binned(problem, before, bins, len(edges) - 1, gain=True)
+        estimate, error = binned(problem, before, bins, len(edges) - 1, relative_gain=True)
         speeds = np.linspace(edges[0], edges[-1], 50)
         ratio = estimates["gain_slope_per_mps"] * (speeds - estimates["speed_ref_mps"])
         return {"kind": "speed", "x": 0.5 * (edges[1:] + edges[:-1]), "y": estimate, "y_error": error,

@@ -47,7 +47,7 @@ CURVE_KAPPA = 0.004  # 1/m: a place counts as a curve above this curvature (radi
 @dataclass
 class BankField:
     anchors_xy: np.ndarray  # (M, 2)
-    bank_rad: np.ndarray  # (M,)
+    anchor_bank_rad: np.ndarray  # (M,) the bank at each anchor
     standard_error_rad: np.ndarray  # (M,)
     covariance: np.ndarray  # (M, M), of the bank values (neighbours are smoothed together)
     curvature: np.ndarray  # (M,) mean path curvature at each anchor [1/m]
@@ -56,7 +56,7 @@ class BankField:
     penalty: float
 
     def at_samples(self) -> np.ndarray:
-        return np.where(self.assignment >= 0, self.bank_rad[np.maximum(self.assignment, 0)], 0.0)
+        return np.where(self.assignment >= 0, self.anchor_bank_rad[np.maximum(self.assignment, 0)], 0.0)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -355,7 +355,7 @@ def describe(field: BankField) -> tuple[dict[str, float], dict[str, list[float]]
     for name, sel in groups.items():
         if not sel.any():
             continue
-        mean = float(np.mean(field.bank_rad[sel]))
+        mean = float(np.mean(field.anchor_bank_rad[sel]))
         weights = sel / sel.sum()
         error = float(np.sqrt(max(weights @ field.covariance @ weights, 0.0)))
         estimates[f"bank_{name}_rad"] = mean
@@ -363,13 +363,13 @@ def describe(field: BankField) -> tuple[dict[str, float], dict[str, list[float]]
         where = {"left": "where the track curves left", "right": "where it curves right",
                  "straight": "on the straights"}[name]
         parts.append(f"{math.degrees(mean):+.1f} deg (+-{math.degrees(1.96 * error):.1f}) {where}")
-    peak = int(np.argmax(np.abs(field.bank_rad)))
-    estimates["max_abs_bank_rad"] = float(abs(field.bank_rad[peak]))
+    peak = int(np.argmax(np.abs(field.anchor_bank_rad)))
+    estimates["max_abs_bank_rad"] = float(abs(field.anchor_bank_rad[peak]))
     ci["max_abs_bank_rad"] = [estimates["max_abs_bank_rad"] - 1.96 * float(field.standard_error_rad[peak]),
                               estimates["max_abs_bank_rad"] + 1.96 * float(field.standard_error_rad[peak])]
-    estimates["anchors"] = float(len(field.bank_rad))
+    estimates["anchors"] = float(len(field.anchor_bank_rad))
     estimates["spacing_m"] = field.spacing_m
     sentence = ("the car yaws as if the road were banked along the track (positive: falling to the left): "
                 + ", ".join(parts) + f"; at most {math.degrees(estimates['max_abs_bank_rad']):.1f} deg "
-                f"({len(field.bank_rad)} places {field.spacing_m:.0f} m apart)")
+                f"({len(field.anchor_bank_rad)} places {field.spacing_m:.0f} m apart)")
     return estimates, ci, sentence
