@@ -60,8 +60,8 @@ def test_bad_sizes_are_refused_before_work(monkeypatch):
     def no_work(*args, **kwargs):
         raise AssertionError("a model or a worker pool was made before the bad input was refused")
 
-    monkeypatch.setattr("plm_highway.rollout.policies.make_policy", no_work)
-    monkeypatch.setattr("plm_highway.rollout.backends.worker_pool", no_work)
+    monkeypatch.setattr("plm_highway.bench.sweep.make_policy", no_work)  # the names bench_sweep calls
+    monkeypatch.setattr("plm_highway.bench.sweep.worker_pool", no_work)
     with pytest.raises(ValueError, match="const:abc"):
         bench_sweep(n_envs=1, steps=3, policy="bm", latency="const:abc")
     with pytest.raises(FileNotFoundError, match="no-such-track"):

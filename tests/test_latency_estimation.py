@@ -490,7 +490,7 @@ def test_the_run_cache_is_keyed_by_the_estimators_source(monkeypatch):
     spec = RunSpec("ideal", "test", 1, "const:0.25", "estimated", "recording")
     latency_estimation = importlib.import_module("plm_highway.evaluation.latency_estimation")
     assert run_inputs(spec, None)["code_sha256"] == digests.source_sha256(latency_package, latency_estimation)
-    monkeypatch.setattr(digests, "source_sha256", lambda *modules: "another estimator")
+    monkeypatch.setattr(latency_estimation, "source_sha256", lambda *modules: "another estimator")  # the name it calls
     assert run_inputs(spec, None)["code_sha256"] == "another estimator"
 
 

@@ -108,11 +108,12 @@ def fake_save_drift_figure(plan, drift, directory):
 
 @pytest.fixture
 def fakes(monkeypatch):
-    from plm_highway.population import report, study, training
+    from plm_highway.population import driving, report, study, training
     from plm_highway.rollout import cells
 
     monkeypatch.setattr(training, "_make_pair", fake_make_pair)
-    monkeypatch.setattr(cells, "run_cells", fake_run_cells)
+    for module in (cells, driving):  # the runner, and the name the study's driving imported from it
+        monkeypatch.setattr(module, "run_cells", fake_run_cells)
     monkeypatch.setattr(study, "posed_gains", fake_posed_gains)
     monkeypatch.setattr(report, "save_figures", fake_save_figures)
     monkeypatch.setattr(report, "save_drift_figure", fake_save_drift_figure)

@@ -32,9 +32,11 @@ import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
+import gymnasium
 import numpy as np
 
 from plm_highway.errors import BadInput
+from plm_highway.latency import LatencyWrapper
 
 GRAYSCALE_200X66 = {"type": "GrayscaleObservation", "observation_shape": (200, 66), "stack_size": 1,
                     "weights": [0.2989, 0.5870, 0.1140]}
@@ -67,9 +69,7 @@ class EnvBenchConfig:
 
 def replay_actions(track: str = "test") -> np.ndarray:
     """The expert's actions over one episode of our env: the policy every side replays."""
-    import gymnasium
-
-    from plm_highway.expert import ExpertPolicy
+    from plm_highway.expert import ExpertPolicy  # lazy: highway_env, and `bench env --help` imports this module
 
     env = gymnasium.make("plm_highway/LaneKeeping-v0", config={"track": track})
     expert = ExpertPolicy()
@@ -85,8 +85,7 @@ def replay_actions(track: str = "test") -> np.ndarray:
 
 def highway_env_side(env_id: str, config: dict, max_episode_steps: int | None = None):
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")  # 'dummy' renders blank frames
-    import gymnasium
-    import highway_env  # noqa: F401  (registers its envs)
+    import highway_env  # noqa: F401  (registers its envs; lazy: `bench env --help` imports this module)
 
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*out of date.*")  # racetrack-large-v0 is kept on purpose
@@ -95,10 +94,6 @@ def highway_env_side(env_id: str, config: dict, max_episode_steps: int | None = 
 
 
 def ours_side(track: str, latency: str | None):
-    import gymnasium
-
-    from plm_highway.latency import LatencyWrapper
-
     env = gymnasium.make("plm_highway/LaneKeeping-v0", config={"track": track, **RATES_20HZ})
     return env if latency is None else LatencyWrapper(env, latency)
 
@@ -120,8 +115,7 @@ def time_env_steps(env, actions: np.ndarray, steps: int) -> float:
 
 def warp_limit_sides(track: str, actions: np.ndarray) -> dict[str, Callable[[int], float]]:
     """Timers of the warp alone over the poses of the replayed episode (homographies precomputed)."""
-    import cv2
-    import gymnasium
+    import cv2  # lazy, as highway_env above: `bench env --help` imports this module
 
     from plm_highway.camera.pinhole import pose_matrix
 

@@ -19,7 +19,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import gymnasium
 import numpy as np
+
+from plm_highway.errors import BadInput
+from plm_highway.latency import LatencyWrapper
+from plm_highway.latency.profiles import check_specs
 
 DEFAULT_STEPS = 200_000
 DEFAULT_WARMUP_STEPS = 2_000
@@ -83,9 +88,6 @@ def memory_run(steps: int = DEFAULT_STEPS, latency: str = "steps:0.0-0.35:1.0", 
                warmup_steps: int = DEFAULT_WARMUP_STEPS, sample_every: int = 10_000, seed: int = 0,
                progress: Callable[[int], None] | None = None) -> MemoryRun:
     """Drive ``steps`` policy steps after ``warmup_steps``, recording RSS; see the module docstring."""
-    from plm_highway.errors import BadInput
-    from plm_highway.latency.profiles import check_specs
-
     if not MIN_STEPS <= steps <= MAX_STEPS:
         raise BadInput(f"--steps {steps}: outside the accepted range [{MIN_STEPS:,}, {MAX_STEPS:,}]")
     if not 0 <= warmup_steps <= MAX_STEPS or not 1 <= sample_every <= steps:
@@ -126,10 +128,7 @@ def memory_run(steps: int = DEFAULT_STEPS, latency: str = "steps:0.0-0.35:1.0", 
 
 
 def _expert_on_wrapped_env(track: str, latency: str):
-    import gymnasium
-
-    from plm_highway.expert import ExpertPolicy
-    from plm_highway.latency import LatencyWrapper
+    from plm_highway.expert import ExpertPolicy  # lazy: highway_env, and `bench memory --help` imports this module
 
     env = LatencyWrapper(gymnasium.make("plm_highway/LaneKeeping-v0", config={"track": track}), latency)
     expert = ExpertPolicy()

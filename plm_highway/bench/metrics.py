@@ -165,7 +165,7 @@ def run_benchmark(n_points: int = DEFAULT_POINTS, seed: int = DEFAULT_SEED, repe
         _progress(f"  plm_highway        {call.name:<24}{ours_s:10.3g} s")
     reference_version = None
     if not skip_reference:
-        import similaritymeasures
+        import similaritymeasures  # lazy: the reference side only, skipped by --skip-reference
 
         reference_version = similaritymeasures.__version__
         eta_s = sum(s * (n_points / 3000) ** (3 if n.startswith("area") else 2) for n, s in _REFERENCE_S_AT_3000.items())

@@ -58,9 +58,28 @@ import os
 import time
 
 import numpy as np
+import torch
 from tqdm.auto import tqdm
 
+from plm_highway.data.collect import collect
+from plm_highway.evaluation.paper_results import INFERENCE
+from plm_highway.evaluation.reproduce import conditions_named
 from plm_highway.metrics.intervals import interval_text, mean_ci
+from plm_highway.metrics.steering import common_span, steering_mae
+from plm_highway.models.base_model import BaseModel, count_parameters, preset_config
+from plm_highway.models.device import describe_device, resolve_device
+from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
+from plm_highway.models.plm_net import PLMNet, SparseInputLinear
+from plm_highway.models.shipped import load_shipped_plm_net
+from plm_highway.models.tapm import TAPM, TAPMConfig
+from plm_highway.road.track import load_track
+from plm_highway.rollout.cells import Cell, drive_options
+from plm_highway.rollout.closed_loop import drive
+from plm_highway.rollout.conditions import scored_steps
+from plm_highway.rollout.policies import VisionPolicy, single_threaded_inference
+from plm_highway.training.samples import LabelledRows
+from plm_highway.training.synthetic import render_lane_frames
+from plm_highway.training.train import TrainConfig, bm_loss, deterministic, freeze, tapm_loss, train_epoch
 
 THROUGHPUT_BLOCK_SAMPLES = 50
 BLOCK_FRAMES = 1  # frames per side and turn (batch size 1); the throughput's turns take 50 samples
@@ -84,11 +103,6 @@ PRESET_CONDITIONS = {"default": "ideal", "paper": "paper"}
 def benchmark_models(presets=PRESETS, n_frames: int = 500, n_warmup: int = 50, repeats: int = 3,
                      train_batches: int = 10, seed: int = 0, closed_loop: bool = False,
                      closed_loop_steps: int | None = None, device="cpu", weights: str = "shipped") -> dict:
-    import torch
-
-    from plm_highway.evaluation.paper_results import INFERENCE
-    from plm_highway.models.device import describe_device, resolve_device
-
     device = resolve_device(device)
     if weights not in WEIGHTS:
         raise ValueError(f"weights: {weights!r} is not one of {list(WEIGHTS)}")
@@ -120,14 +134,6 @@ def benchmark_models(presets=PRESETS, n_frames: int = 500, n_warmup: int = 50, r
 
 def benchmark_preset(preset: str, n_frames: int, n_warmup: int, repeats: int, train_batches: int, seed: int,
                      device="cpu", weights: str = "shipped") -> dict:
-    import torch
-
-    from plm_highway.models.base_model import BaseModel, count_parameters, preset_config
-    from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
-    from plm_highway.models.plm_net import PLMNet
-    from plm_highway.models.shipped import load_shipped_plm_net
-    from plm_highway.models.tapm import TAPM, TAPMConfig
-
     torch.manual_seed(seed)
     n_inputs = max(n_warmup + n_frames, max(BATCH_SIZES))
     if weights == "shipped":
@@ -168,9 +174,6 @@ def sparse_first_layer_bm(bm):
     """A batch-size-1 BM policy whose first FC layer skips zero features as PLM-Net's image branch does
     (:class:`~plm_highway.models.plm_net.SparseInputLinear`; equal to the BM up to float rounding): timed
     beside the BM to show how much of PLM-Net's low overhead a BM could have too."""
-    from plm_highway.models.inference import BaseModelPolicy
-    from plm_highway.models.plm_net import SparseInputLinear
-
     first_layer = SparseInputLinear.of(bm.mlp[0].weight, bm.mlp[0].bias)
 
     class SparseFirstLayerBM(BaseModelPolicy):
@@ -186,8 +189,6 @@ def sparse_first_layer_bm(bm):
 def rendered_frames(conditions: str, n: int, seed: int) -> np.ndarray:
     """``n`` frames the simulator renders under ``conditions`` (its camera), the expert driving the test track
     (``collect``'s recording, displaced starts included, seeded): what a lane keeper sees."""
-    from plm_highway.data.collect import collect
-
     episodes = math.ceil(n / (RENDERED_EPISODE_S * 20))  # at least 20 frames per second under any conditions
     frames, _, _ = collect(track="test", progress=False, conditions=conditions, episodes=episodes,
                            episode_seconds=RENDERED_EPISODE_S, seed=seed)
@@ -196,8 +197,6 @@ def rendered_frames(conditions: str, n: int, seed: int) -> np.ndarray:
 
 def _nonzero_fraction(bm, frames: np.ndarray, device) -> float:
     """The mean fraction of nonzero image features z_o (what PLM-Net's one-frame form reads weights for)."""
-    import torch
-
     nonzero, total = 0, 0
     with torch.inference_mode():
         for start in range(0, len(frames), 64):
@@ -215,8 +214,6 @@ def _inputs(image_size_px: tuple[int, int], n: int, seed: int) -> tuple[np.ndarr
 
 def _overhead(policies: dict, frames: np.ndarray, latencies_s: np.ndarray, n_warmup: int, n_frames: int,
               repeats: int) -> dict:
-    import torch
-
     def call(name):
         policy = policies[name]
         return lambda i: policy(frames[i], SPEED_MPS, float(latencies_s[i]))
@@ -306,14 +303,6 @@ def _throughput(policies: dict, frames: np.ndarray, latencies_s: np.ndarray, n_f
 
 def _training_speed(config, train_batches: int, repeats: int, seed: int, device="cpu") -> dict:
     """Samples/s of the training loop on synthetic frames on ``device``, BM and TAPM epochs alternating."""
-    import torch
-
-    from plm_highway.models.base_model import BaseModel
-    from plm_highway.models.tapm import TAPM, TAPMConfig
-    from plm_highway.training.samples import LabelledRows
-    from plm_highway.training.synthetic import render_lane_frames
-    from plm_highway.training.train import TrainConfig, bm_loss, deterministic, freeze, tapm_loss, train_epoch
-
     device = torch.device(device)
     rng = np.random.default_rng(seed)
     n_rows = TRAIN_BATCH_SIZE * train_batches
@@ -364,16 +353,6 @@ def closed_loop_check(conditions: str = "ideal", latency: str = CLOSED_LOOP_LATE
     differences with their intervals, whether the int8 mean lies within the exact form's interval,
     and the largest step-wise steering difference of each fused form from the reference forward.
     """
-    from plm_highway.evaluation.reproduce import conditions_named
-    from plm_highway.metrics.steering import common_span, steering_mae
-    from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
-    from plm_highway.models.shipped import load_shipped_plm_net
-    from plm_highway.road.track import load_track
-    from plm_highway.rollout.cells import Cell, drive_options
-    from plm_highway.rollout.closed_loop import drive
-    from plm_highway.rollout.conditions import scored_steps
-    from plm_highway.rollout.policies import VisionPolicy, single_threaded_inference
-
     run_conditions = conditions_named(conditions)
     track_spec = load_track(track)
     steps = scored_steps(track_spec, run_conditions, max_steps)

@@ -36,7 +36,22 @@ import time
 from functools import partial
 
 import numpy as np
+import torch
+from gymnasium.vector import AutoresetMode, SyncVectorEnv
 from tqdm.auto import tqdm
+
+from plm_highway.evaluation.reproduce import conditions_named, default_settings, plan_cells
+from plm_highway.road.track import load_track, resolve_track
+from plm_highway.rollout.backends import LocalPool, worker_pool
+from plm_highway.rollout.cells import RunCell, run_cells, runs_under, worker_policy
+from plm_highway.rollout.closed_loop import LOG_COLUMNS, make_env
+from plm_highway.rollout.policies import (
+    SHIPPED_PRESET,
+    VisionPolicy,
+    make_policies,
+    make_policy,
+    single_threaded_inference,
+)
 
 SERIAL_SIDES = ("one env at a time, default kernels, 1 thread", "one env at a time, default kernels, 2 threads",
                 "one env at a time, batch-invariant kernels")
@@ -49,12 +64,6 @@ def bench_sweep(n_envs: int = 16, steps: int = 100, policy: str = "plm", latency
     slow spell of a shared machine hits every side alike); each side's median wall time is reported and
     the speed-ups are ratios of medians. ``two_thread_serial=False`` leaves out side 2 (on a loaded
     machine two torch threads at batch size 1 can take 20x longer than one)."""
-    import torch
-
-    from plm_highway.road.track import resolve_track
-    from plm_highway.rollout.cells import RunCell, run_cells
-    from plm_highway.rollout.policies import VisionPolicy, make_policy, single_threaded_inference
-
     if not 1 <= repeats <= 100:
         raise ValueError(f"repeats {repeats}: must lie in [1, 100]")
     # read once and shared by every side's cells; a bad one is refused before any model loads or the pool starts
@@ -129,10 +138,6 @@ def _steering(logs) -> np.ndarray:
 
 def _vector_env_steering(vision, cells, steps: int) -> np.ndarray:
     """The runs through gymnasium's SyncVectorEnv; (N, steps) steering. Assumes no run ends early."""
-    from gymnasium.vector import AutoresetMode, SyncVectorEnv
-
-    from plm_highway.rollout.closed_loop import make_env
-
     envs = SyncVectorEnv([partial(make_env, c.track, c.latency) for c in cells], autoreset_mode=AutoresetMode.DISABLED)
     obs, infos = envs.reset(seed=[c.seed for c in cells])
     model = vision.model_policy
@@ -151,9 +156,6 @@ def _pool_steering(policy: str, track: str, latency: str, n_envs: int, steps: in
                    pool=None) -> np.ndarray:
     """The runs split over ``workers`` processes, each chunk batched, (N, steps) steering; ``pool``: a warm
     executor to map on, else a fresh pool is started (and its start-up timed with the runs)."""
-    from plm_highway.rollout.backends import LocalPool
-    from plm_highway.rollout.cells import RunCell, run_cells
-
     cells = [RunCell(f"seed {seed}", policy, track, latency, seed, max_steps=steps) for seed in range(n_envs)]
     with LocalPool(workers, executor=pool) as backend:
         return _steering(run_cells(cells, backend=backend))
@@ -163,8 +165,6 @@ def _pool_steering(policy: str, track: str, latency: str, n_envs: int, steps: in
 def _warm_pool(policy: str, track: str, latency: str, workers: int):
     """A pool of ``workers`` processes that have imported everything and loaded the model before the clock
     starts, as the one-env sides have: the setup a sweep pays once, not per run."""
-    from plm_highway.rollout.backends import worker_pool
-
     with worker_pool(workers) as pool:
         pids: set[int] = set()
         for _ in range(10):  # a task per idle worker until every worker has warmed up
@@ -178,8 +178,6 @@ def _warm_pool(policy: str, track: str, latency: str, workers: int):
 def _warm_up(policy: str, track: str, latency: str) -> int:
     """A worker: load the model the pooled runs use and drive a few steps (imports, caches); its pid."""
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    from plm_highway.rollout.cells import RunCell, run_cells, worker_policy
-    from plm_highway.rollout.policies import SHIPPED_PRESET, single_threaded_inference
 
     vision = worker_policy(policy, None, SHIPPED_PRESET)
     with single_threaded_inference():
@@ -194,13 +192,6 @@ def bench_reproduce(seeds: int = 5, max_steps: int | None = 100, workers: int = 
     serial (:func:`plm_highway.rollout.cells.run_cells` ``serial``, one env at a time), batched in this process
     (``--workers 0``), and batched on a pool of ``workers`` processes (started and loaded inside the
     time, as ``reproduce`` pays it). One torch thread per process. Identity: every logged column compared."""
-    from plm_highway.evaluation.reproduce import conditions_named, default_settings, plan_cells
-    from plm_highway.road.track import load_track
-    from plm_highway.rollout.backends import LocalPool
-    from plm_highway.rollout.cells import run_cells, runs_under
-    from plm_highway.rollout.closed_loop import LOG_COLUMNS
-    from plm_highway.rollout.policies import make_policies, single_threaded_inference
-
     load = os.getloadavg()[0]
     run_conditions = conditions_named(conditions)
     track_spec = load_track(track)

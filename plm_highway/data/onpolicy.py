@@ -22,9 +22,14 @@ import gymnasium
 import numpy as np
 from tqdm import tqdm
 
+from plm_highway.camera.pinhole import PAPER_CAMERA
+from plm_highway.data.collect import make_demonstrator
 from plm_highway.data.dataset import STEP_COLUMNS
+from plm_highway.envs import ENV_ID
 from plm_highway.errors import BadInput
 from plm_highway.latency.wrapper import served_steps
+from plm_highway.rollout.closed_loop import add_image_noise
+from plm_highway.rollout.conditions import CONDITIONS
 
 ON_POLICY_STREAM = 17  # the demonstrator and the image noise draw from default_rng([seed, ON_POLICY_STREAM, k])
 
@@ -49,12 +54,6 @@ def collect_on_policy(policy, conditions_name: str, track: str = "train", config
                       progress: bool = False) -> tuple[np.ndarray, dict, dict]:
     """(frames, step columns, manifest) of ``policy`` driving late under ``conditions_name``, labelled by the
     conditions' demonstrator; ``policy(frame, speed_mps, latency_s) -> steering`` (a models.inference policy)."""
-    from plm_highway.camera.pinhole import PAPER_CAMERA
-    from plm_highway.data.collect import make_demonstrator
-    from plm_highway.envs import ENV_ID
-    from plm_highway.rollout.closed_loop import add_image_noise
-    from plm_highway.rollout.conditions import CONDITIONS
-
     conditions = CONDITIONS[conditions_name]
     camera = dict(PAPER_CAMERA) if conditions.camera else {}
     env = gymnasium.make(ENV_ID, config={"track": track, "camera": camera, **conditions.env_config()})

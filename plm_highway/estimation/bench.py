@@ -19,9 +19,13 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from plm_highway.camera.ground_map import ground_map
+from plm_highway.camera.pinhole import PinholeCamera
 from plm_highway.estimation.ekf import EstimatorConfig, LaneStateEstimator, ekf_predict
+from plm_highway.estimation.lane_camera import LaneDetector
 from plm_highway.estimation.lane_model import H_CAMERA, imu_model, single_track_rows
 from plm_highway.estimation.table3 import CALIBRATION_SEEDS, SCENARIOS, SimulationConfig, run_scenario
+from plm_highway.road.geometry import reference_pose_at
 
 
 @dataclass(frozen=True)
@@ -63,7 +67,7 @@ def bench_estimation(delay_s: float = 0.3, repeats: int = 5, calls: int = 2000,
     p = np.eye(6) * 0.01
     speed = 16.7
     h_imu, _ = imu_model(speed, single_track_rows(speed, estimator_config.vehicle))
-    from filterpy.kalman import update as kalman_update
+    from filterpy.kalman import update as kalman_update  # lazy: filterpy only as this bench's reference
 
     z_imu, z_cam = h_imu @ x, H_CAMERA @ x
     predict_us = _median_us(lambda: ekf_predict(x, p, 0.01, speed, step_s, estimator_config), calls, repeats)
@@ -86,14 +90,9 @@ def bench_estimation(delay_s: float = 0.3, repeats: int = 5, calls: int = 2000,
 
 
 def _time_lane_measurement(config: SimulationConfig) -> float:
-    from plm_highway.camera.ground_map import ground_map
-    from plm_highway.camera.pinhole import PinholeCamera
-    from plm_highway.estimation.lane_camera import LaneDetector
-
     scenario = SCENARIOS[1]
     camera = PinholeCamera(ground_map(scenario.track(), config.map_px_per_m), config.camera)
     detector = LaneDetector(config.camera, config.detector)
-    from plm_highway.road.geometry import reference_pose_at
 
     frames = [camera.render(*reference_pose_at(scenario.track(), s)) for s in np.linspace(5, 60, 20)]
     start = time.perf_counter()

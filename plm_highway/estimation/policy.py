@@ -35,6 +35,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 
+import gymnasium
 import numpy as np
 
 from plm_highway.camera.pinhole import PAPER_CAMERA, CameraConfig
@@ -48,6 +49,8 @@ from plm_highway.estimation.lateral_control import (
     single_track_equivalent,
 )
 from plm_highway.estimation.sensors import ImuConfig, SteeringSensorConfig
+from plm_highway.expert import ExpertPolicy
+from plm_highway.road.geometry import segment_starts_m
 from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE
 from plm_highway.vehicle.single_track import SingleTrackParams
 
@@ -213,11 +216,6 @@ def measure_camera_noise(track="train", seed: int = 0, max_steps: int | None = N
     "correlation_time_s"}``, per component ``[d m, dpsi rad, kappa 1/m]`` (robust std: 1.4826 x median
     absolute deviation; the correlation from consecutive measured frames, its time ``-period / ln(rho)``).
     """
-    import gymnasium
-
-    from plm_highway.expert import ExpertPolicy
-    from plm_highway.road.geometry import segment_starts_m
-
     env = gymnasium.make("plm_highway/LaneKeeping-v0",
                          config={"track": track, **({"camera": asdict(camera)} if camera is not None else {})})
     try:

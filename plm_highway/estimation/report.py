@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from plm_highway.estimation.figures import plot_scenario_run
 from plm_highway.estimation.table3 import ScenarioRun, Table3Report
 from plm_highway.io import directory_kind, file_kind, json_text, write_outputs
 
@@ -22,8 +23,6 @@ def publish_table3(result: Table3Report, runs: dict[str, list[ScenarioRun]], jso
     """Write the JSON result and/or a directory (table3.json, table3.md, one figure per scenario and lane
     measurement at the first seed; ``runs``: measurement -> its runs). Both are published together, or neither.
     """
-    from plm_highway.estimation.figures import plot_scenario_run
-
     targets = [(path, kind) for path, kind in ((json_path, TABLE3_JSON), (out_dir, TABLE3_REPORT)) if path is not None]
     if not targets:
         return []

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from plm_highway.road.geometry import reference_pose_at
 from plm_highway.road.spec import TrackSpec, advance_pose
 from plm_highway.road.track import parse_track
 from plm_highway.vehicle.single_track import (
@@ -171,8 +172,6 @@ def simulate_truth(scenario: Scenario, rng: np.random.Generator, start_arc_lengt
                    sensor_step_s: float = 0.01, substeps: int = 10, driver: DriverParams = DriverParams(),
                    vehicle: SingleTrackParams = SEED_PAPER_VEHICLE) -> Truth:
     """Drive the scenario: the single-track car at ``sensor_step_s / substeps``, sampled every ``sensor_step_s``."""
-    from plm_highway.road.geometry import reference_pose_at
-
     track = scenario.track()
     u = scenario.speed_mps
     cf, cr, k2 = params_per_kg(vehicle)

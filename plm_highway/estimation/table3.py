@@ -37,6 +37,7 @@ import math
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
+from tqdm import tqdm
 
 from plm_highway.camera.ground_map import ground_map
 from plm_highway.camera.pinhole import CameraConfig, PinholeCamera
@@ -348,7 +349,6 @@ def table3(seeds: int | tuple[int, ...] = 5, config: SimulationConfig = Simulati
     if not 1 <= len(seed_list) <= MAX_SEEDS:
         raise ValueError(f"seeds: need 1 to {MAX_SEEDS} seeds, got {len(seed_list)}")
     config = measurement_config(measurement, config)
-    from tqdm import tqdm
 
     results = []
     bar = tqdm(total=len(scenarios) * len(seed_list), desc=f"table3 {measurement}", disable=not progress, unit="run")

@@ -43,6 +43,7 @@ from plm_highway.io import JSON_MARKER_KEY, file_kind, load_json, pyplot, write_
 from plm_highway.metrics.intervals import mean_ci
 from plm_highway.metrics.steering import common_span, steering_errors
 from plm_highway.models.config_checks import check_choice
+from plm_highway.road.track import resolve_track
 from plm_highway.rollout.cells import Cell, advancing, local_workers, progress_bar, run_cells, runs_under
 from plm_highway.rollout.conditions import (
     CONDITIONS,
@@ -139,8 +140,6 @@ def bm_calibration(options: CalibrationOptions = CalibrationOptions()) -> dict:
     """Drive the BM at :data:`LATENCIES_S` (as ``options.reading`` injects them, :func:`injected_latency_s`) under
     the options' seeds; return the per-seed MAEs, their means with 95% CIs (front-wheel radians), the noise floor,
     the paper's numbers and the two rules judged."""
-    from plm_highway.road.track import resolve_track
-
     o = options
     track, seeds, conditions, checkpoints, reading = o.track, o.seeds, o.conditions, o.checkpoints, o.reading
     injected_s = {latency_s: injected_latency_s(latency_s, reading) for latency_s in LATENCIES_S}

@@ -76,7 +76,7 @@ def plot_steering(logs: dict, latency_label: str, title: str, out, latency_trace
 def plot_trajectories_by_steering(logs: dict, track: TrackSpec, latency_label: str, title: str, out) -> Path:
     """Each run's path coloured by its steering, one panel per run (Figures 10, 13, A2, A5, A8)."""
     plt = _pyplot()
-    from matplotlib.collections import LineCollection
+    from matplotlib.collections import LineCollection  # lazy: matplotlib only when a figure is drawn
     from matplotlib.colors import Normalize
 
     labels = run_labels(latency_label)

@@ -30,16 +30,38 @@ Runs are cached one JSON per run under ``cache`` (when given), so an interrupted
 
 from __future__ import annotations
 
+import json
 import math
+import multiprocessing
+import os
 import sys
+import tempfile
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
+import plm_highway.latency as latency_package
 from plm_highway.errors import BadInput
+from plm_highway.estimation.ekf import LaneStateEstimator
+from plm_highway.estimation.latency_stream import LatencyEstimation, env_sensor_shift_s
+from plm_highway.estimation.sensors import CameraTiming
+from plm_highway.estimation.table3 import SCENARIOS, SimulationConfig, run_scenario
+from plm_highway.io import json_text
+from plm_highway.io.bounded import JsonLimits, load_json
+from plm_highway.io.digests import DIGEST_KEY, content_digest, file_sha256, json_digest, kit_version, source_sha256
+from plm_highway.latency.correlation import PUBLISHED, CorrelationLagEstimator, time_scaled
+from plm_highway.latency.estimate import (
+    FastSample,
+    LaneSample,
+    LatencyEstimator,
+    LatencyEstimatorConfig,
+    estimate_stream,
+)
+from plm_highway.latency.lane_recording import estimate_recording, read_lane_recording, write_lane_recording
 from plm_highway.latency.profiles import JitteredProfile, LatencyProfile, check_specs
 from plm_highway.latency.scoring import (
     claim_step_metrics,
@@ -48,6 +70,14 @@ from plm_highway.latency.scoring import (
     quiet_ticks,
     step_metrics,
 )
+from plm_highway.latency.synthetic import StreamSpec, Weave, synthetic_stream
+from plm_highway.metrics.intervals import mean_ci
+from plm_highway.metrics.steering import common_span, steering_mae
+from plm_highway.road.track import load_track, track_sha256
+from plm_highway.rollout.cells import Cell, drive_options
+from plm_highway.rollout.closed_loop import drive
+from plm_highway.rollout.conditions import CONDITIONS, scored_steps, with_latency_source
+from plm_highway.rollout.policies import checkpoint_pair_sha256, make_policy, single_threaded_inference
 
 ROLES = ("reference", "baseline", "true", "estimated")
 VARIANTS = ("", "dropped", "jitter", "drift", "recording", "probe")
@@ -98,8 +128,6 @@ class LatencySuite:
     table3_seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
 
     def __post_init__(self):
-        from plm_highway.rollout.conditions import CONDITIONS
-
         unknown = [c for c in self.conditions if c not in CONDITIONS]
         if unknown:
             raise BadInput(f"conditions {unknown}: expected from {list(CONDITIONS)}")
@@ -109,8 +137,6 @@ class LatencySuite:
 
     def max_steps(self, conditions: str) -> int | None:
         """Policy steps per run under ``conditions`` (None: the whole scored track)."""
-        from plm_highway.rollout.conditions import CONDITIONS
-
         return None if self.duration_s is None else round(self.duration_s * CONDITIONS[conditions].policy_frequency_hz)
 
     def settings(self) -> tuple[str, ...]:
@@ -166,9 +192,6 @@ def plan(suite: LatencySuite) -> list[RunSpec]:
 
 def run_conditions(spec: RunSpec):
     """The :class:`~plm_highway.rollout.conditions.Conditions` a run is driven under (its role's latency source)."""
-    from plm_highway.estimation.latency_stream import LatencyEstimation
-    from plm_highway.rollout.conditions import CONDITIONS, with_latency_source
-
     conditions = CONDITIONS[spec.conditions]
     if spec.role in ("true", "reference"):  # no estimator: PLM-Net told the conditions' own latency; the BM at 0 s
         return conditions
@@ -189,9 +212,6 @@ _POLICIES: dict = {}
 
 def _policy(name: str, conditions, checkpoints):
     """The model policies, loaded once per process (each run resets them)."""
-    from plm_highway.io.digests import json_digest
-    from plm_highway.rollout.policies import checkpoint_pair_sha256, make_policy
-
     # by content: a pair retrained into the same directory while this process lives is another pair
     contents = json_digest(checkpoint_pair_sha256(checkpoints, conditions.checkpoint_preset))
     key = (name, conditions.latency_source, conditions.checkpoint_preset, contents)
@@ -204,11 +224,6 @@ def _policy(name: str, conditions, checkpoints):
 def drive_run(spec: RunSpec, max_steps: int | None = None, checkpoints=None, keep_trace: bool = False) -> dict:
     """Drive one run of the suite; its record: the run's summary, the estimate's scores and (``keep_trace``) the
     per-step columns the report plots."""
-    from plm_highway.road.track import load_track
-    from plm_highway.rollout.cells import Cell, drive_options
-    from plm_highway.rollout.closed_loop import drive
-    from plm_highway.rollout.conditions import scored_steps
-
     conditions = run_conditions(spec)
     track_spec = load_track(spec.track)
     steps = scored_steps(track_spec, conditions, max_steps)
@@ -268,18 +283,12 @@ def estimate_scores(log, conditions, spec: RunSpec) -> dict:
 def baseline_configs(shift_s: float) -> dict:
     """The baseline's two settings (published durations; durations / BASELINE_TIME_SCALE), told the car's sensor
     timing as the kit's estimator is."""
-    from plm_highway.latency.correlation import PUBLISHED, time_scaled
-
     return {"published": replace(PUBLISHED, fast_sensor_shift_s=shift_s),
             "scaled": replace(time_scaled(BASELINE_TIME_SCALE), fast_sensor_shift_s=shift_s)}
 
 
 def baseline_scores(log, conditions, spec: RunSpec) -> dict:
     """The openpilot-style baseline fed the stream this run's estimator got (logged with ``record``), scored like it."""
-    from plm_highway.estimation.latency_stream import env_sensor_shift_s
-    from plm_highway.latency.correlation import CorrelationLagEstimator
-    from plm_highway.latency.estimate import FastSample, LaneSample
-
     c = log.columns
     t_s, true_s = np.asarray(c["t_s"], float), np.asarray(c["observation_age_s"], float)
     frame_s = 1.0 / conditions.policy_frequency_hz
@@ -304,12 +313,6 @@ def baseline_scores(log, conditions, spec: RunSpec) -> dict:
 def recording_round_trip(log, conditions) -> dict:
     """Write the stream the run's estimator saw (logged with ``record``) to a recording without capture
     timestamps, read it back, estimate it offline; the offline estimate against the online one and the truth."""
-    import tempfile
-
-    from plm_highway.estimation.latency_stream import env_sensor_shift_s
-    from plm_highway.latency.estimate import LatencyEstimatorConfig
-    from plm_highway.latency.lane_recording import estimate_recording, read_lane_recording, write_lane_recording
-
     with tempfile.TemporaryDirectory() as directory:
         path = Path(directory) / "stream.csv"
         write_lane_recording(path, log)
@@ -340,11 +343,6 @@ def run_inputs(spec: RunSpec, checkpoints, _memo: dict | None = None) -> dict:
     pair's files (sha256; a pair retrained into the same ``--checkpoints`` is another pair, another directory
     with the same files the same one), any ``trace:`` file's bytes, the kit's version and the source of the
     estimators and of this module (an estimator changed between two runs of the report makes its cache stale)."""
-    import plm_highway.latency as latency_package
-    from plm_highway.io.digests import file_sha256, kit_version, source_sha256
-    from plm_highway.road.track import track_sha256
-    from plm_highway.rollout.policies import checkpoint_pair_sha256
-
     memo = {} if _memo is None else _memo
     preset = run_conditions(spec).checkpoint_preset
     if ("pair", preset) not in memo:
@@ -362,8 +360,6 @@ def _cached(cache: Path | None, spec: RunSpec, max_steps: int | None, inputs: di
     matches); otherwise None, and the run is driven again (its file is replaced: the cache is the kit's own)."""
     if cache is None:
         return None
-    from plm_highway.io.bounded import JsonLimits, load_json
-    from plm_highway.io.digests import DIGEST_KEY, content_digest, json_digest
 
     path = cache / f"{spec.key}.json"
     if not path.is_file():
@@ -383,10 +379,6 @@ def _cached(cache: Path | None, spec: RunSpec, max_steps: int | None, inputs: di
 def _store(cache: Path | None, spec: RunSpec, record: dict, inputs: dict) -> None:
     if cache is None:
         return
-    import json
-
-    from plm_highway.io import json_text
-    from plm_highway.io.digests import DIGEST_KEY, content_digest
 
     stored = json.loads(json_text({**record, "inputs": inputs}))
     stored[DIGEST_KEY] = content_digest(stored)
@@ -398,10 +390,8 @@ def _store(cache: Path | None, spec: RunSpec, record: dict, inputs: dict) -> Non
 
 def _worker(args) -> tuple[int, dict]:
     index, spec, max_steps, checkpoints, keep_trace = args
-    import os
 
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    from plm_highway.rollout.policies import single_threaded_inference
 
     with single_threaded_inference():
         return index, drive_run(spec, max_steps, checkpoints, keep_trace)
@@ -410,10 +400,6 @@ def _worker(args) -> tuple[int, dict]:
 def drive_suite(suite: LatencySuite, cache=None, workers: int = 0, checkpoints=None, progress: bool = True,
                 on_record: Callable[[RunSpec, dict], None] | None = None) -> list[tuple[RunSpec, dict]]:
     """Every run of ``suite`` (cached runs are read, the rest driven, ``workers`` processes at a time)."""
-    import multiprocessing
-
-    from tqdm import tqdm
-
     cache = None if cache is None else Path(cache)
     runs = plan(suite)
     memo: dict = {}
@@ -427,10 +413,6 @@ def drive_suite(suite: LatencySuite, cache=None, workers: int = 0, checkpoints=N
              runs[i].seed == TRACE_SEED) for i in todo]
 
     def done(index: int, record: dict) -> None:
-        import json
-
-        from plm_highway.io import json_text
-
         # Kept as the cache reads it back (JSON: inf and NaN become None), so a resumed measurement summarises
         # exactly what an uninterrupted one does.
         records[index] = json.loads(json_text(record))
@@ -465,13 +447,6 @@ TABLE3_DELAYS = ("frame:0.25-0.35", "const:0.3")  # the paper's per-frame delay 
 def ekf_with_estimate(seeds=(0, 1, 2, 3, 4), delays=TABLE3_DELAYS, progress: bool = True) -> list[dict]:
     """For each camera delay, scenario and seed: the delay-compensated EKF's d RMSE with the known capture stamps and
     with each measurement re-stamped by the latency estimated from the stream (``arrival - estimate``)."""
-    from tqdm import tqdm
-
-    from plm_highway.estimation.ekf import LaneStateEstimator
-    from plm_highway.estimation.sensors import CameraTiming
-    from plm_highway.estimation.table3 import SCENARIOS, SimulationConfig, run_scenario
-    from plm_highway.latency.estimate import FastSample, LaneSample, LatencyEstimator, LatencyEstimatorConfig
-
     rows = []
     bar = tqdm(total=len(delays) * len(SCENARIOS) * len(seeds), desc="EKF with the estimate", unit="run",
                disable=not progress, file=sys.stderr)
@@ -554,8 +529,6 @@ class Results:
 
 
 def _mitigation(records: dict, conditions: str, track: str, seed: int, setting: str) -> dict | None:
-    from plm_highway.metrics.steering import common_span, steering_mae
-
     def get(role):
         return records.get((conditions, track, seed, setting if role != "reference" else "const:0", role, ""))
 
@@ -589,8 +562,6 @@ def quantity_scale(name: str) -> str:
 def summary_interval(name: str, values) -> dict | None:
     """The mean of score ``name``'s defined values and its 95% interval on :func:`quantity_scale`'s scale (``low``
     and ``high`` None with fewer than 3 values), as the results JSON holds it; None without a defined value."""
-    from plm_highway.metrics.intervals import mean_ci
-
     values = [v for v in values if v is not None and math.isfinite(v)]
     if not values:
         return None
@@ -696,7 +667,6 @@ def summarise(results: Results) -> dict:
                 mitigation.append(entry)
 
     traces = [{"spec": asdict(spec), **record["trace"]} for spec, record in results.records if "trace" in record]
-    from plm_highway.estimation.latency_stream import LatencyEstimation
 
     probe = {"probe_rad": PROBE_RAD, "probe_periods_s": list(LatencyEstimation().probe_periods_s)}
     return {"command": results.command, "suite": asdict(results.suite), "probe": probe,
@@ -769,9 +739,6 @@ def targets(estimation: list[dict], mitigation: list[dict], ekf_rows: list[dict]
 def synthetic_checks(seed: int = 0) -> dict:
     """The estimator on synthetic streams with a known answer: a minute on a straight without steering (nothing to
     estimate), and the same with a weave (something to estimate)."""
-    from plm_highway.latency.estimate import estimate_stream
-    from plm_highway.latency.synthetic import StreamSpec, Weave, synthetic_stream
-
     out = {}
     for name, weave in (("straight_without_steering", Weave((0.0,), (0.5,), (0.0,))),
                         ("straight_with_weave", Weave((0.02,), (0.5,), (0.0,)))):

@@ -30,13 +30,26 @@ PLM-Net - Base Model (what the TAPM buys). Where a paired interval excludes 0, o
 from __future__ import annotations
 
 import math
+import multiprocessing
 import sys
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 from tqdm import tqdm
 
 from plm_highway.errors import BadInput
+from plm_highway.evaluation.evaluate import check_inputs
+from plm_highway.evaluation.outcomes import run_outcomes
+from plm_highway.evaluation.protocol import setting_label
+from plm_highway.io import pyplot, save_figure_into
+from plm_highway.latency.profiles import check_specs
+from plm_highway.metrics.intervals import interval_text, mean_ci
+from plm_highway.road.track import resolve_track
+from plm_highway.rollout.cells import Cell, check_env, drive_options, run_cells
+from plm_highway.rollout.closed_loop import RunCell
+from plm_highway.rollout.conditions import CONDITIONS, scored_steps
+from plm_highway.rollout.policies import checkpoint_pair, make_policy, single_threaded_inference
 
 POLICIES = ("bm", "plm", "ekf_nc", "ekf")
 POLICY_LABELS = {"bm": "Base Model", "plm": "PLM-Net", "ekf_nc": "EKF lane keeper, no delay compensation",
@@ -68,9 +81,6 @@ class CompareConfig:
     max_steps: int | None = None  # None: the whole scored track
 
     def __post_init__(self):
-        from plm_highway.latency.profiles import check_specs
-        from plm_highway.rollout.conditions import CONDITIONS
-
         if self.conditions not in CONDITIONS:
             raise BadInput(f"--conditions {self.conditions!r}: expected one of {list(CONDITIONS)}")
         if not self.settings:
@@ -134,8 +144,6 @@ class CompareResult:
         return _interval([a[s] - b[s] for s in self.seeds if s in a and s in b])
 
     def to_dict(self) -> dict:
-        from plm_highway.rollout.conditions import CONDITIONS
-
         conditions = CONDITIONS[self.config.conditions]
         entries = [{"latency": NO_LATENCY, "bias_s": 0.0,
                     "policies": {p: self.summary(p, NO_LATENCY) for p in ("bm", "plm", "ekf")},
@@ -174,8 +182,6 @@ def _interval(values: list[float], scale: str = "linear", share: bool = False) -
     """Mean and 95% interval over seeds: an outcome (an error, never negative) on the log scale, a paired
     difference on the linear one (:mod:`plm_highway.metrics.intervals`); a ``share`` (the fraction of seeds that
     left the road) on the linear one, clipped to [0, 1]."""
-    from plm_highway.metrics.intervals import mean_ci
-
     if not values:
         return {"mean": None, "low": None, "high": None, "n": 0}
     interval = mean_ci(values, scale=scale).as_dict()
@@ -207,11 +213,6 @@ def compare(seeds: int = 5, config: CompareConfig = CompareConfig(), checkpoints
 
     ``workers`` > 1 drives that many seeds at once in spawned worker processes (the results do not depend on it).
     """
-    from plm_highway.evaluation.evaluate import check_inputs
-    from plm_highway.rollout.cells import check_env
-    from plm_highway.rollout.conditions import CONDITIONS, scored_steps
-    from plm_highway.rollout.policies import checkpoint_pair
-
     if not 1 <= seeds <= MAX_SEEDS:
         raise BadInput(f"--seeds {seeds!r}: must be in [1, {MAX_SEEDS}]")
     if not 1 <= workers <= 16:
@@ -230,9 +231,6 @@ def compare(seeds: int = 5, config: CompareConfig = CompareConfig(), checkpoints
         for seed in result.seeds:
             result.rows += run_seed(seed, config, checkpoints, lambda: bar.update())
     else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
             futures = [pool.submit(run_seed, seed, config, None if checkpoints is None else str(checkpoints))
                        for seed in result.seeds]
@@ -246,13 +244,6 @@ def compare(seeds: int = 5, config: CompareConfig = CompareConfig(), checkpoints
 def run_seed(seed: int, config: CompareConfig, checkpoints=None, tick=None) -> list[RunRow]:
     """Every planned run of one seed, driven batched (one forward pass per model and step; the EKF lane keepers,
     each its own object, called per run) and measured against the seed's reference run."""
-    from plm_highway.evaluation.outcomes import run_outcomes
-    from plm_highway.road.track import resolve_track
-    from plm_highway.rollout.cells import Cell, drive_options, run_cells
-    from plm_highway.rollout.closed_loop import RunCell
-    from plm_highway.rollout.conditions import CONDITIONS, scored_steps
-    from plm_highway.rollout.policies import make_policy, single_threaded_inference
-
     conditions = CONDITIONS[config.conditions]
     track_spec = resolve_track(config.track)
     steps = scored_steps(track_spec, conditions, config.max_steps)
@@ -287,7 +278,6 @@ TABLE_METRICS = ("steering_mae_paper", "steering_mae_paper_common", "offset_rms_
 def cell(interval: dict, digits: int = 3) -> str:
     if interval["mean"] is None:
         return "n/a"
-    from plm_highway.metrics.intervals import interval_text
 
     return interval_text(interval["mean"], interval["low"], interval["high"], interval.get("n", 0),
                          lambda value: f"{value:.{digits}f}", short=True)
@@ -305,8 +295,6 @@ def verdict(difference: dict, first: str, second: str) -> str:
 
 
 def setting_name(spec: str, bias_s: float = 0.0) -> str:
-    from plm_highway.evaluation.protocol import setting_label
-
     label = "no latency" if spec == NO_LATENCY else setting_label(spec)
     return label if bias_s == 0.0 else f"{label}, told {bias_s:+.2f} s off"
 
@@ -381,8 +369,6 @@ def _count(entry: dict, policy: str) -> str:
 
 def plot_comparison(reports: list[dict], path) -> None:
     """Offset RMS and steering MAE against the latency setting, one row of panels per set of conditions."""
-    from plm_highway.io import pyplot, save_figure_into
-
     plt = pyplot()
     fig, axes = plt.subplots(len(reports), 2, figsize=(14, 4.4 * len(reports)), squeeze=False)
     colours = {"bm": "tab:gray", "plm": "tab:blue", "ekf_nc": "tab:orange", "ekf": "tab:red"}

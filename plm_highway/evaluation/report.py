@@ -16,6 +16,7 @@ import jinja2
 from plm_highway.evaluation import figures, protocol
 from plm_highway.evaluation import paper_results as paper
 from plm_highway.evaluation.protocol import is_constant, paper_key, setting_label, setting_tag
+from plm_highway.evaluation.sweep import sweep_markdown, write_sweep_csv
 from plm_highway.evaluation.trajectory import METRIC_LABELS, METRICS, PARTS, RESAMPLE_SPACING_M, representative_segment
 from plm_highway.io import (
     JsonLimits,
@@ -393,8 +394,6 @@ def render_report(r: Reproduction, figure_files: dict, other_figures: dict) -> s
                        for spec, entry in g.settings.items()]})
     sweep_lines = []
     if r.sweep is not None:
-        from plm_highway.evaluation.sweep import sweep_markdown
-
         sweep_lines = sweep_markdown(r.sweep)
     met = sum(t["met"] for t in r.track.targets)
     return _ENV.get_template("reproduction.md.j2").render(
@@ -656,8 +655,6 @@ def setting_figures(logs: dict, track_spec: TrackSpec, spec: str, directory: Pat
 
 def write_report(r: Reproduction, main: dict, others: dict, out: Path, overwrite: bool = False) -> None:
     """Render every file into a staged directory, published as ``out`` in one step."""
-    from plm_highway.evaluation.sweep import write_sweep_csv
-
     with write_output(out, REPRODUCE_REPORT, overwrite=overwrite) as tmp:
         figure_files = {spec: setting_figures(entry["logs"], main["track_spec"], spec, tmp, "", r.track.name)
                         for spec, entry in main["settings"].items()}

@@ -34,6 +34,7 @@ from plm_highway.evaluation.protocol import is_constant, split_settings
 from plm_highway.evaluation.report import REPRODUCE_REPORT, Reproduction, write_report
 from plm_highway.io import check_target
 from plm_highway.metrics.intervals import mean_ci
+from plm_highway.models.checkpoints import KIND_BASE_MODEL, KIND_TAPM, read_description
 from plm_highway.road.track import TrackSpec, resolve_track
 from plm_highway.rollout.backends import MAX_WORKERS, default_workers
 from plm_highway.rollout.cells import (
@@ -300,8 +301,6 @@ def _drivable(spec: str, conditions: Conditions) -> bool:
 
 
 def _checkpoint_info(bm_path: Path, tapm_path: Path) -> dict:
-    from plm_highway.models.checkpoints import KIND_BASE_MODEL, KIND_TAPM, read_description
-
     info = {}
     for key, path, kind in (("bm", bm_path, KIND_BASE_MODEL), ("tapm", tapm_path, KIND_TAPM)):
         description = read_description(path, kind)

@@ -20,14 +20,20 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+import gymnasium
 import numpy as np
 
+from plm_highway.data.collect import make_demonstrator
+from plm_highway.envs import ENV_ID
 from plm_highway.errors import BadInput
 from plm_highway.evaluation.protocol import PAPER_TRACK
 from plm_highway.expert.controller import ExpertParams, expert_steering
 from plm_highway.io import file_kind, pyplot, write_figure_and_numbers
+from plm_highway.models.checkpoints import load_base_model
+from plm_highway.models.inference import BaseModelPolicy
 from plm_highway.road.geometry import SEGMENT_TITLES, longest_segment_middle_m
 from plm_highway.rollout.conditions import CONDITIONS, Conditions
+from plm_highway.rollout.policies import checkpoint_pair
 
 OFFSETS_M = tuple(round(float(x), 2) for x in np.arange(-5.0, 5.001, 0.5))
 HEADINGS_RAD = tuple(round(float(x), 2) for x in np.arange(-0.20, 0.2001, 0.04))
@@ -37,8 +43,6 @@ DEFAULT_OUT = Path("figures") / "bm-response.png"
 
 def demonstrator_law(conditions: Conditions) -> ExpertParams:
     """The tracking law the conditions' demonstrator steers by, as ``collect`` builds that demonstrator."""
-    from plm_highway.data.collect import make_demonstrator
-
     driver = make_demonstrator(conditions.demonstrator, conditions.policy_frequency_hz, np.random.default_rng(0),
                                conditions.max_steering_rad)
     return driver.tracking
@@ -50,13 +54,6 @@ def bm_response(track: str = PAPER_TRACK, conditions: str = "paper", checkpoints
     """The BM's and the demonstrator's law's normalised steering at each posed start (see the module text), in
     the middle of the track's longest ``segment`` (:data:`SEGMENTS`); offsets beyond the road (from the start
     lane's centre to the road edge) are refused."""
-    import gymnasium
-
-    from plm_highway.envs import ENV_ID
-    from plm_highway.models.checkpoints import load_base_model
-    from plm_highway.models.inference import BaseModelPolicy
-    from plm_highway.rollout.policies import checkpoint_pair
-
     chosen = CONDITIONS[conditions]
     law = demonstrator_law(chosen)
     bm_path, _ = checkpoint_pair(checkpoints, chosen.checkpoint_preset)

@@ -35,7 +35,9 @@ from pathlib import Path
 
 import nbformat
 
+from plm_highway.errors import BadInput
 from plm_highway.io import file_kind, write_csv
+from plm_highway.io.bounded import json_depth
 
 BEGIN_SOLUTION = "### BEGIN SOLUTION"
 END_SOLUTION = "### END SOLUTION"
@@ -111,6 +113,7 @@ def annotate(notebook: nbformat.NotebookNode) -> list[int]:
 
 def validate(notebook: nbformat.NotebookNode, where: str) -> None:
     """Raise ``ValueError`` naming every cell whose nbgrader metadata does not fit its content."""
+    # lazy here and below: nbgrader (with alembic, traitlets) costs seconds to import, only when grading runs
     from nbgrader.nbgraderformat import MetadataValidator, SchemaTooNewError, SchemaTooOldError, ValidationError
 
     problems = []
@@ -333,9 +336,6 @@ def find_submissions(submissions_dir: Path, lesson_names: list[str]) -> dict[str
 def _check_nesting(path: Path) -> None:
     """Refuse a notebook nested deeper than any notebook is before nbformat's recursive parser reads it
     (200,000 levels crash it); anything else unreadable is left to the grader, which scores it zero."""
-    from plm_highway.errors import BadInput
-    from plm_highway.io.bounded import json_depth
-
     depth, _ = json_depth(path.read_bytes().decode("utf-8", "replace"))
     if depth > MAX_NOTEBOOK_DEPTH:
         raise BadInput(f"{path}: brackets nested {depth} deep; a lesson notebook needs at most {MAX_NOTEBOOK_DEPTH} "

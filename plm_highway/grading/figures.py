@@ -14,7 +14,18 @@ from pathlib import Path
 
 import numpy as np
 
+from plm_highway.data.collect import collect
+from plm_highway.estimation.table3 import SCENARIOS, run_scenario
+from plm_highway.expert import ExpertPolicy
+from plm_highway.grading.lesson3 import kit_table_3_runs
 from plm_highway.io import save_figure
+from plm_highway.models.plm_net import interpolate_actions
+from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S
+from plm_highway.rollout.closed_loop import drive
+from plm_highway.sim2real.physics.replay import noise_sigma
+from plm_highway.sim2real.physics.synth import make_recording
+from plm_highway.training.labels import future_steering_labels
+from plm_highway.vehicle.kinematic import KinematicBicycleParams, kinematic_bicycle_rates
 
 DPI = 80
 
@@ -25,9 +36,6 @@ def _save(fig, path: Path, overwrite: bool) -> Path:
 
 def lesson1_figure(plt):
     """Figure 2: the expert's lateral offset with fresh and with 0.25 s old snapshots."""
-    from plm_highway.expert import ExpertPolicy
-    from plm_highway.rollout.closed_loop import drive
-
     fig, ax = plt.subplots(figsize=(10, 3.2))
     for latency_s, colour in ((0.0, "tab:green"), (0.25, "tab:red")):
         log = drive("figure", ExpertPolicy(), "test", f"const:{latency_s}", 0, max_steps=68 * 20)
@@ -44,11 +52,6 @@ def lesson1_figure(plt):
 
 def lesson2_figure(plt):
     """Future labels of one episode (Exercise A) and Algorithm 1 on one row of actions (Exercise C)."""
-    from plm_highway.data.collect import collect
-    from plm_highway.models.plm_net import interpolate_actions
-    from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S
-    from plm_highway.training.labels import future_steering_labels
-
     _, steps, _ = collect(track="train", episodes=4, episode_seconds=6.0, seed=0, progress=False)
     labels, valid = future_steering_labels(steps["episode_id"], steps["t_s"], steps["steering"], DEFAULT_DELTA_GRID_S)
     fig, axes = plt.subplots(1, 2, figsize=(12, 3.2), gridspec_kw={"width_ratios": [1.5, 1]})
@@ -78,8 +81,6 @@ def lesson2_figure(plt):
 
 def lesson3_figure(plt):
     """Figure 9: the steering of the three Table 3 runs (shipped checkpoints, whole test track)."""
-    from plm_highway.grading.lesson3 import kit_table_3_runs
-
     logs = kit_table_3_runs(None, None)
     fig, ax = plt.subplots(figsize=(10, 3.2))
     for run, colour, label in (("reference", "tab:blue", "BM, no latency"), ("baseline", "tab:green", "BM, 0.2 s"),
@@ -95,10 +96,6 @@ def lesson3_figure(plt):
 
 def lesson4_figure(plt):
     """Section 1's plot for another car (a steering gain, not one of the lesson's concealed effects)."""
-    from plm_highway.sim2real.physics.replay import noise_sigma
-    from plm_highway.sim2real.physics.synth import make_recording
-    from plm_highway.vehicle.kinematic import KinematicBicycleParams, kinematic_bicycle_rates
-
     recording, _ = make_recording({"steering_gain": 0.85}, rng=np.random.default_rng(7), duration_s=60.0,
                                   model="kinematic")
     geometry = KinematicBicycleParams(recording.vehicle.cg_to_front_m, recording.vehicle.cg_to_rear_m)
@@ -124,8 +121,6 @@ def lesson4_figure(plt):
 
 def lesson5_figure(plt):
     """Section 4's plot for scenario 1 on another seed: the kit's EKF with and without delay compensation."""
-    from plm_highway.estimation.table3 import SCENARIOS, run_scenario
-
     run = run_scenario(SCENARIOS[0], 0)
     t_s = run.truth.time_s
     fig, ax = plt.subplots(figsize=(10, 3.6))
@@ -151,7 +146,7 @@ LESSON_FIGURES: dict[str, Callable] = {
 
 def write_lesson_figures(out_dir: Path, overwrite: bool = False, names: list[str] | None = None) -> list[Path]:
     """Draw the lessons' target figures into ``out_dir``; returns the paths written."""
-    import matplotlib
+    import matplotlib  # lazy: matplotlib only when the figures are drawn, on Agg
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

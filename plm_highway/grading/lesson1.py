@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from plm_highway.expert import ExpertPolicy
 from plm_highway.grading.checks import CheckFailed, call_student, expect_close, expect_equal, expect_true, graded
+from plm_highway.rollout.closed_loop import drive
 
 DT_S = 0.05
 TIME_TOLERANCE_S = 1e-9
@@ -133,9 +135,6 @@ def check_growing_latency(buffer_class, seed: int | None = None) -> None:
 def check_zigzag(drive_with_latency) -> None:
     """The car's true offsets equal those of the kit's closed loop with the same latency, and 0.25 s old
     snapshots make the lane keeper weave at least twice as much as fresh ones."""
-    from plm_highway.expert import ExpertPolicy
-    from plm_highway.rollout.closed_loop import drive
-
     offsets = {}
     for latency_s in (0.0, 0.25):
         received = call_student(drive_with_latency, latency_s, seed=0, duration_s=25.0,

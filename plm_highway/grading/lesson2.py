@@ -18,6 +18,9 @@ from torch import nn
 from torch.overrides import TorchFunctionMode
 
 from plm_highway.grading.checks import CheckFailed, call_student, expect_close, expect_true, format_number, graded
+from plm_highway.models.plm_net import interpolate_actions
+from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S
+from plm_highway.training.labels import future_steering_labels
 
 # --- Exercise A: future labels -----------------------------------------------------------------------
 
@@ -77,9 +80,6 @@ def check_future_labels_by_hand(future_labels, seed: int | None = None) -> None:
 @graded(points=2)
 def check_future_labels_on_data(future_labels, steps: dict) -> None:
     """The collected dataset: the same labels and valid rows as the kit's training uses."""
-    from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S
-    from plm_highway.training.labels import future_steering_labels
-
     t_s, episode_id, steering = steps["t_s"], steps["episode_id"], steps["steering"]
     expected, expected_valid = future_steering_labels(episode_id, t_s, steering, DEFAULT_DELTA_GRID_S)
     labels, valid = _call_future_labels(future_labels, t_s, episode_id, steering, DEFAULT_DELTA_GRID_S)
@@ -98,8 +98,6 @@ def check_future_labels_on_data(future_labels, steps: dict) -> None:
 
 def _random_episode_cases(future_labels, rng: np.random.Generator) -> None:
     """Episodes in shuffled order, each with its own clock, rate and dropped frames; random deltas."""
-    from plm_highway.training.labels import future_steering_labels
-
     t_parts, id_parts = [], []
     for episode in rng.permutation(7):
         dt_s = float(rng.choice([0.05, 0.1, 0.04]))
@@ -351,8 +349,6 @@ def check_interpolate_rejects_bad_latency(interpolate) -> None:
 @graded(points=2)
 def check_interpolate_matches_package(interpolate, seed: int | None = None) -> None:
     """Random latencies (many on the grid) on two grids: equal to the kit's Algorithm 1."""
-    from plm_highway.models.plm_net import interpolate_actions
-
     rng = np.random.default_rng(7 if seed is None else seed)
     grids = [HAND_DELTA_REF_S, np.array([0.0, 0.1, 0.3, 0.4])]
     if seed is not None:

@@ -15,7 +15,15 @@ import functools
 
 import numpy as np
 
+from plm_highway.evaluation.comparison import steering_comparison
+from plm_highway.evaluation.trajectory import LaneCentre
 from plm_highway.grading.checks import call_student, expect_close, expect_equal, expect_true, graded
+from plm_highway.metrics import frechet_dist, resample_by_arc_length
+from plm_highway.metrics.steering import common_span
+from plm_highway.metrics.steering import steering_errors as kit_steering_errors
+from plm_highway.road.track import load_track
+from plm_highway.rollout.closed_loop import drive
+from plm_highway.rollout.policies import make_policy
 
 TABLE_3_LATENCY = "const:0.2"
 TRAP_LATENCY = "const:0.25"  # where PLM-Net's steering follows the reference's and its car still drifts
@@ -41,8 +49,6 @@ def _errors(steering_errors, reference, other, what: str) -> dict:
 def check_steering_errors(steering_errors, seed: int | None = None) -> None:
     """MAE, MSE and RMSE of one steering series against another, over their common length."""
     if seed is not None:
-        from plm_highway.metrics.steering import common_span
-        from plm_highway.metrics.steering import steering_errors as kit_steering_errors
 
         def kit_errors(reference, other):  # the lesson's rule: over the steps both runs reached
             return kit_steering_errors(*common_span(reference, other))
@@ -94,8 +100,6 @@ def check_reduction(reduction_pct, seed: int | None = None) -> None:
 @graded(points=3)
 def check_frechet(discrete_frechet, seed: int | None = None) -> None:
     """The discrete Frechet distance, by hand on small curves and against the kit's on random ones."""
-    from plm_highway.metrics import frechet_dist
-
     if seed is not None:
         rng = np.random.default_rng(seed)
         for _ in range(4):
@@ -140,8 +144,6 @@ def _resample(resample, xy, spacing_m, what: str):
 @graded(points=2)
 def check_resample(resample, seed: int | None = None) -> None:
     """Arc-length resampling: a point every ``spacing_m`` along the polyline, plus its end."""
-    from plm_highway.metrics import resample_by_arc_length
-
     if seed is not None:
         rng = np.random.default_rng(seed)
         for _ in range(4):
@@ -184,9 +186,6 @@ def check_resample(resample, seed: int | None = None) -> None:
 @functools.lru_cache(maxsize=8)
 def kit_table_3_runs(max_steps: int | None, checkpoints: str | None, latency: str = TABLE_3_LATENCY) -> dict:
     """The three runs of Table 3 driven by the kit (what a correct ``drive_table_3`` returns)."""
-    from plm_highway.rollout.closed_loop import drive
-    from plm_highway.rollout.policies import make_policy
-
     return {
         "reference": drive("reference", make_policy("bm", checkpoints), "test", "const:0", 0, max_steps=max_steps),
         "baseline": drive("baseline", make_policy("bm", checkpoints), "test", latency, 0, max_steps=max_steps),
@@ -198,8 +197,6 @@ def kit_table_3_runs(max_steps: int | None, checkpoints: str | None, latency: st
 def check_table_3(drive_table_3, steering_errors, reduction_pct, max_steps=None, checkpoints=None) -> dict:
     """The student's three runs are the paper's (BM without latency, BM and PLM-Net with 0.2 s, one
     seed) and their Table 3 numbers equal the kit's. Returns the student's runs."""
-    from plm_highway.evaluation.comparison import steering_comparison
-
     logs = call_student(drive_table_3, TABLE_3_LATENCY, max_steps=max_steps, checkpoints=checkpoints,
                         what=f"drive_table_3({TABLE_3_LATENCY!r}, max_steps={max_steps})",
                         exercise="lesson3.drive_table_3")
@@ -233,10 +230,6 @@ def check_table_3(drive_table_3, steering_errors, reduction_pct, max_steps=None,
 def check_trajectory_frechet(discrete_frechet, resample, max_steps=None, checkpoints=None) -> dict:
     """Each Table 3 run's Frechet distance to the lane centre, both curves resampled every 1 m,
     equals the kit's. Returns {run: Frechet distance in m}."""
-    from plm_highway.evaluation.trajectory import LaneCentre
-    from plm_highway.metrics import frechet_dist, resample_by_arc_length
-    from plm_highway.road.track import load_track
-
     _resample(resample, np.array([[0.0, 0.0], [1.0, 0.0]]), 0.5, "resample([[0, 0], [1, 0]], 0.5)")
     call_student(discrete_frechet, np.zeros((2, 2)), np.ones((2, 2)), what="discrete_frechet(zeros, ones)",
                  exercise="lesson3.discrete_frechet")
@@ -315,8 +308,6 @@ def check_trap_table(drive_table_3, trap_table, max_steps=None, checkpoints=None
     keys = {"mae", "mae_reduction_pct", "offset_rms_m", "offset_max_m", "offset_rms_reduction_pct"}
     expect_true(isinstance(table, dict) and keys <= set(table), "what trap_table returned",
                 expected=f"a dict with keys {sorted(keys)}", received=repr(table)[:80])
-    from plm_highway.metrics.steering import common_span
-    from plm_highway.metrics.steering import steering_errors as kit_steering_errors
 
     reference = kit["reference"].columns["steering"]
     mae = {run: kit_steering_errors(*common_span(reference, kit[run].columns["steering"]))["mae"]

@@ -15,6 +15,7 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from plm_highway.grading.checks import CheckFailed, call_student, expect_close, expect_true, graded
+from plm_highway.sim2real.physics.synth import make_recording
 from plm_highway.vehicle.kinematic import KinematicBicycleParams, kinematic_bicycle_rates
 
 GEOMETRIES = ((2.5, 2.5), (1.35, 1.45))  # (cg_to_front_m, cg_to_rear_m): the simulator's car, a sedan
@@ -45,8 +46,6 @@ class SealedAnswer:
 
 def concealed_recording(seed: int, duration_s: float):
     """The lesson's recording: the seed picks the concealed effect and its size. Returns (Recording, SealedAnswer)."""
-    from plm_highway.sim2real.physics.synth import make_recording
-
     rng = np.random.default_rng(seed)
     names = sorted(CONCEALED_EFFECTS)
     name = names[int(rng.integers(len(names)))]

@@ -17,6 +17,8 @@ import numpy as np
 
 from plm_highway.estimation.ekf import EstimatorConfig, LaneStateEstimator, filter_step
 from plm_highway.grading.checks import CheckFailed, call_student, expect_close, expect_true, graded
+from plm_highway.latency.estimate import estimate_stream
+from plm_highway.latency.synthetic import StreamSpec, Weave, synthetic_stream
 
 CONFIG = EstimatorConfig()
 
@@ -190,8 +192,6 @@ def latency_log(seed: int, latency_s: float, weave_rad: float = 0.02, duration_s
     """A log of a car on a straight lane weaving with ``weave_rad`` of front-wheel angle (0: no steering): its
     fast sensors and the camera's late lane offset and heading, ``latency_s`` late, with noise
     (:func:`plm_highway.latency.synthetic.synthetic_stream`)."""
-    from plm_highway.latency.synthetic import StreamSpec, Weave, synthetic_stream
-
     rng = np.random.default_rng(seed)
     weave = Weave((weave_rad, 0.5 * weave_rad), (float(rng.uniform(0.3, 0.6)), float(rng.uniform(0.8, 1.2))),
                   tuple(float(v) for v in rng.uniform(0, 2 * np.pi, 2)))
@@ -312,8 +312,6 @@ def check_why_estimable(why_estimable) -> None:
 def kit_estimate(log: dict) -> tuple[float, float] | None:
     """The kit's own estimator over a log (:mod:`plm_highway.latency.estimate`): its last estimable estimate and
     standard deviation, or None where it never had one."""
-    from plm_highway.latency.estimate import estimate_stream
-
     result = estimate_stream(log["time_s"], log["yaw_rate_radps"], log["speed_mps"], log["steer_rad"],
                              log["lane_offset_m"], log["lane_heading_rad"])
     estimable = np.flatnonzero(result["estimable"])

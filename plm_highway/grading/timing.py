@@ -29,7 +29,7 @@ class LessonTiming:
 
 
 def time_lesson(path: Path, fast: bool = False, timeout_s: int = 1800) -> LessonTiming:
-    from nbclient import NotebookClient
+    from nbclient import NotebookClient  # lazy: nbclient is a test extra, only for timing the lessons
 
     notebook = nbformat.read(path, as_version=4)
     old = os.environ.get("PLM_FAST")

@@ -228,7 +228,7 @@ def parse_yaml(text: str, source: str, limits: JsonLimits = JsonLimits()):
     """A YAML document (safe types only) within ``limits``: depth, long integers and the event count are
     checked on the event stream before anything is built; duplicate keys are refused; nodes and
     characters are counted after aliases are expanded."""
-    import yaml
+    import yaml  # lazy here and below: io is on every command line's path; YAML only for grid files
 
     size = len(text.encode("utf-8"))
     if size > limits.max_bytes:

@@ -18,6 +18,7 @@ import sys
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
+from plm_highway._version import __version__
 from plm_highway.errors import BadInput
 
 DIGEST_KEY = "content_sha256"  # in a stored result: the sha256 of the rest of it (see content_digest)
@@ -97,6 +98,4 @@ def source_sha256(*modules) -> str:
 
 
 def kit_version() -> str:
-    from plm_highway._version import __version__
-
     return __version__

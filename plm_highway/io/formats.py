@@ -16,6 +16,7 @@ import shlex
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
+from plm_highway.errors import BadInput
 from plm_highway.io.outputs import JSON_MARKER_KEY, PNG_SOFTWARE, OutputKind, file_kind, write_output, write_outputs
 
 FIGURE = file_kind("figure", "a figure (PNG)")
@@ -108,8 +109,6 @@ def save_figure_into(fig, path: Path, dpi: int = 120, **savefig_options) -> None
 
 def save_figure(fig, path: str | os.PathLike, *, overwrite: bool = False, dpi: int = 120) -> Path:
     if Path(path).suffix.lower() != ".png":
-        from plm_highway.errors import BadInput
-
         raise BadInput(f"figure path {str(path)!r}: figures are written as PNG; give a name ending in .png")
     with write_output(path, FIGURE, overwrite=overwrite) as tmp:
         save_figure_into(fig, tmp, dpi=dpi)

@@ -23,6 +23,10 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from plm_highway._version import __version__
+from plm_highway.errors import BadInput
+from plm_highway.io.bounded import JsonLimits, parse_json
+
 MARKER_NAME = ".plm-highway-output.json"  # inside every directory plm-highway writes
 MAX_MARKER_BYTES = 64 << 20  # a sweep of 100,000 cells lists about 15 MB
 
@@ -36,9 +40,6 @@ class Manifest:
 
 def read_marker(directory: Path) -> Manifest | None:
     """The marker of a directory output, or None when there is none (or it is not plm-highway's)."""
-    from plm_highway.errors import BadInput
-    from plm_highway.io.bounded import JsonLimits, parse_json
-
     path = directory / MARKER_NAME
     try:
         info = path.lstat()
@@ -64,9 +65,6 @@ def marker_problem(directory: Path) -> str | None:
     """Why the marker of ``directory`` cannot be trusted (a key given twice, not JSON, too large), or None when
     it reads (or there is none). A damaged marker never counts as plm-highway's: replacing the directory on its
     word is refused."""
-    from plm_highway.errors import BadInput
-    from plm_highway.io.bounded import JsonLimits, parse_json
-
     path = directory / MARKER_NAME
     try:
         info = path.lstat()
@@ -87,8 +85,6 @@ def marker_problem(directory: Path) -> str | None:
 
 
 def marker_text(kind: str, files: dict[str, dict] | None = None, dirs=()) -> str:
-    from plm_highway._version import __version__
-
     document = {"tool": "plm-highway", "version": __version__, "kind": kind}
     if files is not None:
         document["files"] = {name: files[name] for name in sorted(files)}

@@ -56,6 +56,7 @@ from fnmatch import fnmatchcase
 from pathlib import Path
 
 from plm_highway.errors import BadInput, OutputRefused
+from plm_highway.io.bounded import JsonLimits, load_json
 from plm_highway.io.manifest import (
     MARKER_NAME,
     ancestors,
@@ -133,8 +134,6 @@ def file_kind(name: str, describe: str, csv_header: Sequence[str] | None = None,
 
 
 def _json_marker_kind(path: Path, max_bytes: int = 64 << 20) -> str | None:
-    from plm_highway.io.bounded import JsonLimits, load_json
-
     try:
         data = load_json(path, JsonLimits(max_bytes=max_bytes, max_nodes=20_000_000))
     except (OSError, BadInput):

@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.errors import BadInput
+from plm_highway.io import check_csv_columns
 
 MAX_SPEC_CHARS = 4096
 MAX_LATENCY_S = 10.0
@@ -516,8 +517,6 @@ def _read_bounded(path: Path) -> bytes:
 
 
 def _parse_trace_rows(path: Path, text: str) -> tuple[np.ndarray, np.ndarray]:
-    from plm_highway.io import check_csv_columns
-
     name = repr(str(path))
     check_csv_columns(text, f"trace file {name}", MAX_TRACE_COLUMNS)
     reader = csv.reader(io.StringIO(text, newline=""))

@@ -28,6 +28,7 @@ from plm_highway.camera.pinhole import CameraConfig
 from plm_highway.estimation.lane_camera import LaneDetector, LaneDetectorConfig, LaneMeasurement
 from plm_highway.estimation.sensors import ImuConfig
 from plm_highway.mitigation.odometry import MotionHistory, MotionSample
+from plm_highway.mitigation.posing import gains_from_answers, posed_frames
 from plm_highway.mitigation.view import present_view
 
 # What a mitigation may read from the env's info at control time (the frame's age is passed in, read by the
@@ -102,8 +103,6 @@ def lane_change(lane: LaneMeasurement | None, pose: tuple[float, float, float]) 
 def bm_gains(model_policy, camera: CameraConfig, env_config: dict) -> dict:
     """The BM's posed feedback gains with ``camera``, measured once per model object and camera (kept on the model
     object, which the runs of a process share)."""
-    from plm_highway.mitigation.posing import gains_from_answers, posed_frames
-
     with _GAINS_LOCK:  # batched runs on threads share the model
         measured = model_policy.__dict__.setdefault("posed_gains_by_camera", {})
         if camera not in measured:

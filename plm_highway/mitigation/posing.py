@@ -11,7 +11,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import gymnasium
 import numpy as np
+
+from plm_highway.envs import ENV_ID
+from plm_highway.road.geometry import longest_segment_middle_m
 
 POSE_OFFSETS_M = (-1.0, -0.5, 0.0, 0.5, 1.0)  # inside the lane: what the demonstrations covered
 POSE_HEADINGS_RAD = (-0.04, -0.02, 0.0, 0.02, 0.04)
@@ -27,11 +31,6 @@ def posed_frames(env_config: dict, track: str, camera: dict | None, offsets_m: S
                  headings_rad: Sequence[float] = POSE_HEADINGS_RAD) -> list[tuple[str, np.ndarray, dict]]:
     """``[(sweep, frame, info)]``: sweep "offset" (the car at each of ``offsets_m``, heading along the road), then
     "heading" (at each of ``headings_rad``, on the lane centre), at the middle of ``track``'s longest straight."""
-    import gymnasium
-
-    from plm_highway.envs import ENV_ID
-    from plm_highway.road.geometry import longest_segment_middle_m
-
     env = gymnasium.make(ENV_ID, config=dict(env_config, track=track, camera=camera or {}))
     posed = []
     try:

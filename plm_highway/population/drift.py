@@ -23,7 +23,14 @@ from collections.abc import Sequence
 import numpy as np
 from scipy import signal
 
+from plm_highway.evaluation.protocol import constant_latency_s
+from plm_highway.evaluation.response import demonstrator_law
+from plm_highway.expert.controller import expert_steering
 from plm_highway.mitigation.posing import POSE_HEADINGS_RAD, POSE_OFFSETS_M, gains_from_answers, posed_frames
+from plm_highway.models.checkpoints import load_base_model, load_plm_net
+from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
+from plm_highway.rollout.conditions import CONDITIONS
+from plm_highway.rollout.policies import checkpoint_pair
 
 DRIFT_CUTOFF_HZ = 0.25  # periods above 4 s count as drift (the latency weave is 0.6-1.2 s)
 FILTER_ORDER = 2
@@ -53,13 +60,6 @@ def posed_gains(checkpoints, conditions_name: str, track: str, latencies_s: Sequ
     """Feedback gains of the BM (no latency), of PLM-Net told each of ``latencies_s`` and of the demonstrator's law,
     from posed camera frames (see the module docstring): ``{"bm": {...}, "plm@0.25": {...}, "law": {...}}`` with
     ``offset_gain_per_m`` and ``heading_gain_per_rad``."""
-    from plm_highway.evaluation.response import demonstrator_law
-    from plm_highway.expert.controller import expert_steering
-    from plm_highway.models.checkpoints import load_base_model, load_plm_net
-    from plm_highway.models.inference import BaseModelPolicy, PLMNetPolicy
-    from plm_highway.rollout.conditions import CONDITIONS
-    from plm_highway.rollout.policies import checkpoint_pair
-
     conditions = CONDITIONS[conditions_name]
     bm_path, tapm_path = checkpoint_pair(checkpoints, conditions.checkpoint_preset)
     bm = BaseModelPolicy(load_base_model(bm_path), batch_invariant=True)
@@ -87,8 +87,6 @@ def drift_summary(bands: dict[tuple[int, str], list[dict]], feedback: dict[int, 
 
     ``bands``: ``{(pair, run label): [bands per seed]}``; ``feedback``: ``{pair: posed gains}``.
     """
-    from plm_highway.evaluation.protocol import constant_latency_s
-
     def pair_mean(pair: int, label: str, key: str) -> float:
         values = [b[key] for b in bands.get((pair, label), []) if math.isfinite(b[key])]
         return float(np.mean(values)) if values else math.nan

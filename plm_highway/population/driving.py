@@ -14,12 +14,19 @@ import io
 import os
 import shutil
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from plm_highway.evaluation.outcomes import run_outcomes
+from plm_highway.evaluation.reproduce import conditions_named, plan_cells
 from plm_highway.population.plan import PopulationPlan, pair_name
+from plm_highway.road.track import resolve_track
+from plm_highway.rollout.cells import Cell, run_cells, runs_under
+from plm_highway.rollout.conditions import with_latency_source
+from plm_highway.rollout.policies import single_threaded_inference
 
 TRACE_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_m", "lateral_offset_m",
                  "heading_error_rad", "arc_length_m")
@@ -54,9 +61,6 @@ def run_label(role: str, setting: str) -> str:
 def plan_runs(plan: PopulationPlan, seed: int, track_name: str, conditions, remedy: str = "") -> list:
     """The cells of one pair under ``seed``: reproduce's reference, BM and PLM-Net per latency setting, and
     PLM-Net without latency; for a remedy, the reference and PLM-Net only."""
-    from plm_highway.evaluation.reproduce import plan_cells
-    from plm_highway.rollout.cells import Cell
-
     cells = plan_cells(list(plan.latency_settings), [seed], track_name, conditions)
     if remedy:
         cells = [c for c in cells if c.role != "baseline"]
@@ -70,14 +74,6 @@ def drive_pair(task: DriveTask) -> DriveResult:
     """Drive every run of ``task.pair`` under each of ``task.seeds`` batched in this process; one row per run,
     each judged against the reference of its own seed."""
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    import time
-
-    from plm_highway.evaluation.outcomes import run_outcomes
-    from plm_highway.evaluation.reproduce import conditions_named
-    from plm_highway.road.track import resolve_track
-    from plm_highway.rollout.cells import run_cells, runs_under
-    from plm_highway.rollout.conditions import with_latency_source
-    from plm_highway.rollout.policies import single_threaded_inference
 
     cpu0 = time.process_time()
     plan = task.plan

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from plm_highway.population.driving import read_traces as decode
 from plm_highway.population.plan import pair_name
 
 
@@ -18,6 +19,4 @@ def remedy_dir(work: Path, pair: int, remedy: str) -> Path:
 
 def read_traces(work: Path, pair: int, seed: int) -> dict:
     """The traces of one pair's runs under one seed (:func:`~plm_highway.population.driving.read_traces`)."""
-    from plm_highway.population.driving import read_traces as decode
-
     return decode(runs_path(work, pair, seed).with_suffix(".npz").read_bytes())

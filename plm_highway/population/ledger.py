@@ -29,6 +29,7 @@ from plm_highway.errors import BadInput
 from plm_highway.io import JSON_MARKER_KEY, file_kind, json_text, write_output
 from plm_highway.io.bounded import JsonLimits, load_json
 from plm_highway.population.plan import PopulationPlan, pair_name
+from plm_highway.road.track import resolve_track
 
 PAIR_RECORD = file_kind("population-pair", "a population's committed pair record")
 RECORD_FORMAT = "plm_highway.population.pair/1"
@@ -38,8 +39,6 @@ MAX_RECORD_BYTES = 16 << 20
 
 def track_sha256(track: str) -> str:
     """The sha256 of a track's contents (its geometry as parsed, not its name or path)."""
-    from plm_highway.road.track import resolve_track
-
     spec = asdict(resolve_track(track))
     spec.pop("source", None)
     return hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode("utf-8")).hexdigest()

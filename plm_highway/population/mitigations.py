@@ -28,12 +28,22 @@ from pathlib import Path
 
 import numpy as np
 
+import plm_highway.mitigation as package
 from plm_highway.errors import BadInput
+from plm_highway.evaluation.outcomes import run_outcomes
+from plm_highway.evaluation.protocol import constant_latency_s
+from plm_highway.evaluation.reproduce import conditions_named
 from plm_highway.io import JSON_MARKER_KEY, directory_kind, file_kind, json_text, write_csv_into, write_output
 from plm_highway.io.bounded import JsonLimits, load_json
 from plm_highway.io.digests import kit_version, source_sha256
+from plm_highway.mitigation import make_mitigation
+from plm_highway.mitigation.posing import gains_from_answers, posed_frames
 from plm_highway.population.analysis import spread
 from plm_highway.population.ledger import LEDGER_DIR, file_sha256, read_record, sealed
+from plm_highway.road.track import resolve_track
+from plm_highway.rollout.cells import Cell, advancing, progress_bar, run_cells, runs_under
+from plm_highway.rollout.conditions import baseline_latency
+from plm_highway.rollout.policies import MITIGATED_POLICIES, make_policy, single_threaded_inference
 
 DESIGNS = ("bm-warp", "bm-smith")  # the plug-in mitigations judged (plm_highway.mitigation)
 COMPARED = ("bm", "plm", "ekf")  # what they are judged beside
@@ -79,8 +89,6 @@ class Part:
 
 def code_sha256() -> str:
     """The digest of the mitigation code's source (a changed design makes its parts stale)."""
-    import plm_highway.mitigation as package
-
     return source_sha256(package)
 
 
@@ -132,13 +140,6 @@ def shipped_part(seeds: Sequence[int], settings: Sequence[str] = SHIPPED_SETTING
 
 def drive_part(part: Part, backend=None, batch_size: int = 16, progress: bool = True) -> dict:
     """Every run of ``part`` not taken from the population; the part's record (rows, gains, checks)."""
-    from plm_highway.evaluation.outcomes import run_outcomes
-    from plm_highway.evaluation.reproduce import conditions_named
-    from plm_highway.road.track import resolve_track
-    from plm_highway.rollout.cells import Cell, advancing, progress_bar, run_cells, runs_under
-    from plm_highway.rollout.conditions import baseline_latency
-    from plm_highway.rollout.policies import single_threaded_inference
-
     conditions = conditions_named(part.conditions)
     track_spec = resolve_track(part.track)
     driven = DESIGNS + ("ekf",) if part.record is not None else POLICIES
@@ -198,11 +199,6 @@ def reference_check(part: Part, rows: list[dict]) -> dict:
 def posed_gains(part: Part, conditions) -> dict:
     """Each design's posed feedback gains at each constant latency of ``part`` (module docstring), the BM's (no
     latency) and, for the shipped part, PLM-Net's; ``{"bm": {...}, "bm-warp@0.25": {...}, ...}``."""
-    from plm_highway.evaluation.protocol import constant_latency_s
-    from plm_highway.mitigation import make_mitigation
-    from plm_highway.mitigation.posing import gains_from_answers, posed_frames
-    from plm_highway.rollout.policies import MITIGATED_POLICIES, make_policy
-
     bm = make_policy("bm", part.checkpoints, preset=conditions.checkpoint_preset).model_policy
     plm = None if part.record is not None else make_policy("plm", None, preset=conditions.checkpoint_preset).model_policy
     latencies = [lat for lat in (constant_latency_s(s) for s in part.settings) if lat]

@@ -16,6 +16,8 @@ from dataclasses import asdict, dataclass
 
 from plm_highway.errors import BadInput
 from plm_highway.population.recipe import PairSeeds, Recipe
+from plm_highway.population.remedies import REMEDIES
+from plm_highway.rollout.conditions import LATENCY_SOURCE_NAMES
 
 # The paper's constant latencies and its stated time-varying profile, with 0 s for the no-harm check.
 DEFAULT_SETTINGS = ("const:0", "const:0.15", "const:0.2", "const:0.25", "const:0.3", "steps:0.0-0.35:1.0")
@@ -66,9 +68,6 @@ def make_plan(recipe: Recipe, conditions: str, pairs: int, track: str = "test",
               max_steps: int | None = None, remedies: tuple[str, ...] = (),
               latency_source: str | None = None) -> PopulationPlan:
     """The plan of ``pairs`` pairs (pair k seeded by :meth:`PairSeeds.of`), checked."""
-    from plm_highway.population.remedies import REMEDIES
-    from plm_highway.rollout.conditions import LATENCY_SOURCE_NAMES
-
     if latency_source is not None and latency_source not in LATENCY_SOURCE_NAMES:
         raise BadInput(f"--latency-source {latency_source!r}: expected one of {list(LATENCY_SOURCE_NAMES)}")
 

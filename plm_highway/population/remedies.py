@@ -20,8 +20,16 @@ import traceback
 from dataclasses import dataclass
 from pathlib import Path
 
+import torch
+
+from plm_highway.data.collect import CollectConfig, collect
+from plm_highway.data.dataset import write_dataset
+from plm_highway.data.onpolicy import OnPolicyConfig, collect_on_policy, concatenate
+from plm_highway.models.checkpoints import load_plm_net
+from plm_highway.models.inference import PLMNetPolicy
 from plm_highway.population.recipe import PairSeeds, Recipe
 from plm_highway.population.training import CHECKPOINT_FILES, PairTraining
+from plm_highway.training.train import TrainConfig, train_tapm
 
 ON_POLICY_SHARE = 3  # one on-policy episode per three demonstration episodes (100 for the recipe's 300)
 REMEDIES = {"onpolicy-tapm": "TAPM also trained on the states a late PLM-Net visits, labelled by the demonstrator"}
@@ -53,15 +61,6 @@ def train_remedy(task: RemedyTask) -> PairTraining:
 
 
 def _onpolicy_tapm(task: RemedyTask, work: Path) -> tuple[dict, dict]:
-    import torch
-
-    from plm_highway.data.collect import CollectConfig, collect
-    from plm_highway.data.dataset import write_dataset
-    from plm_highway.data.onpolicy import OnPolicyConfig, collect_on_policy, concatenate
-    from plm_highway.models.checkpoints import load_plm_net
-    from plm_highway.models.inference import PLMNetPolicy
-    from plm_highway.training.train import TrainConfig, train_tapm
-
     recipe, seeds = task.recipe, task.seeds
     torch.set_num_threads(recipe.threads)
     for model, files in task.files.items():

@@ -25,8 +25,11 @@ from plm_highway.io import (
 )
 from plm_highway.metrics.intervals import MIN_INTERVAL_VALUES, interval_text, too_few
 from plm_highway.population import analysis
+from plm_highway.population.drift import drift_summary
 from plm_highway.population.ledger import made_from
 from plm_highway.population.plan import PopulationPlan, pair_name
+from plm_highway.population.recipe import Recipe
+from plm_highway.population.remedies import REMEDIES
 
 POPULATION_REPORT = directory_kind("population-report", "a plm-highway population report directory")
 RESULT_COLUMNS = ("pair", "data_seed", "bm_seed", "tapm_seed", "seed", "role", "remedy", "setting", "latency_driven",
@@ -138,8 +141,6 @@ def publish_report(state, options) -> dict:
 
 def drift_numbers(state) -> dict | None:
     """:func:`~plm_highway.population.drift.drift_summary` from every driven run's offset bands and posed gains."""
-    from plm_highway.population.drift import drift_summary
-
     if not state.bands:
         return None
     bands: dict[tuple[int, str], list[dict]] = {}
@@ -472,8 +473,6 @@ def _minutes(seconds) -> str:
 
 
 def remedy_section(remedies: dict) -> list[str]:
-    from plm_highway.population.remedies import REMEDIES
-
     lines = []
     for name, result in remedies.items():
         lines += ["", f"## Remedy `{name}`", "", f"{REMEDIES[name]}. Each pair keeps its BM; the remedy's TAPM is "
@@ -524,8 +523,6 @@ def _mean(spread: dict | None) -> float | None:
 
 
 def _command(recipe: dict, which: str) -> str:
-    from plm_highway.population.recipe import Recipe
-
     r = Recipe.from_dict(recipe)
     return r.collect_command(1) if which == "collect" else r.train_command(which, 0)
 

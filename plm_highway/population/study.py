@@ -23,7 +23,10 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tqdm.auto import tqdm
+
 from plm_highway.errors import BadInput
+from plm_highway.evaluation.protocol import constant_latency_s
 from plm_highway.io import (
     JSON_MARKER_KEY,
     check_target,
@@ -51,8 +54,12 @@ from plm_highway.population.ledger import (
     write_record,
 )
 from plm_highway.population.plan import PopulationPlan, pair_name
+from plm_highway.population.remedies import RemedyTask, train_remedy
+from plm_highway.population.report import POPULATION_REPORT, publish_report
 from plm_highway.population.timing import StageTimes
 from plm_highway.population.training import PairTraining, TrainTask, train_pair
+from plm_highway.rollout.backends import make_backend
+from plm_highway.rollout.policies import single_threaded_inference
 
 POPULATION_PLAN = file_kind("population-plan", "a population plan JSON file")
 PAIR_TRAINING = file_kind("population-training", "a population pair's training record")
@@ -110,9 +117,6 @@ def run_population(plan: PopulationPlan, options: RunOptions) -> dict:
     are; every other pair is trained (or its checkpoints taken from ``options.work``), driven, measured and
     committed before the next one starts, and the report is rendered again from every committed pair at the end.
     """
-    from plm_highway.population.report import POPULATION_REPORT, publish_report
-    from plm_highway.rollout.backends import make_backend
-
     check_target(options.out, POPULATION_REPORT, overwrite=True)
     _check_same_study(options, plan)
     if options.restart:
@@ -145,8 +149,6 @@ def run_population(plan: PopulationPlan, options: RunOptions) -> dict:
 def _restart(options: RunOptions) -> None:
     """Drop the committed pair records of ``options.out`` (the work directory is started afresh by
     :func:`open_work`): a restart trains and drives every pair again."""
-    from plm_highway.population.report import POPULATION_REPORT
-
     if (Path(options.out) / LEDGER_DIR).is_dir():
         with write_output(options.out, POPULATION_REPORT, update=[LEDGER_DIR]):
             pass
@@ -423,8 +425,6 @@ def _sha256(data: bytes) -> str:
 
 
 def _progress(total: int, done: int, desc: str, unit: str, enabled: bool):
-    from tqdm.auto import tqdm
-
     return tqdm(total=total, initial=done, desc=desc, unit=unit, file=sys.stderr, disable=not enabled)
 
 
@@ -460,8 +460,6 @@ def pair_files(work: Path, pair: int, remedy: str = "") -> dict[str, dict[str, b
 
 def _train_remedy_missing(work: Path, state: WorkState, remedy: str, backend, progress: bool,
                           device: str = "cpu", pairs: tuple[int, ...] | None = None) -> None:
-    from plm_highway.population.remedies import RemedyTask, train_remedy
-
     plan = state.plan
     trained = [s for s in plan.pairs if state.trainings.get(s.pair, {}).get("ok") and (pairs is None or s.pair in pairs)]
     tasks = [RemedyTask(remedy, plan.recipe, seeds, pair_files(work, seeds.pair), device) for seeds in trained
@@ -543,9 +541,6 @@ def _measure_feedback_missing(work: Path, state: WorkState, progress: bool,
                               pairs: tuple[int, ...] | None = None) -> None:
     """Posed feedback gains (:func:`~plm_highway.population.drift.posed_gains`) of every trained pair that has none
     yet: cheap (a few camera frames per pair), so they run here, after the driving."""
-    from plm_highway.evaluation.protocol import constant_latency_s
-    from plm_highway.rollout.policies import single_threaded_inference
-
     plan = state.plan
     latencies_s = [constant_latency_s(s) for s in plan.latency_settings if constant_latency_s(s)]
     todo = [s.pair for s in plan.pairs if state.trainings.get(s.pair, {}).get("ok") and s.pair not in state.feedback

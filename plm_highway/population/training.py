@@ -15,8 +15,13 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import torch
+
+from plm_highway.data.collect import CollectConfig, collect
+from plm_highway.data.dataset import write_dataset
 from plm_highway.population.recipe import PairSeeds, Recipe
 from plm_highway.population.timing import StageTimes
+from plm_highway.training.train import TrainConfig, train_base_model, train_tapm
 
 CHECKPOINT_FILES = ("model.pt", "model.json")
 
@@ -57,12 +62,6 @@ def train_pair(task: TrainTask) -> PairTraining:
 
 
 def _make_pair(recipe: Recipe, seeds: PairSeeds, work: Path, device: str = "cpu") -> tuple[dict, dict]:
-    import torch
-
-    from plm_highway.data.collect import CollectConfig, collect
-    from plm_highway.data.dataset import write_dataset
-    from plm_highway.training.train import TrainConfig, train_base_model, train_tapm
-
     torch.set_num_threads(recipe.threads)
     times = StageTimes()
     data_dir, bm_dir, tapm_dir = work / "data", work / "bm", work / "tapm"

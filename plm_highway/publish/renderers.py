@@ -6,12 +6,22 @@ A renderer takes the project root and returns Markdown. It reads committed files
 
 from __future__ import annotations
 
+import csv
+import io
+import statistics
 from collections.abc import Callable
 from pathlib import Path
 
+from plm_highway.bench.models import format_closed_loop_table, format_runs
 from plm_highway.errors import BadInput
+from plm_highway.estimation.table3 import readme_table
+from plm_highway.evaluation.plm_vs_ekf_report import readme_table as comparison_table
+from plm_highway.evaluation.plm_vs_ekf_report import who_wins_lines
 from plm_highway.io import load_json
+from plm_highway.population.mitigations import aim_table, outcome_sentences
+from plm_highway.population.report import UNTIMED_DRIVE_S, headline
 from plm_highway.publish.blocks import MissingResult
+from plm_highway.sim2real.benchmark import CASE_SETS, markdown_table
 
 POPULATION = Path("figures/population/population.json")
 REPRODUCE_IDEAL = Path("figures/reproduce/results.json")
@@ -44,8 +54,6 @@ def _json(root: Path, relative: Path) -> dict:
 
 def population_headline(root: Path) -> str:
     """The population study's result in both metrics, with the number of pairs (README's results box)."""
-    from plm_highway.population.report import headline
-
     lines = headline(_json(root, POPULATION))
     return "\n".join(f"> {line}" for line in lines) + f"\n>\n> From [{POPULATION.parent}/report.md]({POPULATION.parent}/report.md)."
 
@@ -74,10 +82,6 @@ def quickstart_shipped_pair(root: Path) -> str:
 def population_status(root: Path) -> str:
     """How far the committed population run got, what each pair's training and driving cost (per stage, with the
     load), and the remedies' decisions."""
-    import statistics
-
-    from plm_highway.population.report import UNTIMED_DRIVE_S
-
     document = _json(root, POPULATION)
     plan = document["plan"]
     trainings = document["trainings"]
@@ -114,16 +118,12 @@ def population_status(root: Path) -> str:
 
 def mitigations_outcome(root: Path) -> str:
     """The plug-in mitigations' outcome in one sentence per group (README)."""
-    from plm_highway.population.mitigations import outcome_sentences
-
     return "\n".join(f"> {line}" for line in outcome_sentences(_json(root, MITIGATIONS))) + (
         f"\n>\n> From [{MITIGATIONS.parent}/report.md]({MITIGATIONS.parent}/report.md).")
 
 
 def mitigations_table(root: Path) -> str:
     """The designs beside the BM, PLM-Net and the EKF lane keeper at the aim's settings, per group (docs)."""
-    from plm_highway.population.mitigations import aim_table
-
     return aim_table(_json(root, MITIGATIONS))
 
 
@@ -163,29 +163,21 @@ def latency_claims(root: Path) -> str:
 
 def estimation_table3(root: Path) -> str:
     """The EKF paper's Table 3 in simulation beside the paper's RMSE (``plm-highway estimate table3``)."""
-    from plm_highway.estimation.table3 import readme_table
-
     return readme_table(_json(root, TABLE3))
 
 
 def plm_vs_ekf_table(root: Path) -> str:
     """PLM-Net, the Base Model and the EKF lane keeper per setting (``plm-highway estimate compare``)."""
-    from plm_highway.evaluation.plm_vs_ekf_report import readme_table
-
-    return readme_table(_json(root, COMPARISON))
+    return comparison_table(_json(root, COMPARISON))
 
 
 def plm_vs_ekf_who_wins(root: Path) -> str:
     """Who wins where, setting by setting, from the same comparison (Lesson 5 prints these lines too)."""
-    from plm_highway.evaluation.plm_vs_ekf_report import who_wins_lines
-
     return "\n".join(who_wins_lines(_json(root, COMPARISON)))
 
 
 def _bench_models_runs(files: tuple[Path, ...]) -> Callable[[Path], str]:
     def render(root: Path) -> str:
-        from plm_highway.bench.models import format_runs
-
         return "\n".join(["```text", *format_runs([_json(root, path) for path in files]), "```"])
 
     render.__doc__ = f"``plm-highway bench models`` runs side by side: {', '.join(str(p) for p in files)}."
@@ -194,8 +186,6 @@ def _bench_models_runs(files: tuple[Path, ...]) -> Callable[[Path], str]:
 
 def bench_models_closed_loop(root: Path) -> str:
     """PLM-Net's closed-loop steering MAE with the exact, int8 and reference forms (``bench models --closed-loop``)."""
-    from plm_highway.bench.models import format_closed_loop_table
-
     return "\n".join(format_closed_loop_table(_json(root, BENCH_MODELS_CLOSED_LOOP)))
 
 
@@ -231,9 +221,6 @@ def bm_calibration(root: Path) -> str:
 
 def bm_calibration_levers(root: Path) -> str:
     """The levers tried on the BM calibration, as recorded when each was measured (``CALIBRATION_LEVERS``)."""
-    import csv
-    import io
-
     path = root / CALIBRATION_LEVERS
     if not path.exists():
         raise MissingResult(CALIBRATION_LEVERS)
@@ -262,8 +249,6 @@ def _sim2real_example(relative: Path) -> Callable[[Path], str]:
 def sim2real_bench(root: Path) -> str:
     """The sim2real battery as ``plm-highway bench sim2real`` measured it: recovery per case set, the match rate on
     the simulator's own model, and the timing of a 10-minute recording."""
-    from plm_highway.sim2real.benchmark import CASE_SETS, markdown_table
-
     result = _json(root, SIM2REAL_BENCH)
     lines = [f"`{result['command']}` ({result['seeds']} seeds per case, 120-s recordings at 50 Hz unless the case "
              f"says otherwise; load average {result['load_average_at_start']:.1f} on {result['cpus']} CPUs):"]

@@ -38,12 +38,14 @@ a track that spans too large an area (e.g. a closed circle of 1.5 km radius) is 
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from plm_highway.errors import BadInput
 from plm_highway.io.bounded import JsonLimits, parse_json
@@ -107,8 +109,6 @@ def _track_bytes(path: Path, text_name: str) -> bytes:
 def track_sha256(name_or_path: str | Path) -> str:
     """The sha256 of the bytes a track is read from (a shipped track's resource, or the file): what a result
     made on it is keyed by (two files called ``t.json`` in two directories are two tracks)."""
-    import hashlib
-
     text_name = str(name_or_path)
     if text_name in SHIPPED_TRACKS:
         data = resources.files("plm_highway.road").joinpath("tracks", f"{text_name}.json").read_bytes()
@@ -227,8 +227,6 @@ def _short(value) -> str:
 def _check_no_overlap(track: TrackSpec) -> None:
     """Refuse a road that runs over itself: two reference points far apart along the road (more than
     half a circle of the tightest allowed radius) yet closer than the road is wide."""
-    from scipy.spatial import cKDTree
-
     ref = sample_reference(track, spacing_m=OVERLAP_SAMPLE_SPACING_M)
     road_width_m = 2.0 * track.road_half_width_m
     min_separation_m = math.pi * (track.road_half_width_m + track.lane_width_m)

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
@@ -39,9 +41,6 @@ def end_with_parent() -> None:
     (not the kernel's parent-death signal, which fires when the spawning *thread* ends) works whichever thread
     started the pool.
     """
-    import threading
-    import time
-
     parent = os.getppid()
 
     def watch() -> None:

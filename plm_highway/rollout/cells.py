@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 from tqdm import tqdm
 
+from plm_highway.io.digests import json_digest
 from plm_highway.latency import LatencyProfile
 from plm_highway.models.device import resolve_device
 from plm_highway.road.spec import TrackSpec
@@ -290,8 +291,6 @@ def worker_policy(name: str, checkpoints: str | None, preset: str, device="cpu",
 
 
 def _pair_contents(checkpoints: str | None, preset: str) -> str:
-    from plm_highway.io.digests import json_digest
-
     return json_digest(checkpoint_pair_sha256(checkpoints, preset))
 
 

@@ -27,7 +27,9 @@ import numpy as np
 
 from plm_highway.camera.pinhole import PAPER_CAMERA, CameraConfig
 from plm_highway.envs.config import MAX_PROCESSING_DELAY_STEPS, MAX_STEERING_TIME_CONSTANT_S
+from plm_highway.envs.speed import parse_sharp_turn_braking
 from plm_highway.errors import BadInput
+from plm_highway.estimation.latency_stream import LatencyEstimation
 from plm_highway.latency.profiles import legacy_baseline_spec
 from plm_highway.road.spec import TrackSpec
 from plm_highway.vehicle.models import PARAM_RANGES, checked_params, kinematic_car_with_friction, vehicle_model
@@ -136,8 +138,6 @@ def with_latency_source(conditions: Conditions, latency_source: str | None, esti
     if latency_source != "estimated":
         return replace(conditions, latency_source=latency_source, latency_estimation=None)
     if estimation is None:
-        from plm_highway.estimation.latency_stream import LatencyEstimation
-
         estimation = LatencyEstimation()
     return replace(conditions, latency_source=latency_source, latency_estimation=estimation)
 
@@ -205,7 +205,6 @@ def top_speed_mps(conditions: Conditions) -> float:
     plus one policy step of full throttle (the brake is decided once per step)."""
     if conditions.sharp_turn_braking is None:
         return conditions.speed_mps
-    from plm_highway.envs.speed import parse_sharp_turn_braking
 
     logic = parse_sharp_turn_braking(conditions.sharp_turn_braking)
     return max(conditions.speed_mps, logic.max_speed_mps + logic.throttle_accel_mps2 / conditions.policy_frequency_hz)

@@ -18,9 +18,23 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import torch
+
+from plm_highway.camera.pinhole import CameraConfig
+from plm_highway.errors import BadInput
+from plm_highway.estimation.lateral_control import LoopTiming, single_track_equivalent
+from plm_highway.estimation.policy import ekf_policy
 from plm_highway.expert import ExpertPolicy
+from plm_highway.io.digests import file_sha256
+from plm_highway.mitigation import make_mitigation
+from plm_highway.models import checkpoints, inference
+from plm_highway.models.base_model import PRESETS
+from plm_highway.models.checkpoints import checkpoint_paths
+from plm_highway.models.device import resolve_device
+from plm_highway.models.shipped import shipped_checkpoint_dir, shipped_checkpoint_paths
 from plm_highway.rollout.closed_loop import Policy
 from plm_highway.rollout.conditions import CONDITIONS, Conditions
+from plm_highway.vehicle.models import checked_params, vehicle_model
 
 
 @dataclass(frozen=True)
@@ -128,11 +142,6 @@ def single_threaded_inference() -> Iterator[None]:
     Closed-loop driving evaluates one frame at a time: a second thread gains nothing on so small a
     batch, and on a busy machine the thread hand-offs made each step 3-30x slower in our measurements.
     """
-    try:
-        import torch
-    except ImportError:  # expert-only installs
-        yield
-        return
     previous = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
@@ -147,8 +156,6 @@ def checkpoint_pair(checkpoint_dir=None, preset: str = SHIPPED_PRESET) -> tuple[
     Raises FileNotFoundError naming what is missing and how to get it.
     """
     if checkpoint_dir is None:
-        from plm_highway.models.shipped import shipped_checkpoint_dir, shipped_checkpoint_paths
-
         bm_path, tapm_path = shipped_checkpoint_paths(preset)
         missing = [f.name for w in (bm_path, tapm_path) for f in (w, w.with_suffix(".json")) if not f.is_file()]
         if missing:
@@ -174,9 +181,6 @@ def checkpoint_pair(checkpoint_dir=None, preset: str = SHIPPED_PRESET) -> tuple[
 def checkpoint_pair_sha256(checkpoint_dir=None, preset: str = SHIPPED_PRESET) -> dict[str, str]:
     """What the pair of :func:`checkpoint_pair` holds, by content: ``{"bm.pt": sha256, "bm.json": ..., "tapm.pt": ...,
     "tapm.json": ...}``; a model retrained into the same directory gives other digests."""
-    from plm_highway.io.digests import file_sha256
-    from plm_highway.models.checkpoints import checkpoint_paths
-
     digests = {}
     for role, path in zip(("bm", "tapm"), checkpoint_pair(checkpoint_dir, preset)):
         weights, description = checkpoint_paths(path)
@@ -195,10 +199,6 @@ def ekf_plant(conditions) -> dict:
 def run_plant(camera: dict | None, env_config: dict | None) -> dict:
     """:func:`ekf_plant` from what a run holds (a :class:`~plm_highway.rollout.closed_loop.RunCell`'s ``camera`` and
     ``env_config``; the env's defaults for what they leave out)."""
-    from plm_highway.camera.pinhole import CameraConfig
-    from plm_highway.estimation.lateral_control import LoopTiming, single_track_equivalent
-    from plm_highway.vehicle.models import checked_params, vehicle_model
-
     config = env_config or {}
     params = checked_params(vehicle_model(config.get("vehicle_model", "kinematic")), config.get("vehicle_params") or {})
     return {"camera": CameraConfig.from_dict(camera or {}), "max_steering_rad": config.get("max_steering_rad", 0.2),
@@ -225,8 +225,6 @@ def make_policy(name: str, checkpoint_dir=None, latency_bias_s: float = 0.0, lat
         return policy_for_run(name, None, latency_bias_s=latency_bias_s, latency_source=latency_source,
                               seed=seed, compensate_delay=compensate_delay,
                               plant={} if conditions is None else ekf_plant(conditions))
-    from plm_highway.models import checkpoints, inference
-    from plm_highway.models.device import resolve_device
 
     device = resolve_device(device)  # refused (cuda without CUDA) before any checkpoint is read
     bm_path, tapm_path = checkpoint_pair(checkpoint_dir, preset)
@@ -261,15 +259,11 @@ def policy_for_run(name: str, model_policy=None, *, latency_bias_s: float = 0.0,
     if name == "expert":
         return ExpertPolicy()
     if name == "ekf":
-        from plm_highway.estimation.policy import ekf_policy
-
         plant = run_plant(camera, env_config) if plant is None else plant
         return ekf_policy(compensate_delay=compensate_delay, latency_bias_s=latency_bias_s, seed=seed,
                           latency_source=latency_source, **plant)
     mitigation = None
     if kind.mitigation is not None:  # a per-run object: the run's camera, its own sensor noise
-        from plm_highway.mitigation import make_mitigation
-
         mitigation = make_mitigation(kind.mitigation, camera, seed, model_policy, env_config)
     return VisionPolicy(model_policy, latency_bias_s, latency_source, mitigation)
 
@@ -277,9 +271,6 @@ def policy_for_run(name: str, model_policy=None, *, latency_bias_s: float = 0.0,
 def check_preset(config, bm_path, checkpoint_dir, preset: str) -> None:
     """Refuse a checkpoint pair whose input size is not the one ``preset`` (that of the run's conditions) renders,
     naming both presets, rather than failing at the first frame with the frame's shape."""
-    from plm_highway.errors import BadInput
-    from plm_highway.models.base_model import PRESETS
-
     wanted = PRESETS.get(preset)
     if wanted is None:
         return

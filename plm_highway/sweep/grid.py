@@ -24,12 +24,16 @@ from __future__ import annotations
 
 import itertools
 import re
+import unicodedata
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from plm_highway.errors import BadInput
 from plm_highway.io.bounded import JsonLimits, decode_utf8, parse_json, parse_yaml, read_bounded
+from plm_highway.io.digests import file_sha256, json_digest, kit_version
+from plm_highway.latency.profiles import check_specs
+from plm_highway.road.track import load_track, track_sha256
 from plm_highway.rollout.policies import MODEL_POLICIES, POLICY_NAMES, checkpoint_pair_sha256, policy_kind
 from plm_highway.rollout.seeds import parse_seeds
 
@@ -55,8 +59,6 @@ class SweepCell:
     def key(self, settings: Mapping) -> str:
         """File-name-safe id: readable fields plus a digest of the cell and of everything its run is made from
         (``settings``: :meth:`SweepGrid.settings`, contents and typed values, never paths)."""
-        from plm_highway.io.digests import json_digest
-
         readable = "_".join(str(v) for v in (self.policy, self.track, self.latency, f"s{self.seed}", self.condition))
         readable = re.sub(r"[^A-Za-z0-9.+-]+", "-", readable)[:80]
         return f"{readable}-{json_digest([asdict(self), settings])[:16]}"
@@ -107,9 +109,6 @@ class SweepGrid:
         """The contents the grid's runs read, as digests: every track file (a shipped track's too), every
         ``trace:`` latency file, the checkpoint pair's files (when a model policy runs) and the kit's version.
         Read once per sweep: a file changed since the last run gives its cells other keys, so they run again."""
-        from plm_highway.io.digests import file_sha256, kit_version
-        from plm_highway.road.track import track_sha256
-
         traces = {}
         for spec in self.latencies + (REFERENCE_LATENCY,):
             kind, _, rest = spec.strip().partition(":")
@@ -128,9 +127,6 @@ class SweepGrid:
 
 def check_grid(grid: SweepGrid) -> None:
     """Raise BadInput naming the field when a value is out of range, before any run starts."""
-    from plm_highway.latency.profiles import check_specs
-    from plm_highway.road.track import load_track
-
     for name in ("latencies", "tracks", "policies"):
         for index, value in enumerate(getattr(grid, name)):
             grid_name(value, f"sweep grid: {name}[{index}]")
@@ -206,8 +202,6 @@ def grid_name(value, where: str) -> str:
     become one name (one condition in grid.json, its rows labelled alike). Surrounding spaces and characters
     that Unicode normalisation (NFC) would change are refused too, so two names never differ invisibly.
     """
-    import unicodedata
-
     if not isinstance(value, str):
         raise BadInput(f"{where} {value!r} is a {type(value).__name__}; names are text: write it in quotes "
                        f"('{value}') if that is the name you mean")

@@ -23,6 +23,8 @@ import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from tqdm.auto import tqdm
+
 from plm_highway.errors import BadInput
 from plm_highway.io import (
     FIGURE,
@@ -38,7 +40,11 @@ from plm_highway.io import (
     write_output,
 )
 from plm_highway.io.digests import DIGEST_KEY, content_digest, json_digest, set_aside
+from plm_highway.models.device import resolve_device
+from plm_highway.road.track import resolve_track
 from plm_highway.rollout.backends import make_backend
+from plm_highway.rollout.cells import RunCell, run_cells
+from plm_highway.rollout.policies import checkpoint_pair, single_threaded_inference
 from plm_highway.sweep.grid import SweepCell, SweepGrid
 from plm_highway.sweep.table import SWEEP_TABLE, TABLE_COLUMNS, cell_result, save_figures, table_rows
 
@@ -69,9 +75,6 @@ def run_chunk(job: ChunkJob) -> list[dict]:
     """Run the job's cells together; one result dict per cell (:func:`~plm_highway.sweep.table.cell_result`)."""
 
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    from plm_highway.road.track import resolve_track
-    from plm_highway.rollout.cells import RunCell, run_cells
-    from plm_highway.rollout.policies import single_threaded_inference
 
     tracks = {track: resolve_track(track) for track in dict.fromkeys(cell.track for cell in job.cells)}
     run_cells_list = []
@@ -99,13 +102,9 @@ def run_sweep(grid: SweepGrid, out, workers: int | None = None, backend: str = "
     if not 1 <= batch_size <= 4096:
         raise BadInput(f"--batch-size {batch_size}: must lie in [1, 4096]")
     if backend != "ray":
-        from plm_highway.models.device import resolve_device
-
         resolve_device(device)
     out = Path(out)
     if checkpoints is not None:
-        from plm_highway.rollout.policies import checkpoint_pair
-
         checkpoint_pair(checkpoints)  # fails now, naming what is missing, rather than in a worker
     runner = make_backend(backend, workers, address)
     try:
@@ -214,6 +213,4 @@ def _read_cell(out: Path, key: str, cell: SweepCell, settings: dict) -> dict | N
 
 
 def _progress(total: int, done: int, enabled: bool):
-    from tqdm.auto import tqdm
-
     return tqdm(total=total, initial=done, unit="run", desc="sweep", file=sys.stderr, disable=not enabled)
