@@ -27,8 +27,8 @@ from plm_highway.sim2real.physics.effects import (
     chain_grid,
     coordinates_of,
     params_from,
+    simulate_yaw_rate,
 )
-from plm_highway.sim2real.physics.replay import simulate_yaw_rate
 from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE, KinematicBicycleParams, kinematic_bicycle_rates
 
 DT = 0.02

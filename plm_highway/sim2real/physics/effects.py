@@ -45,7 +45,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from plm_highway.sim2real.physics.chain import _servo
+from plm_highway.sim2real.physics.chain import _servo, simulate
 from plm_highway.sim2real.physics.effect_spec import ChainField, ChainMove, Effect, FitContext, Parameter, Scatter, pm
 from plm_highway.sim2real.physics.records import (
     fit_record,
@@ -397,6 +397,15 @@ CONCEALED_FIELDS = merged_fields(f for e in EFFECTS.values() for f in e.conceal.
 def chain_grid(params: list) -> np.ndarray:
     """Parameter sets (:data:`ChainParams`) as a structured array of :data:`CHAIN_DTYPE` (what grid kernels take)."""
     return np.array([tuple(p) for p in params], dtype=CHAIN_DTYPE)
+
+
+def simulate_yaw_rate(steer, speed, dt, delay_s, tau_s, gain, offset_rad, cf, cr, a_m, b_m, k2, with_slip=True):
+    """Yaw rate [rad/s] and slip angle [rad] for the five classic effects (cf = 0: kinematic): the reference Lesson 4's
+    replay, delay and tire exercises are graded against."""
+    params = EffectParams(delay_s=delay_s, time_constant_s=tau_s, gain=gain, offset_rad=offset_rad,
+                          cf_per_kg=cf if cf > 0 else None, cr_per_kg=cr if cf > 0 else None)
+    r, _, slip = simulate(steer, speed, dt, params, a_m, b_m, k2, with_slip=with_slip)
+    return r, slip
 
 
 def neutral_of(name: str) -> dict:

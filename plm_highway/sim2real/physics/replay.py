@@ -387,12 +387,3 @@ def plain_replay(recording: Recording, anchor_s: float = ANCHOR_S) -> PoseReplay
     """The simulator's model, as is, replaying the recording (step 2a of a diagnosis)."""
     r, slip = model_yaw_rate(recording, EffectParams())
     return replay_pose(recording, r, slip, anchor_s)
-
-
-def simulate_yaw_rate(steer, speed, dt, delay_s, tau_s, gain, offset_rad, cf, cr, a_m, b_m, k2, with_slip=True):
-    """Yaw rate [rad/s] and slip angle [rad] for the five classic effects (cf = 0: kinematic): the reference Lesson 4's
-    replay, delay and tire exercises are graded against."""
-    params = EffectParams(delay_s=delay_s, time_constant_s=tau_s, gain=gain, offset_rad=offset_rad,
-                          cf_per_kg=cf if cf > 0 else None, cr_per_kg=cr if cf > 0 else None)
-    r, _, slip = simulate(steer, speed, dt, params, a_m, b_m, k2, with_slip=with_slip)
-    return r, slip
