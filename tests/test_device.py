@@ -302,7 +302,8 @@ def test_run_cells_sends_the_device_to_every_worker():
     backend = RecordingBackend()
     logs = run_cells(cells, backend=backend, batch_size=2, device="cpu")
     assert [len(log.columns["steering"]) for log in logs] == [3, 3, 3]
-    assert backend.sent and {chunk.device for chunk in backend.sent} == {"cpu"}
+    # resolved once, here: every worker gets the same torch.device, not a name to resolve again
+    assert backend.sent and {chunk.device for chunk in backend.sent} == {torch.device("cpu")}
 
 
 def test_run_cells_refuses_cuda_without_cuda_before_driving(no_cuda):
