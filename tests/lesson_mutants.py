@@ -443,7 +443,7 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("05", ("check_reestimate",), "only re-runs the start step and returns it",
            "    for record in history[start:]:\n", "    for record in history[start:start + 1]:\n"),
     Mutant("05", ("check_reestimate",), "delegates to the kit", "",
-           "from plm_highway.estimation import ekf as _ekf\n\n\ndef reestimate(history, start, step):\n"
+           "from plm_highway.lane_ekf import ekf as _ekf\n\n\ndef reestimate(history, start, step):\n"
            "    return _ekf.reestimate(history, start, _ekf.EstimatorConfig())", delegation=True),
     # ---------------- Lesson 5: one late measurement ----------------
     Mutant("05", ("check_fuse_late",), "no compensation: filed at the newest step",

@@ -143,8 +143,8 @@ def test_the_defaults_other_help_pages_read_from_source_equal_the_imported_libra
     from plm_highway.bench import metrics as bench_metrics
     from plm_highway.bench import models as bench_models
     from plm_highway.bench import sweep as bench_sweep
-    from plm_highway.estimation import table3
     from plm_highway.evaluation import latency_estimation, plm_vs_ekf
+    from plm_highway.lane_ekf import table3
     from plm_highway.sim2real import benchmark, workflow
 
     for module, cls in ((plm_vs_ekf, plm_vs_ekf.CompareConfig), (latency_estimation, latency_estimation.LatencySuite)):

@@ -9,10 +9,10 @@ import pytest
 
 from plm_highway.camera.ground_map import ground_map
 from plm_highway.camera.pinhole import PinholeCamera
-from plm_highway.estimation.lane_camera import LaneDetector, LaneDetectorConfig
-from plm_highway.estimation.scenarios import SCENARIOS, lane_coordinates, simulate_truth
-from plm_highway.estimation.sensors import CameraTiming, ImuConfig
-from plm_highway.estimation.table3 import TABLE3_CAMERA
+from plm_highway.lane_ekf.lane_camera import LaneDetector, LaneDetectorConfig
+from plm_highway.lane_ekf.scenarios import SCENARIOS, lane_coordinates, simulate_truth
+from plm_highway.lane_ekf.sensors import CameraTiming, ImuConfig
+from plm_highway.lane_ekf.table3 import TABLE3_CAMERA
 from plm_highway.latency.profiles import parse_camera_delay
 from plm_highway.road.geometry import reference_pose_at
 from plm_highway.road.track import parse_track

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 
 import plm_highway  # noqa: F401  (registers the env)
 from plm_highway.errors import BadInput
-from plm_highway.estimation.policy import EkfLaneKeepingPolicy, EkfPolicyConfig, ekf_policy
 from plm_highway.evaluation.plm_vs_ekf import CompareConfig, CompareResult, RunRow, planned_runs, verdict, who_wins
+from plm_highway.lane_ekf.policy import EkfLaneKeepingPolicy, EkfPolicyConfig, ekf_policy
 from plm_highway.latency import LatencyWrapper
 from plm_highway.rollout.policies import POLICY_NAMES, make_policy
 
@@ -189,7 +189,7 @@ def test_compare_command_drives_five_policies_under_both_conditions_and_publishe
 
 @pytest.mark.slow
 def test_policy_camera_noise_is_the_measured_one_on_the_train_track():
-    from plm_highway.estimation.policy import measure_camera_noise
+    from plm_highway.lane_ekf.policy import measure_camera_noise
 
     measured = measure_camera_noise("train")
     assert measured["frames"] > 2000

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from plm_highway.estimation.table3 import readme_table
+from plm_highway.lane_ekf.table3 import readme_table
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -88,7 +88,7 @@ def test_readme_lane_keeper_without_latency_quotes_the_committed_offsets(readme,
 
 
 def test_readme_realistic_measurement_quotes_the_noise_model_and_the_clean_accuracy(readme, table3):
-    from plm_highway.estimation.table3 import REALISTIC_LANE_NOISE
+    from plm_highway.lane_ekf.table3 import REALISTIC_LANE_NOISE
 
     text = _flat(readme)
     std, tau = REALISTIC_LANE_NOISE.std, REALISTIC_LANE_NOISE.correlation_time_s

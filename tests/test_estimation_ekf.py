@@ -10,8 +10,8 @@ from filterpy.kalman import KalmanFilter
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plm_highway.estimation.ekf import EstimatorConfig, LaneStateEstimator
-from plm_highway.estimation.lane_model import (
+from plm_highway.lane_ekf.ekf import EstimatorConfig, LaneStateEstimator
+from plm_highway.lane_ekf.lane_model import (
     H_CAMERA,
     N_STATES,
     imu_model,
@@ -20,7 +20,7 @@ from plm_highway.estimation.lane_model import (
     observability_rank,
     single_track_rows,
 )
-from plm_highway.estimation.scenarios import SCENARIOS, simulate_truth
+from plm_highway.lane_ekf.scenarios import SCENARIOS, simulate_truth
 from plm_highway.vehicle.single_track import SEED_PAPER_VEHICLE
 
 STEP_S = 0.01

@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plm_highway.estimation.policy import error_statistics
-from plm_highway.estimation.sensors import LaneMeasurementNoise
-from plm_highway.estimation.table3 import (
+from plm_highway.lane_ekf.policy import error_statistics
+from plm_highway.lane_ekf.sensors import LaneMeasurementNoise
+from plm_highway.lane_ekf.table3 import (
     REALISTIC_LANE_NOISE,
     SCENARIOS,
     SimulationConfig,
@@ -126,7 +126,7 @@ def test_the_delay_alone_row_is_the_camera_row_without_measurement_error(scenari
 
 
 def test_report_judges_the_camera_row_within_the_stated_factor(scenario1_runs):
-    from plm_highway.estimation.table3 import ScenarioResult
+    from plm_highway.lane_ekf.table3 import ScenarioResult
     from plm_highway.metrics.intervals import Estimate
 
     def result(measurement, camera_d_rmse):
@@ -146,7 +146,7 @@ def test_report_judges_the_camera_row_within_the_stated_factor(scenario1_runs):
 
 @pytest.mark.slow
 def test_realistic_noise_is_the_one_measured_on_the_kits_frames_of_the_train_track():
-    from plm_highway.estimation.policy import measure_camera_noise
+    from plm_highway.lane_ekf.policy import measure_camera_noise
 
     measured = measure_camera_noise("train", steady_only=True)
     assert measured["frames"] > 1500

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import plm_highway  # noqa: F401  (registers the env)
-from plm_highway.estimation.policy import INFO_FRONT_WHEEL_ANGLE, INFO_YAW_RATE, EkfLaneKeepingPolicy, EkfPolicyConfig
-from plm_highway.estimation.sensors import ImuConfig, SteeringSensorConfig
+from plm_highway.lane_ekf.policy import INFO_FRONT_WHEEL_ANGLE, INFO_YAW_RATE, EkfLaneKeepingPolicy, EkfPolicyConfig
+from plm_highway.lane_ekf.sensors import ImuConfig, SteeringSensorConfig
 from plm_highway.latency import LatencyWrapper
 
 
@@ -107,7 +107,7 @@ def test_table3_command_one_scenario_orders_the_variants(tmp_path):
 
 
 def test_table3_refuses_bad_seed_counts_and_scenarios():
-    from plm_highway.estimation.table3 import scenarios_by_number, table3
+    from plm_highway.lane_ekf.table3 import scenarios_by_number, table3
 
     with pytest.raises(ValueError, match="seeds"):
         table3(0, progress=False)

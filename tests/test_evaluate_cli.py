@@ -199,7 +199,7 @@ def test_paper_conditions_drive_the_runs_as_reproduce_does(tmp_path, capsys):
 
 
 def test_the_ekf_drives_under_paper_conditions_with_their_plant(tmp_path):
-    from plm_highway.estimation.lateral_control import LoopTiming
+    from plm_highway.lane_ekf.lateral_control import LoopTiming
     from plm_highway.rollout.conditions import CONDITIONS
     from plm_highway.rollout.policies import ekf_plant, make_policy
 

@@ -72,8 +72,8 @@ def test_plm_net_told_the_estimate_reads_it_from_info():
 def test_the_observer_reads_only_the_fast_sensors():
     """The estimate depends on the frame and the fast sensors alone: the truth in info changes nothing."""
     from plm_highway.camera.pinhole import CameraConfig
-    from plm_highway.estimation.lane_camera import LaneDetector, LaneDetectorConfig
-    from plm_highway.estimation.latency_stream import FAST_SENSOR_KEYS, CameraLatencyObserver
+    from plm_highway.lane_ekf.lane_camera import LaneDetector, LaneDetectorConfig
+    from plm_highway.lane_ekf.latency_stream import FAST_SENSOR_KEYS, CameraLatencyObserver
 
     frame = np.full((66, 200), 90, np.uint8)
     frame[40:, 60:64] = 230  # a marking
@@ -91,7 +91,7 @@ def test_the_observer_reads_only_the_fast_sensors():
 
 
 def test_the_ekf_policy_restamps_by_the_estimate():
-    from plm_highway.estimation.policy import EkfLaneKeepingPolicy, EkfPolicyConfig
+    from plm_highway.lane_ekf.policy import EkfLaneKeepingPolicy, EkfPolicyConfig
 
     stamps = []
     policy = EkfLaneKeepingPolicy(EkfPolicyConfig(latency_source="estimated"))
@@ -162,7 +162,7 @@ def test_a_recorded_stream_without_timestamps_estimates_as_online():
 
 
 def test_the_probe_by_hand():
-    from plm_highway.estimation.latency_stream import probe_rad_at
+    from plm_highway.lane_ekf.latency_stream import probe_rad_at
 
     assert probe_rad_at(0.0, 0.02, (1.0, 0.6)) == pytest.approx(0.02 * math.sin(1.0) / math.sqrt(2.0))
     assert probe_rad_at(0.25, 0.02, (1.0,)) == pytest.approx(0.02)  # a quarter period of one tone
@@ -174,7 +174,7 @@ def test_the_probe_by_hand():
 
 
 def test_the_wrapper_adds_the_probe_to_the_command_and_nothing_without_it():
-    from plm_highway.estimation.latency_stream import LatencyEstimation, probe_rad_at
+    from plm_highway.lane_ekf.latency_stream import LatencyEstimation, probe_rad_at
     from plm_highway.rollout.closed_loop import make_env
 
     commands = {}
@@ -198,7 +198,7 @@ def test_the_wrapper_adds_the_probe_to_the_command_and_nothing_without_it():
                                           ("probe_periods_s", ()), ("probe_periods_s", (0.1,)),
                                           ("probe_periods_s", [1.0])])
 def test_a_bad_probe_is_refused_by_name(field, value):
-    from plm_highway.estimation.latency_stream import LatencyEstimation
+    from plm_highway.lane_ekf.latency_stream import LatencyEstimation
 
     with pytest.raises(ValueError, match=f"LatencyEstimation.{field}="):
         LatencyEstimation(**{field: value})

@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plm_highway.estimation.lane_model import lane_dynamics, single_track_rows
-from plm_highway.estimation.lateral_control import (
+from plm_highway.lane_ekf.lane_model import lane_dynamics, single_track_rows
+from plm_highway.lane_ekf.lateral_control import (
     BrysonTolerances,
     LoopTiming,
     LqrLaneController,
@@ -124,7 +124,7 @@ def test_controller_remembers_its_commands_in_flight_and_clips():
 def test_ekf_lane_keeper_holds_the_lane_centre_on_a_stretch_of_the_train_track():
     # 400 steps (20 s): the opening straight, a 120 m radius right curve entered and left, and the next entry.
     # The bound is the lane-keeping target on the test track (1.5x the reference Base Model's 0.067 m).
-    from plm_highway.estimation.policy import ekf_policy
+    from plm_highway.lane_ekf.policy import ekf_policy
     from plm_highway.rollout.closed_loop import drive
 
     log = drive("ekf", ekf_policy(seed=0), "train", "const:0", 0, max_steps=400)

@@ -53,7 +53,7 @@ def test_the_layers_name_every_room_from_the_command_line_down():
     # top to bottom: each room sits above what it builds on
     for upper, lower in [("cli", "population"), ("population", "sweep"), ("sweep", "evaluation"),
                          ("evaluation", "training"), ("training", "data"), ("data", "rollout"),
-                         ("rollout", "estimation"), ("estimation", "models"), ("models", "envs"),
+                         ("rollout", "lane_ekf"), ("lane_ekf", "models"), ("models", "envs"),
                          ("envs", "latency"), ("latency", "road"), ("road", "io"), ("io", "errors")]:
         assert order[upper] < order[lower], (upper, lower)
     assert "(population)" in flat  # its place is kept before the room exists

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from plm_highway.camera.pinhole import PAPER_CAMERA, CameraConfig, pose_matrix
 from plm_highway.envs import ENV_ID
 from plm_highway.errors import BadInput
-from plm_highway.estimation.lane_camera import LaneMeasurement
+from plm_highway.lane_ekf.lane_camera import LaneMeasurement
 from plm_highway.mitigation import MITIGATIONS, make_mitigation
 from plm_highway.mitigation.odometry import MotionHistory, MotionSample, relative_pose
 from plm_highway.mitigation.plugins import CONTROL_TIME_KEYS, lane_change

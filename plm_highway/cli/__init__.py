@@ -175,9 +175,9 @@ def input_paths(args: argparse.Namespace) -> list[str]:
 # - OSError: the environment (a missing file, PermissionError, IsADirectoryError, NotADirectoryError,
 #   no space left), printed with the path;
 # - ValueError: the input checks of the rooms that still raise the plain type (road, envs, camera,
-#   sim2real, evaluation, estimation, grading). Measured: with (BadInput, OSError, MemoryError) alone,
+#   sim2real, evaluation, lane_ekf, grading). Measured: with (BadInput, OSError, MemoryError) alone,
 #   45 of the battery's clean refusals (tests/test_bad_inputs.py) turn into tracebacks, all from road,
-#   sim2real, estimation and grading. Once they raise BadInput this entry goes, and a stray ValueError
+#   sim2real, lane_ekf and grading. Once they raise BadInput this entry goes, and a stray ValueError
 #   is a bug;
 # - MemoryError: a size nobody bounded; the message says so. Every size has a bound checked before
 #   work starts, so this is the last line of defence, not the answer to a bad input.

@@ -27,8 +27,8 @@ def configure_estimation(parser) -> None:
 
 
 def run_estimation(args) -> int:
-    from plm_highway.estimation.bench import bench_dict, bench_estimation, bench_lines
     from plm_highway.io import BENCH_RESULT, check_target, write_json
+    from plm_highway.lane_ekf.bench import bench_dict, bench_estimation, bench_lines
 
     if args.json is not None:
         check_target(args.json, BENCH_RESULT, overwrite=args.overwrite)

@@ -19,8 +19,8 @@ GROUP_HELP = ("model-based latency compensation: the delay-compensated lane-coor
 
 def configure_table3(parser) -> None:
     # Read from the library's source, not imported: the help page imports no scipy (tests/test_cli_help.py).
-    MAX_SEEDS = static_value("plm_highway.estimation.table3", "MAX_SEEDS")
-    MEASUREMENTS = static_names("plm_highway.estimation.table3", "MEASUREMENTS")
+    MAX_SEEDS = static_value("plm_highway.lane_ekf.table3", "MAX_SEEDS")
+    MEASUREMENTS = static_names("plm_highway.lane_ekf.table3", "MEASUREMENTS")
     parser.add_argument("--seeds", type=bounded_int(1, MAX_SEEDS), default=5,
                         help="scored seeds 0..N-1 (at least 5 for the report's confidence intervals)")
     parser.add_argument("--scenarios", default="1,2,3,4", help="comma-separated scenario numbers (default all four)")
@@ -35,9 +35,9 @@ def configure_table3(parser) -> None:
 
 def run_table3(args) -> int:
     from plm_highway.errors import BadInput
-    from plm_highway.estimation.report import TABLE3_JSON, TABLE3_REPORT, publish_table3
-    from plm_highway.estimation.table3 import MEASUREMENTS, scenarios_by_number, table3_report
     from plm_highway.io import check_target
+    from plm_highway.lane_ekf.report import TABLE3_JSON, TABLE3_REPORT, publish_table3
+    from plm_highway.lane_ekf.table3 import MEASUREMENTS, scenarios_by_number, table3_report
 
     scenarios = scenarios_by_number(args.scenarios)
     measurements = tuple(dict.fromkeys(m.strip() for m in args.measurements.split(",") if m.strip()))

@@ -123,7 +123,7 @@ def evaluate(track="test", latency="const:0.25", policy="plm", *, seed=0, max_st
 
     ``latency_source`` (``--latency-source``; None: the conditions' own) is what the mitigation is told: the
     ``measured`` age of the frame, the ``requested`` latency, or the latency ``estimated`` from the stream without
-    capture timestamps (:mod:`plm_highway.estimation.latency_stream`): PLM-Net interpolates by it, the EKF
+    capture timestamps (:mod:`plm_highway.lane_ekf.latency_stream`): PLM-Net interpolates by it, the EKF
     re-stamps by it, and every run logs it (``latency_estimate_s``, ``latency_estimable``) beside the true age.
     """
     if conditions not in CONDITIONS:

@@ -21,7 +21,7 @@ dropped at random (``dropped``), the camera latency jittering +-10 ms frame to f
 drifting 1% would have said), and a recording of the run's stream without capture timestamps, written to a
 file, read back and estimated offline (``recording``).
 
-The EKF (seed paper 004's Table 3, :mod:`plm_highway.estimation.table3`): each scenario and seed, the delay-
+The EKF (seed paper 004's Table 3, :mod:`plm_highway.lane_ekf.table3`): each scenario and seed, the delay-
 compensated filter with the known capture stamps against the same filter re-stamping each camera
 measurement by the latency estimated from its stream.
 
@@ -46,13 +46,13 @@ from tqdm import tqdm
 
 import plm_highway.latency as latency_package
 from plm_highway.errors import BadInput
-from plm_highway.estimation.ekf import LaneStateEstimator
-from plm_highway.estimation.latency_stream import LatencyEstimation, env_sensor_shift_s
-from plm_highway.estimation.sensors import CameraTiming
-from plm_highway.estimation.table3 import SCENARIOS, SimulationConfig, run_scenario
 from plm_highway.io import json_text
 from plm_highway.io.bounded import JsonLimits, load_json
 from plm_highway.io.digests import DIGEST_KEY, content_digest, file_sha256, json_digest, kit_version, source_sha256
+from plm_highway.lane_ekf.ekf import LaneStateEstimator
+from plm_highway.lane_ekf.latency_stream import LatencyEstimation, env_sensor_shift_s
+from plm_highway.lane_ekf.sensors import CameraTiming
+from plm_highway.lane_ekf.table3 import SCENARIOS, SimulationConfig, run_scenario
 from plm_highway.latency.correlation import PUBLISHED, CorrelationLagEstimator, time_scaled
 from plm_highway.latency.estimate import (
     FastSample,

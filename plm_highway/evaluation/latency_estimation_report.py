@@ -107,7 +107,7 @@ def render_markdown(results: dict) -> str:
         "",
         "The latency estimator (`plm_highway/latency/estimate.py`) finds how late the camera is from the data "
         "stream alone: it aligns the lane offset and heading the late camera reports "
-        "(`plm_highway/estimation/lane_camera.py`, on the frame the car got) with what the car's own fast sensors "
+        "(`plm_highway/lane_ekf/lane_camera.py`, on the frame the car got) with what the car's own fast sensors "
         "(yaw rate, speed, wheel angle) and the lane model say at candidate lags, with no capture timestamp. It "
         "answers with an estimate, its standard deviation, and \"not estimable yet\" when the driving carried too "
         "little information. PLM-Net interpolates by the estimate; the EKF re-stamps each camera measurement by it.",

@@ -7,7 +7,7 @@ perturbation), see the road through the same camera with the same latency and ar
 - ``bm``: the Base Model; at 0 s it is the **reference** every run is judged against, with latency the
   baseline both answers mitigate;
 - ``plm``: PLM-Net (the Base Model plus its TAPM), told the latency the conditions tell it;
-- ``ekf_nc``: the EKF lane keeper (:class:`~plm_highway.estimation.policy.EkfLaneKeepingPolicy`) fusing each
+- ``ekf_nc``: the EKF lane keeper (:class:`~plm_highway.lane_ekf.policy.EkfLaneKeepingPolicy`) fusing each
   late frame as if it were current (no delay compensation);
 - ``ekf``: the same re-stamping each frame at its capture time and re-running the filter to now.
 

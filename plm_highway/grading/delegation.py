@@ -87,12 +87,12 @@ REFERENCES: tuple[Reference, ...] = (
     Reference("lesson4.fit_on_grid", "plm_highway.sim2real.fit.selection:fit_candidates", "effect fit"),
     Reference("lesson4.fit_on_grid", "plm_highway.sim2real.fit.polish:least_squares", "effect fit"),
     # Lesson 5: re-stamping a late camera measurement, re-estimating from its capture step to now
-    Reference("lesson5.capture_index", "plm_highway.estimation.ekf:LaneStateEstimator._index_at", "capture step"),
+    Reference("lesson5.capture_index", "plm_highway.lane_ekf.ekf:LaneStateEstimator._index_at", "capture step"),
     Reference("lesson5.capture_index", "plm_highway.grading.lesson5:reference_capture_index", "capture step"),
-    Reference("lesson5.reestimate", "plm_highway.estimation.ekf:reestimate", "re-estimation"),
+    Reference("lesson5.reestimate", "plm_highway.lane_ekf.ekf:reestimate", "re-estimation"),
     Reference("lesson5.reestimate", "plm_highway.grading.lesson5:reference_reestimate", "re-estimation"),
-    Reference("lesson5.fuse_late", "plm_highway.estimation.ekf:LaneStateEstimator.add_camera", "delay compensation"),
-    Reference("lesson5.fuse_late", "plm_highway.estimation.ekf:reestimate", "re-estimation"),
+    Reference("lesson5.fuse_late", "plm_highway.lane_ekf.ekf:LaneStateEstimator.add_camera", "delay compensation"),
+    Reference("lesson5.fuse_late", "plm_highway.lane_ekf.ekf:reestimate", "re-estimation"),
     Reference("lesson5.fuse_late", "plm_highway.grading.lesson5:reference_fuse_late", "delay compensation"),
     Reference("lesson5.fuse_late", "plm_highway.grading.lesson5:reference_reestimate", "re-estimation"),
     # Lesson 5, part 7: the hidden latency

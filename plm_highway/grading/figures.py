@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from plm_highway.data.collect import collect
-from plm_highway.estimation.table3 import SCENARIOS, run_scenario
 from plm_highway.expert import ExpertPolicy
 from plm_highway.grading.lesson3 import kit_table_3_runs
 from plm_highway.io import save_figure
+from plm_highway.lane_ekf.table3 import SCENARIOS, run_scenario
 from plm_highway.models.plm_net import interpolate_actions
 from plm_highway.models.tapm import DEFAULT_DELTA_GRID_S
 from plm_highway.rollout.closed_loop import drive

@@ -15,8 +15,8 @@ import copy
 
 import numpy as np
 
-from plm_highway.estimation.ekf import EstimatorConfig, LaneStateEstimator, filter_step
 from plm_highway.grading.checks import CheckFailed, call_student, expect_close, expect_true, graded
+from plm_highway.lane_ekf.ekf import EstimatorConfig, LaneStateEstimator, filter_step
 from plm_highway.latency.estimate import estimate_stream
 from plm_highway.latency.synthetic import StreamSpec, Weave, synthetic_stream
 

@@ -8,7 +8,7 @@ camera (offset ``d`` and heading ``dpsi`` relative to the lane) that describes t
 **The alignment.** Dead reckoning from the fast sensors gives, at any past instant, the distance
 travelled ``s``, the heading turned ``R = int r dt`` and the lateral displacement
 ``D = int (u R + v) dt`` (``v`` the body lateral velocity the vehicle model gives for the steering).
-In lane coordinates (the lane model of :mod:`plm_highway.estimation.lane_model`, small angles):
+In lane coordinates (the lane model of :mod:`plm_highway.lane_ekf.lane_model`, small angles):
 
     dpsi(c) = dpsi0 + [R(c) - R0] - kappa0 x - kappa1 x^2 / 2
     d(c)    = d0 + dpsi0 x + b x + [D(c) - D0 - R0 x] - kappa0 x^2 / 2 - kappa1 x^3 / 6
@@ -97,7 +97,7 @@ class LatencyEstimatorConfig:
     far_lag_s: float = 0.1
     far_cost_margin: float = 5.4
     # Floors of the camera noise: a quarter of the kit's lane detector's robust error on the train track (0.041 m,
-    # 0.0076 rad, plm_highway.estimation.policy.measure_camera_noise), so a clean stretch is not over-trusted.
+    # 0.0076 rad, plm_highway.lane_ekf.policy.measure_camera_noise), so a clean stretch is not over-trusted.
     min_offset_noise_m: float = 0.01
     min_heading_noise_rad: float = 0.002
     # A step in the latency: the current segment is split at the onsets split_samples samples back; a split whose

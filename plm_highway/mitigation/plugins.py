@@ -12,7 +12,7 @@ and bias added here, seeded by the run) and build on nothing trained but the BM.
 - ``smith`` (policy ``bm-smith``): the BM steers on the late frame, plus its own posed feedback gains
   (:mod:`~plm_highway.mitigation.posing`, measured once per model on the train track) times the change of lane
   offset and heading since the capture, predicted in lane coordinates from the lane the late frame shows (the lane
-  EKF's camera measurement, :class:`~plm_highway.estimation.lane_camera.LaneDetector`) and the motion. The linear
+  EKF's camera measurement, :class:`~plm_highway.lane_ekf.lane_camera.LaneDetector`) and the motion. The linear
   Smith predictor around the BM.
 """
 
@@ -25,8 +25,8 @@ from dataclasses import asdict
 import numpy as np
 
 from plm_highway.camera.pinhole import CameraConfig
-from plm_highway.estimation.lane_camera import LaneDetector, LaneDetectorConfig, LaneMeasurement
-from plm_highway.estimation.sensors import ImuConfig
+from plm_highway.lane_ekf.lane_camera import LaneDetector, LaneDetectorConfig, LaneMeasurement
+from plm_highway.lane_ekf.sensors import ImuConfig
 from plm_highway.mitigation.odometry import MotionHistory, MotionSample
 from plm_highway.mitigation.posing import gains_from_answers, posed_frames
 from plm_highway.mitigation.view import present_view

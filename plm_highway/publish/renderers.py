@@ -14,10 +14,10 @@ from pathlib import Path
 
 from plm_highway.bench.models import format_closed_loop_table, format_runs
 from plm_highway.errors import BadInput
-from plm_highway.estimation.table3 import readme_table
 from plm_highway.evaluation.plm_vs_ekf_report import readme_table as comparison_table
 from plm_highway.evaluation.plm_vs_ekf_report import who_wins_lines
 from plm_highway.io import load_json
+from plm_highway.lane_ekf.table3 import readme_table
 from plm_highway.population.mitigations import aim_table, outcome_sentences
 from plm_highway.population.report import UNTIMED_DRIVE_S, headline
 from plm_highway.publish.blocks import MissingResult

@@ -33,7 +33,7 @@ logged column of a run equals its one-run result bit for bit, whatever ``batch_s
 (``tests/test_batched.py``). A caller's policy object built without ``batch_invariant`` runs PyTorch's own
 kernels: equal up to float rounding, or bit-identical with ``run_cells(..., batch_invariant=True)``.
 
-A run given a ``latency_estimation`` (:class:`~plm_highway.estimation.latency_stream.LatencyEstimation`)
+A run given a ``latency_estimation`` (:class:`~plm_highway.lane_ekf.latency_stream.LatencyEstimation`)
 estimates its latency from the stream (no capture timestamps) and logs :data:`ESTIMATE_COLUMNS` beside the
 true ``observation_age_s``; PLM-Net told ``latency_source="estimated"`` reads that estimate.
 """
@@ -51,13 +51,13 @@ import gymnasium
 import numpy as np
 
 from plm_highway.envs import ENV_ID, register_envs
-from plm_highway.estimation.latency_stream import ESTIMATE_KEYS, STREAM_KEYS, LatencyEstimateWrapper
+from plm_highway.lane_ekf.latency_stream import ESTIMATE_KEYS, STREAM_KEYS, LatencyEstimateWrapper
 from plm_highway.latency import LatencyProfile, LatencyWrapper, parse_profile
 from plm_highway.road.spec import TrackSpec
 
 LOG_COLUMNS = ("t_s", "steering", "latency_s", "observation_age_s", "x_m", "y_m", "heading_rad", "speed_mps",
                "lateral_offset_m", "heading_error_rad", "arc_length_m", "segment")
-# Logged when the run estimates its latency (plm_highway.estimation.latency_stream adds them to info), and with its
+# Logged when the run estimates its latency (plm_highway.lane_ekf.latency_stream adds them to info), and with its
 # ``record`` option what the estimator was given (for writing the stream as a recording).
 ESTIMATE_COLUMNS = ESTIMATE_KEYS
 STREAM_COLUMNS = STREAM_KEYS
@@ -158,7 +158,7 @@ def make_env(track: TrackSpec | str, latency: LatencyProfile | str, camera: dict
              env_config: dict | None = None, injection: str = "time", latency_estimation=None) -> gymnasium.Env:
     """The lane-keeping env on ``track`` behind a latency wrapper. ``latency``: a parsed profile (the wrapper
     keeps a private copy of it), or a spec, which the wrapper parses with the one parser. With a
-    ``latency_estimation``, a :class:`~plm_highway.estimation.latency_stream.LatencyEstimateWrapper` outside it
+    ``latency_estimation``, a :class:`~plm_highway.lane_ekf.latency_stream.LatencyEstimateWrapper` outside it
     adds the latency estimated from the stream to ``info``."""
     register_envs()
     config = {"track": track, **({"camera": camera} if camera else {}), **(env_config or {})}

@@ -29,7 +29,7 @@ from plm_highway.camera.pinhole import PAPER_CAMERA, CameraConfig
 from plm_highway.envs.config import MAX_PROCESSING_DELAY_STEPS, MAX_STEERING_TIME_CONSTANT_S
 from plm_highway.envs.speed import parse_sharp_turn_braking
 from plm_highway.errors import BadInput
-from plm_highway.estimation.latency_stream import LatencyEstimation
+from plm_highway.lane_ekf.latency_stream import LatencyEstimation
 from plm_highway.latency.profiles import legacy_baseline_spec
 from plm_highway.road.spec import TrackSpec
 from plm_highway.vehicle.models import PARAM_RANGES, checked_params, kinematic_car_with_friction, vehicle_model
@@ -62,7 +62,7 @@ class Conditions:
     sharp_turn_braking: dict | None = None
     vehicle_model: str = "kinematic"  # a name in plm_highway.vehicle.models.VEHICLE_MODELS (env config)
     vehicle_params: dict = field(default_factory=dict)  # overrides of that model's default parameters
-    # None, or a plm_highway.estimation.latency_stream.LatencyEstimation: every run estimates its latency from the
+    # None, or a plm_highway.lane_ekf.latency_stream.LatencyEstimation: every run estimates its latency from the
     # stream and logs it (latency_source "estimated": PLM-Net is told that estimate); see with_latency_source
     latency_estimation: object = None
 
@@ -130,7 +130,7 @@ def with_latency_source(conditions: Conditions, latency_source: str | None, esti
     """``conditions`` with PLM-Net told ``latency_source`` (``--latency-source``; None: as they are): the measured age
     of its frame, the requested latency, or the latency estimated from the stream without timestamps. ``estimated``
     also makes every run estimate it and log the estimate beside the true age (``estimation``: a
-    :class:`~plm_highway.estimation.latency_stream.LatencyEstimation`, default its defaults)."""
+    :class:`~plm_highway.lane_ekf.latency_stream.LatencyEstimation`, default its defaults)."""
     if latency_source is None:
         return conditions
     if latency_source not in LATENCY_SOURCE_NAMES:

@@ -1,5 +1,5 @@
 """Policies by name, for the command line: ``expert``, ``bm`` (Base Model), ``plm`` (PLM-Net), ``ekf``
-(the model-based alternative: :class:`plm_highway.estimation.policy.EkfLaneKeepingPolicy`, the
+(the model-based alternative: :class:`plm_highway.lane_ekf.policy.EkfLaneKeepingPolicy`, the
 delay-compensated lane EKF and a controller on its state; no checkpoints), and the frozen BM with a plug-in
 mitigation (:data:`MITIGATED_POLICIES`, :mod:`plm_highway.mitigation`): ``bm-warp``, ``bm-smith``.
 
@@ -22,10 +22,10 @@ import torch
 
 from plm_highway.camera.pinhole import CameraConfig
 from plm_highway.errors import BadInput
-from plm_highway.estimation.lateral_control import LoopTiming, single_track_equivalent
-from plm_highway.estimation.policy import ekf_policy
 from plm_highway.expert import ExpertPolicy
 from plm_highway.io.digests import file_sha256
+from plm_highway.lane_ekf.lateral_control import LoopTiming, single_track_equivalent
+from plm_highway.lane_ekf.policy import ekf_policy
 from plm_highway.mitigation import make_mitigation
 from plm_highway.models import checkpoints, inference
 from plm_highway.models.base_model import PRESETS
@@ -80,7 +80,7 @@ def policy_kind(name: str) -> PolicyKind:
         raise ValueError(f"--policy {name!r}: expected one of {list(POLICY_NAMES)}")
     return kind
 # What PLM-Net is told -> the info key it reads; "estimated" is the latency estimated from the stream
-# (plm_highway.estimation.latency_stream, added to info by the run's LatencyEstimateWrapper).
+# (plm_highway.lane_ekf.latency_stream, added to info by the run's LatencyEstimateWrapper).
 LATENCY_SOURCES = {"measured": "observation_age_s", "requested": "latency_s", "estimated": "latency_estimate_s"}
 SHIPPED_PRESET = "default"
 

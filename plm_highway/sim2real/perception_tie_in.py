@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plm_highway.estimation.latency_stream import LatencyEstimation
+from plm_highway.lane_ekf.latency_stream import LatencyEstimation
 from plm_highway.latency.lane_recording import write_lane_recording
 from plm_highway.road.track import load_track
 from plm_highway.rollout.cells import Cell, drive_options

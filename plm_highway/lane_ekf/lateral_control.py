@@ -1,6 +1,6 @@
 """A discrete LQR lane keeper on the lane-coordinate error model, with curvature feedforward.
 
-The plant is the linearisation of the estimator's own lane model (:mod:`plm_highway.estimation.lane_model`,
+The plant is the linearisation of the estimator's own lane model (:mod:`plm_highway.lane_ekf.lane_model`,
 the seed paper's Eq. (9) for small heading errors) with the state ``x = [d, dpsi, v, r]``:
 
     d'    = u dpsi + v                      (v_n, the offset's rate)
@@ -26,7 +26,7 @@ Curvature enters as a disturbance (``-u kappa`` in ``dpsi'``). The feedforward i
 the feedback in place, leaves **no steady offset** on a curve of constant curvature: from the
 closed loop's steady state ``x_ss = (I - A_cl)^-1 (B u_ff + E kappa)``, ``u_ff = -kappa [C_d (I - A_cl)^-1 E] /
 [C_d (I - A_cl)^-1 B]``, at the curvature the caller gives. The EKF lane keeper gives its own estimate,
-which comes from a lane fit over the road 6-25 m ahead (:mod:`plm_highway.estimation.lane_camera`): at a
+which comes from a lane fit over the road 6-25 m ahead (:mod:`plm_highway.lane_ekf.lane_camera`): at a
 curve's start it rises before the car gets there, a preview of the order of the processing delay and
 actuator lag it has to cover, but not computed from them.
 """
@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm, solve_discrete_are
 
-from plm_highway.estimation.lane_model import single_track_rows
+from plm_highway.lane_ekf.lane_model import single_track_rows
 from plm_highway.vehicle.kinematic import KinematicBicycleParams
 from plm_highway.vehicle.single_track import SingleTrackParams
 

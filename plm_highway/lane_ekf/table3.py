@@ -1,9 +1,9 @@
 """Table 3 of the delay-compensated EKF paper, in simulation: camera only vs EKF without / with compensation.
 
-For every scenario (:data:`plm_highway.estimation.scenarios.SCENARIOS`) and seed: the car is simulated
+For every scenario (:data:`plm_highway.lane_ekf.scenarios.SCENARIOS`) and seed: the car is simulated
 (the truth), the IMU and steering sensor sample it at 100 Hz, the camera renders dashcam frames of the
 road from the true pose (:mod:`plm_highway.camera`), the lane is measured from each frame
-(:mod:`plm_highway.estimation.lane_camera`) and the measurement arrives after the processing delay.
+(:mod:`plm_highway.lane_ekf.lane_camera`) and the measurement arrives after the processing delay.
 The same sensor data feed the three variants:
 
 - ``camera``: each camera measurement, compared with the truth when it arrives (the paper's camera-only
@@ -41,9 +41,9 @@ from tqdm import tqdm
 
 from plm_highway.camera.ground_map import ground_map
 from plm_highway.camera.pinhole import CameraConfig, PinholeCamera
-from plm_highway.estimation.ekf import EstimatorConfig, LaneStateEstimator
-from plm_highway.estimation.lane_camera import LaneDetector, LaneDetectorConfig
-from plm_highway.estimation.scenarios import (
+from plm_highway.lane_ekf.ekf import EstimatorConfig, LaneStateEstimator
+from plm_highway.lane_ekf.lane_camera import LaneDetector, LaneDetectorConfig
+from plm_highway.lane_ekf.scenarios import (
     DASH_PERIOD_SPAN_M,
     LANE_WIDTH_M,
     SCENARIOS,
@@ -51,7 +51,7 @@ from plm_highway.estimation.scenarios import (
     Truth,
     simulate_truth,
 )
-from plm_highway.estimation.sensors import CameraTiming, ImuConfig, LaneMeasurementNoise, SteeringSensorConfig
+from plm_highway.lane_ekf.sensors import CameraTiming, ImuConfig, LaneMeasurementNoise, SteeringSensorConfig
 from plm_highway.metrics.intervals import Estimate, interval_text, mean_ci
 
 VARIANTS = ("camera", "ekf", "ekf_dc")  # the paper's three columns
@@ -107,7 +107,7 @@ class SimulationConfig:
     lane_noise: LaneMeasurementNoise | None = None  # added to every lane measurement (None: the clean one)
 
 
-# The kit's lane detector (plm_highway.estimation.lane_camera) on the kit's own 200x66 frames, against the env's true
+# The kit's lane detector (plm_highway.lane_ekf.lane_camera) on the kit's own 200x66 frames, against the env's true
 # state, with the expert driving the train track (never the test track), on the frames whose view holds no change of
 # curvature (measure_camera_noise(steady_only=True): 1731 frames): bias 0.0015 m, -0.0002 rad, -0.00018 1/m; std
 # 0.064 m, 0.0105 rad (0.60 deg), 0.00092 1/m; frame-to-frame correlation 0.68-0.74 at 20 Hz, i.e. correlation

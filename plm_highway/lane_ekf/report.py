@@ -5,9 +5,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from plm_highway.estimation.figures import plot_scenario_run
-from plm_highway.estimation.table3 import ScenarioRun, Table3Report
 from plm_highway.io import directory_kind, file_kind, json_text, write_outputs
+from plm_highway.lane_ekf.figures import plot_scenario_run
+from plm_highway.lane_ekf.table3 import ScenarioRun, Table3Report
 
 TABLE3_JSON = file_kind("estimation-table3", "a Table 3 result JSON file")
 TABLE3_REPORT = directory_kind("estimation-table3-report", "a plm-highway Table 3 report directory")

@@ -3,7 +3,7 @@
 :class:`CameraLatencyObserver` turns what a car has at each policy step into the estimator's input
 (:mod:`plm_highway.latency.estimate`): the fast sensors from ``info`` (``time_s``, ``yaw_rate_radps``,
 ``speed_mps``, ``steering_angle_rad``: the car's own clock, no delay) and the lane measured in the late
-camera frame (:class:`~plm_highway.estimation.lane_camera.LaneDetector`). Nothing else of ``info`` is
+camera frame (:class:`~plm_highway.lane_ekf.lane_camera.LaneDetector`). Nothing else of ``info`` is
 read: in particular neither ``observation_age_s``, ``latency_s`` nor ``observed_state`` (the truth the
 estimate is judged against).
 
@@ -35,7 +35,7 @@ from dataclasses import dataclass, replace
 import gymnasium
 import numpy as np
 
-from plm_highway.estimation.lane_camera import LaneDetector, LaneDetectorConfig, LaneMeasurement
+from plm_highway.lane_ekf.lane_camera import LaneDetector, LaneDetectorConfig, LaneMeasurement
 from plm_highway.latency.estimate import (
     FastSample,
     LaneSample,

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from plm_highway.estimation.table3 import ScenarioRun
 from plm_highway.io import pyplot, save_figure_into
+from plm_highway.lane_ekf.table3 import ScenarioRun
 
 
 def plot_scenario_run(run: ScenarioRun, path: str | Path, measurement: str = "clean") -> Path:

@@ -21,10 +21,10 @@ import numpy as np
 
 from plm_highway.camera.ground_map import ground_map
 from plm_highway.camera.pinhole import PinholeCamera
-from plm_highway.estimation.ekf import EstimatorConfig, LaneStateEstimator, ekf_predict
-from plm_highway.estimation.lane_camera import LaneDetector
-from plm_highway.estimation.lane_model import H_CAMERA, imu_model, single_track_rows
-from plm_highway.estimation.table3 import CALIBRATION_SEEDS, SCENARIOS, SimulationConfig, run_scenario
+from plm_highway.lane_ekf.ekf import EstimatorConfig, LaneStateEstimator, ekf_predict
+from plm_highway.lane_ekf.lane_camera import LaneDetector
+from plm_highway.lane_ekf.lane_model import H_CAMERA, imu_model, single_track_rows
+from plm_highway.lane_ekf.table3 import CALIBRATION_SEEDS, SCENARIOS, SimulationConfig, run_scenario
 from plm_highway.road.geometry import reference_pose_at
 
 

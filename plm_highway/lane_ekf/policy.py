@@ -2,7 +2,7 @@
 
 A policy for ``plm_highway/LaneKeeping-v0`` (usually inside a :class:`~plm_highway.latency.LatencyWrapper`)
 with the kit's ``(frame, info) -> normalised steering`` interface. It sees the road only through the
-delayed camera frame: the lane is measured from the frame (:class:`~plm_highway.estimation.lane_camera.LaneDetector`)
+delayed camera frame: the lane is measured from the frame (:class:`~plm_highway.lane_ekf.lane_camera.LaneDetector`)
 and fused, re-stamped at the frame's capture time, into the EKF, which the car's own high-rate
 sensors carry to the present.
 
@@ -20,14 +20,14 @@ sensors carry to the present.
 ``latency_bias_s`` is a misestimated latency: the frame is re-stamped at
 ``time_s - (observation_age_s + latency_bias_s)`` (kept within ``[oldest history, now]``).
 ``latency_source="estimated"`` re-stamps by the latency estimated from the stream instead of the true age:
-``info["latency_estimate_s"]`` (:mod:`plm_highway.estimation.latency_stream`; the run must estimate it).
+``info["latency_estimate_s"]`` (:mod:`plm_highway.lane_ekf.latency_stream`; the run must estimate it).
 
-Controller: a discrete LQR on the lane-coordinate error model (:mod:`plm_highway.estimation.lateral_control`)
+Controller: a discrete LQR on the lane-coordinate error model (:mod:`plm_highway.lane_ekf.lateral_control`)
 fed the EKF's ``[d, dpsi, v, r]``, with the curvature feedforward that leaves no steady offset, taken at the
 EKF's curvature. Its plant is the car the estimator models (``vehicle``), the loop period, the steering
 actuator's lag and the processing delay (``timing``) and the steering range (``max_steering_rad``): under a
 set of conditions all of them are the conditions' own (:func:`plm_highway.rollout.policies.ekf_plant`);
-the weights follow Bryson's rule with the tolerances of :class:`~plm_highway.estimation.lateral_control.BrysonTolerances`.
+the weights follow Bryson's rule with the tolerances of :class:`~plm_highway.lane_ekf.lateral_control.BrysonTolerances`.
 """
 
 from __future__ import annotations
@@ -39,17 +39,17 @@ import gymnasium
 import numpy as np
 
 from plm_highway.camera.pinhole import PAPER_CAMERA, CameraConfig
-from plm_highway.estimation.ekf import EstimatorConfig, LaneStateEstimator
-from plm_highway.estimation.lane_camera import LaneDetector, LaneDetectorConfig, LaneMeasurement
-from plm_highway.estimation.lane_model import DPSI, KAPPA, D, R, V
-from plm_highway.estimation.lateral_control import (
+from plm_highway.expert import ExpertPolicy
+from plm_highway.lane_ekf.ekf import EstimatorConfig, LaneStateEstimator
+from plm_highway.lane_ekf.lane_camera import LaneDetector, LaneDetectorConfig, LaneMeasurement
+from plm_highway.lane_ekf.lane_model import DPSI, KAPPA, D, R, V
+from plm_highway.lane_ekf.lateral_control import (
     BrysonTolerances,
     LoopTiming,
     LqrLaneController,
     single_track_equivalent,
 )
-from plm_highway.estimation.sensors import ImuConfig, SteeringSensorConfig
-from plm_highway.expert import ExpertPolicy
+from plm_highway.lane_ekf.sensors import ImuConfig, SteeringSensorConfig
 from plm_highway.road.geometry import segment_starts_m
 from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE
 from plm_highway.vehicle.single_track import SingleTrackParams
@@ -97,7 +97,7 @@ class EkfPolicyConfig:
     steering_sensor: SteeringSensorConfig = SteeringSensorConfig()
     history_s: float = 1.0
     # The loop and what lies between the command and the tyres (the conditions'): part of the plant the LQR is
-    # designed for (plm_highway.estimation.lateral_control), derived from the conditions, not tuned.
+    # designed for (plm_highway.lane_ekf.lateral_control), derived from the conditions, not tuned.
     timing: LoopTiming = LoopTiming()
     tolerances: BrysonTolerances = BrysonTolerances()
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from filterpy.kalman import update as kalman_update
 
-from plm_highway.estimation.lane_model import (
+from plm_highway.lane_ekf.lane_model import (
     H_CAMERA,
     N_STATES,
     imu_model,
@@ -51,7 +51,7 @@ class EstimatorConfig:
     yaw_rate_std_radps: float = 0.005
     lateral_acceleration_std_mps2: float = 0.15
     # Camera lane measurement [d m, dpsi rad, kappa 1/m]: set from its measured error on calibration
-    # seeds (see plm_highway.estimation.table3.CALIBRATION_SEEDS), never on the scored ones.
+    # seeds (see plm_highway.lane_ekf.table3.CALIBRATION_SEEDS), never on the scored ones.
     camera_std: tuple[float, float, float] = (0.05, 0.006, 0.002)
     initial_std: tuple[float, ...] = (1.0, 0.05, 0.5, 0.5, 0.05, 0.01)
     history_s: float = 1.0  # longest camera delay that can be compensated
