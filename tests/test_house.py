@@ -1,4 +1,5 @@
-"""House rules a test can hold: library code never imports the command line; one definition of each shared concept."""
+"""House rules a test can hold: library code never imports the command line; no function re-imports what its module
+imports at the top; one definition of each shared concept."""
 
 from __future__ import annotations
 
@@ -23,6 +24,33 @@ def _imported_modules(path: Path) -> set[str]:
 def _library_files() -> list[Path]:
     return [path for path in sorted(PACKAGE.rglob("*.py"))
             if "cli" not in path.relative_to(PACKAGE).parts[:1] and path.name != "__main__.py"]
+
+
+def _local_reimports(path: Path) -> list[str]:
+    """``module (line)`` for each import inside a function of a module the file already imports at its top."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    top = {alias.name for node in tree.body if isinstance(node, ast.Import) for alias in node.names}
+    top |= {node.module for node in tree.body if isinstance(node, ast.ImportFrom) and node.module}
+    found = []
+    for function in ast.walk(tree):
+        if isinstance(function, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            for node in ast.walk(function):
+                names = ([alias.name for alias in node.names] if isinstance(node, ast.Import)
+                         else [node.module] if isinstance(node, ast.ImportFrom) and node.module else [])
+                found += [f"{name} (line {node.lineno})" for name in names if name in top]
+    return found
+
+
+def test_no_function_re_imports_what_its_module_imports_at_the_top():
+    offenders = {str(path.relative_to(PACKAGE)): _local_reimports(path) for path in sorted(PACKAGE.rglob("*.py"))}
+    assert {file: found for file, found in offenders.items() if found} == {}
+
+
+def test_the_re_import_walk_sees_a_re_import(tmp_path):
+    sample = tmp_path / "sample.py"
+    sample.write_text("import numpy as np\nfrom os import path\n\ndef f():\n    import numpy\n    from os import sep\n"
+                      "    import json\n")
+    assert _local_reimports(sample) == ["numpy (line 5)", "os (line 6)"]
 
 
 def test_library_modules_never_import_the_command_line():
