@@ -4,6 +4,7 @@ imports at the top; one definition of each shared concept."""
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "plm_highway"
@@ -51,6 +52,35 @@ def test_the_re_import_walk_sees_a_re_import(tmp_path):
     sample.write_text("import numpy as np\nfrom os import path\n\ndef f():\n    import numpy\n    from os import sep\n"
                       "    import json\n")
     assert _local_reimports(sample) == ["numpy (line 5)", "os (line 6)"]
+
+
+LAZY_REASON = re.compile(r"#.*\b(lazy|lazily|optional|cycle|circular)\b", re.IGNORECASE)
+
+
+def _unexplained_local_imports(path: Path) -> list[str]:
+    """``function (line)`` for each function importing inside its body with no comment there saying why."""
+    source = path.read_text(encoding="utf-8")
+    lines = source.splitlines()
+    found = []
+    for function in ast.walk(ast.parse(source, filename=str(path))):
+        if isinstance(function, (ast.FunctionDef, ast.AsyncFunctionDef)) and any(
+                isinstance(node, (ast.Import, ast.ImportFrom)) for node in ast.walk(function)):
+            if not LAZY_REASON.search("\n".join(lines[function.lineno - 1:function.end_lineno])):
+                found.append(f"{function.name} (line {function.lineno})")
+    return found
+
+
+def test_library_code_imports_inside_a_function_only_for_a_stated_reason():
+    # The command line is lazy by design (--help imports no torch); elsewhere an import inside a function needs a
+    # reason (an optional or slow dependency, an import cycle) written beside it.
+    offenders = {str(path.relative_to(PACKAGE)): _unexplained_local_imports(path) for path in _library_files()}
+    assert {file: found for file, found in offenders.items() if found} == {}
+
+
+def test_the_reason_walk_sees_an_unexplained_import(tmp_path):
+    sample = tmp_path / "sample.py"
+    sample.write_text("def f():\n    import json\n\n\ndef g():\n    import ray  # lazy: optional\n")
+    assert _unexplained_local_imports(sample) == ["f (line 1)"]
 
 
 def test_library_modules_never_import_the_command_line():

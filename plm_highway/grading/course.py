@@ -207,6 +207,7 @@ def _db_url(root: Path) -> str:
 
 def gradebook_revision() -> str | None:
     """The alembic revision nbgrader stamps a new gradebook with: the head of its own migration scripts."""
+    # lazy: nbgrader (and its alembic, traitlets) takes seconds to import; only building and grading need it
     from alembic.script import ScriptDirectory
     from alembic.util import CommandError
     from nbgrader.dbutil import ALEMBIC_DIR
@@ -226,6 +227,7 @@ def _create_gradebook(root: Path) -> None:
     everything else is nbgrader's own. Where the revision cannot be read, nbgrader creates the gradebook
     as usual when its first converter runs.
     """
+    # lazy: nbgrader (and its alembic, traitlets) takes seconds to import; only building and grading need it
     import nbgrader.api
 
     revision = gradebook_revision()
@@ -241,6 +243,7 @@ def _create_gradebook(root: Path) -> None:
 
 
 def _config(root: Path, timeout_s: int = CELL_TIMEOUT_S):
+    # lazy: nbgrader (and its alembic, traitlets) takes seconds to import; only building and grading need it
     from traitlets.config import Config
 
     config = Config()
@@ -258,6 +261,7 @@ def _quiet_nbgrader_logs() -> None:
 
 
 def _run_converter(converter_class, root: Path, assignment: str, student: str = ".", timeout_s: int = CELL_TIMEOUT_S):
+    # lazy: nbgrader (and its alembic, traitlets) takes seconds to import; only building and grading need it
     from nbgrader.coursedir import CourseDirectory
 
     _quiet_nbgrader_logs()
@@ -276,6 +280,7 @@ def _run_converter(converter_class, root: Path, assignment: str, student: str = 
 
 def generate_student_versions(sources: Mapping[str, str]) -> dict[str, str]:
     """nbgrader ``generate_assignment`` of each solution text: {notebook name: student notebook text}."""
+    # lazy: nbgrader (and its alembic, traitlets) takes seconds to import; only building and grading need it
     from nbgrader.converters import GenerateAssignment
 
     released = {}
@@ -364,6 +369,7 @@ def grade_submissions(solutions_dir: Path, submissions_dir: Path, fast: bool = T
     locked cells and the hidden tests before it runs a submission, so a student cannot change a
     check. ``fast`` runs the notebooks with ``PLM_FAST=1`` (the graded checks do not depend on it).
     """
+    # lazy: nbgrader (and its alembic, traitlets) takes seconds to import; only building and grading need it
     from nbgrader.api import Gradebook
     from nbgrader.converters import Autograde, GenerateAssignment
 

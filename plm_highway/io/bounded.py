@@ -258,6 +258,7 @@ _PLAIN_INTEGER = re.compile(r"[-+]?[0-9_]+")
 
 def _scan_yaml_events(text: str, source: str, limits: JsonLimits) -> None:
     """Depth, event count and over-long integers, on the parser's event stream (no tree is built)."""
+    # lazy: io is on every command's path and only grid files need YAML
     import yaml
     from yaml import events as ev
 
@@ -319,6 +320,7 @@ def _strict_loader():
     """A SafeLoader that refuses a mapping key given twice."""
     global _LOADER
     if _LOADER is None:
+        # lazy: io is on every command's path and only grid files need YAML
         import yaml
 
         class StrictSafeLoader(yaml.SafeLoader):

@@ -133,6 +133,7 @@ def write_figure_and_numbers(fig, numbers: dict, out: str | os.PathLike, numbers
 def pyplot():
     """matplotlib.pyplot on a non-interactive backend unless one was chosen."""
     os.environ.setdefault("MPLBACKEND", "Agg")
+    # lazy: matplotlib only when a figure is drawn
     import matplotlib.pyplot as plt
 
     return plt

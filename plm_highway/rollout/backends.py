@@ -117,6 +117,7 @@ class RayCluster(_Backend):
 
     def __init__(self, address: str | None, workers: int):
         try:
+            # lazy: ray is optional (the cluster extra)
             import ray
         except ImportError:
             raise BadInput("--backend ray: Ray is not installed; pip install 'plm-highway[cluster]' "

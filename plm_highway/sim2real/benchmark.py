@@ -25,7 +25,10 @@ from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
+from tqdm import tqdm
 
+from plm_highway.errors import BadInput
+from plm_highway.io import BENCH_RESULT, check_target, write_json
 from plm_highway.sim2real.diagnose import diagnose
 from plm_highway.sim2real.physics.effects import EFFECTS
 from plm_highway.sim2real.physics.synth import as_read, make_recording
@@ -226,10 +229,6 @@ def run_benchmarks(names: list[str], *, seeds: int = 3, duration_s: float = 600.
                    json_path=None, overwrite: bool = False, command: str = "") -> int:
     """``plm-highway bench sim2real``: print each asked benchmark; ``names`` from timing, match and
     :data:`CASE_SETS`. Returns the exit code (0)."""
-    from tqdm import tqdm
-
-    from plm_highway.errors import BadInput
-    from plm_highway.io import BENCH_RESULT, check_target, write_json
 
     unknown = sorted(set(names) - {"timing", "match", *CASE_SETS})
     if unknown or not names:

@@ -35,6 +35,7 @@ FIGURES = ("overlay.png", "residuals.png", "conditions.png", "candidates.png")
 
 
 def _pyplot():
+    # lazy: matplotlib only when a figure is drawn
     import matplotlib
 
     if os.environ.get("MPLBACKEND") is None:

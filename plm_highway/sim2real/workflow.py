@@ -14,15 +14,30 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from plm_highway.errors import BadInput
+from plm_highway.io import check_target
 from plm_highway.io.bounded import parse_float_text
+from plm_highway.sim2real.diagnose import diagnose
+from plm_highway.sim2real.perception_delay import diagnosis_delays, perception_delay, perception_delay_lines
 from plm_highway.sim2real.physics.effects import EFFECT_NAMES, EFFECTS
 from plm_highway.sim2real.physics.replay import ANCHOR_S
+from plm_highway.sim2real.physics.synth import OUTSIDE_EFFECTS, NoiseLevels, make_recording
+from plm_highway.sim2real.record.recording import (
+    RECORDING_CSV,
+    SIMULATOR_VEHICLE,
+    read_recording,
+    read_sidecar,
+    read_sim_log,
+    write_recording,
+)
+from plm_highway.sim2real.rendering import to_json
+from plm_highway.sim2real.report import DIAGNOSIS_JSON, SIM2REAL_REPORT, publish_diagnosis
 
 
 def parse_effect_specs(specs: list[str]) -> dict[str, dict[str, float] | None]:
     """``NAME``, ``NAME=VALUE`` (its first parameter) or ``NAME=VALUE,KEY=VALUE,...``."""
-    from plm_highway.sim2real.physics.synth import OUTSIDE_EFFECTS
 
     known = (*EFFECT_NAMES, *OUTSIDE_EFFECTS)
     out: dict[str, dict[str, float] | None] = {}
@@ -66,11 +81,6 @@ def diagnose_file(
 ) -> int:
     """Read a recording (or, with ``steer_column``, a simulator log), diagnose it, print the summary and
     publish the JSON and/or report. Returns the exit code (0)."""
-    from plm_highway.io import check_target
-    from plm_highway.sim2real.diagnose import diagnose
-    from plm_highway.sim2real.record.recording import SIMULATOR_VEHICLE, read_recording, read_sidecar, read_sim_log
-    from plm_highway.sim2real.rendering import to_json
-    from plm_highway.sim2real.report import DIAGNOSIS_JSON, SIM2REAL_REPORT, publish_diagnosis
 
     started = time.perf_counter()
     if not (math.isfinite(steer_scale) and steer_scale != 0):
@@ -119,7 +129,6 @@ def diagnose_file(
 def _perception_delay(recording_path: Path, result, data: dict) -> list[str]:
     """The camera's perception delay beside the diagnosis's delays (:mod:`plm_highway.sim2real.perception_delay`):
     added to ``data``; the report's lines returned."""
-    from plm_highway.sim2real.perception_delay import diagnosis_delays, perception_delay, perception_delay_lines
 
     found = perception_delay(recording_path, vehicle_params=result.recording.vehicle.kinematic)
     delays = diagnosis_delays(result)
@@ -145,11 +154,6 @@ def make_recording_file(
 ) -> int:
     """Synthesise a recording with concealed physics (``effects``: ``NAME[=VALUE[,KEY=VALUE...]]``) and
     write ``out`` with its sidecar and ``STEM.truth.json``. Returns the exit code (0)."""
-    import numpy as np
-
-    from plm_highway.io import check_target
-    from plm_highway.sim2real.physics.synth import NoiseLevels, make_recording
-    from plm_highway.sim2real.record.recording import RECORDING_CSV, write_recording
 
     parsed = parse_effect_specs(list(effects or []))
     check_target(out, RECORDING_CSV, overwrite=overwrite)

@@ -86,7 +86,8 @@ def save_balance_figure(
     before: np.ndarray, after: np.ndarray, path: str | Path, n_bins: int = BALANCE_BINS
 ) -> Path:
     """Steering histograms before (left) and after (right) balancing, like the paper's Figure 8."""
-    from matplotlib.figure import Figure  # no pyplot: no global state, no GUI backend needed
+    # lazy: matplotlib only when the figure is drawn; no pyplot: no global state, no GUI backend needed
+    from matplotlib.figure import Figure
 
     edges = steering_bin_edges(n_bins)
     figure = Figure(figsize=(11, 4.2), layout="constrained")

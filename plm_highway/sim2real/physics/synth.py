@@ -338,6 +338,7 @@ def _single_track_fine(delta, speed, dt, car: SingleTrackParams, heading0, frict
 
 def _commonroad_fine(model: str, delta_target, speed_target, dt_fine, heading0, decimate: int):
     """CommonRoad ST or MB with a fast steering servo and a speed controller (RK4, python)."""
+    # lazy: CommonRoad's vehicle models serve only the richer-physics cars
     from vehiclemodels.init_mb import init_mb
     from vehiclemodels.init_st import init_st
     from vehiclemodels.parameters_vehicle2 import parameters_vehicle2
@@ -419,6 +420,7 @@ def _fine_commonroad(name):
 
 
 def _bmw_320i() -> VehicleGeometry:
+    # lazy: CommonRoad's vehicle models serve only the richer-physics cars
     from vehiclemodels.parameters_vehicle2 import parameters_vehicle2
 
     p = parameters_vehicle2()

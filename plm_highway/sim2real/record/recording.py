@@ -43,7 +43,9 @@ from pathlib import Path
 
 import numpy as np
 
+from plm_highway.errors import BadInput
 from plm_highway.io import JSON_MARKER_KEY, JsonLimits, file_kind, json_text, load_json, write_outputs
+from plm_highway.io.bounded import parse_float_text
 from plm_highway.vehicle.kinematic import HIGHWAY_ENV_VEHICLE, KinematicBicycleParams
 
 REQUIRED_COLUMNS = ("t", "steer", "speed", "x", "y", "heading")
@@ -282,9 +284,6 @@ def _read_columns(path: Path, wanted: set[str] | None = None) -> tuple[list[str]
 
 def _parse_column(path: Path, name: str, values: list[str], line_numbers: np.ndarray) -> np.ndarray:
     out = np.empty(len(values))
-    from plm_highway.errors import BadInput
-    from plm_highway.io.bounded import parse_float_text
-
     for i, text in enumerate(values):
         try:  # digits 0-9 only, no '_' (float() reads '1_0' as 10 and Arabic-Indic digits as numbers)
             out[i] = parse_float_text(text, "", non_finite=True)
