@@ -12,7 +12,7 @@ import numpy as np
 from plm_highway.evaluation.plots import draw_road
 from plm_highway.io import FIGURE, check_target, pyplot, save_figure
 from plm_highway.road.track import resolve_track
-from plm_highway.rollout.closed_loop import RunCell, drive
+from plm_highway.rollout.closed_loop import RunCell, drive_cell
 from plm_highway.rollout.policies import make_policy
 
 
@@ -29,13 +29,13 @@ def _choose_policy(name: str):
 def zigzag(latency="const:0.25", track="test", policy="auto", seed=0, out="figures/zigzag.png",
            overwrite=False) -> dict:
     check_target(out, FIGURE, overwrite=overwrite)
-    delayed = RunCell("baseline", policy, "test", latency if not _is_number(latency) else f"const:{latency}", seed)
-    policy = _choose_policy(policy)
     track_spec = resolve_track(track)
-    runs = {
-        "no latency": drive("reference", make_policy(policy), track_spec, "const:0", seed),
-        f"latency {delayed.latency.spec}": drive("baseline", make_policy(policy), track_spec, delayed.latency, seed),
-    }
+    # the runs described first: a bad latency is refused before any checkpoint is read
+    delayed = RunCell("baseline", policy, track_spec, latency if not _is_number(latency) else f"const:{latency}", seed)
+    reference = RunCell("reference", policy, track_spec, "const:0", seed)
+    policy = _choose_policy(policy)
+    runs = {"no latency": drive_cell(reference, make_policy(policy)),
+            f"latency {delayed.latency.spec}": drive_cell(delayed, make_policy(policy))}
     _plot(track_spec, runs, policy, out, overwrite)
     return {name: log.summary() for name, log in runs.items()} | {"policy": policy, "figure": str(out)}
 
