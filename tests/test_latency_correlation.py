@@ -114,3 +114,38 @@ def test_claim_step_metrics_by_hand():
     assert claim_step_metrics(t, true, np.full(len(t), 0.1), silent, changing, 0.1)["answered"] == 0
     says_changing = (t >= 2.5 - 1e-9)
     assert claim_step_metrics(t, true, np.full(len(t), 0.1), silent, says_changing, 0.1)["answered"] == 1
+
+
+def test_claim_step_metrics_leave_the_stream_start_unjudged_and_tell_unseen_steps_apart():
+    # 10 Hz, tolerance 0.1 s: the camera's first frames make the age jump from 0 to 0.4 s at 0.4 s (the stream's
+    # start), and the latency steps to 0.1 s at 3 s. Nothing is claimed and nothing is said but "not estimable".
+    t = np.arange(0.0, 9.0, 0.1)
+    true = np.where(t < 0.4 - 1e-9, 0.0, np.where(t < 3.0 - 1e-9, 0.4, 0.1))
+    quiet = np.zeros(len(t), bool)
+    held = np.full(len(t), 0.2)
+    everything = claim_step_metrics(t, true, held, quiet, quiet, 0.1)
+    assert everything["steps_judged"] == 2 and everything["answered"] == 0
+    assert everything["unanswered_not_estimable"] == 2
+    after_start = claim_step_metrics(t, true, held, quiet, quiet, 0.1, blind_s=1.0)
+    assert after_start["steps"] == 1 and after_start["steps_judged"] == 1
+    assert after_start["handled"] == 0 and after_start["unanswered_not_estimable"] == 1
+    # "changing" said for a moment after the step: still not answered, but no longer unseen
+    glimpse = (t >= 3.2 - 1e-9) & (t < 3.5 - 1e-9)
+    seen = claim_step_metrics(t, true, held, quiet, glimpse, 0.1, blind_s=1.0)
+    assert seen["answered"] == 0 and seen["unanswered_not_estimable"] == 0
+
+
+@given(st.lists(st.tuples(st.integers(1, 40), st.sampled_from([0.0, 0.05, 0.1, 0.25, 0.4])), min_size=1, max_size=8),
+       st.lists(st.sampled_from(["claim", "changing", "silent"]), min_size=1, max_size=50), st.floats(0.0, 3.0))
+@settings(max_examples=60, deadline=None)
+def test_claim_step_counts_hold_together(segments, answers, blind_s):
+    true = np.concatenate([np.full(length, value) for length, value in segments])
+    t = np.arange(len(true)) * 0.1
+    states = np.resize(np.array(answers), len(true))
+    held = np.roll(true, 3)
+    scores = claim_step_metrics(t, true, held, states == "claim", states == "changing", 0.1, blind_s=blind_s)
+    assert scores["handled"] <= min(scores["stopped"], scores["answered"])
+    assert scores["stopped"] <= scores["steps_judged"] <= scores["steps"]
+    assert scores["unanswered_not_estimable"] <= scores["steps_judged"] - scores["answered"]
+    later = claim_step_metrics(t, true, held, states == "claim", states == "changing", 0.1, blind_s=blind_s + 1.0)
+    assert later["steps"] <= scores["steps"]

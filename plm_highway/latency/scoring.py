@@ -14,7 +14,7 @@ pipeline can be asked for; 50 ms at 20 Hz, 33 ms at 30 Hz).
   still claimed an estimate, and how often that claim was wrong.
 - :func:`claim_step_metrics`: after each step of the true latency by at least two frames, whether the estimator
   stopped claiming a wrong value within 1 s, and whether it then claimed the new value within 5 s or said
-  "changing" until it could.
+  "changing" until it could (and, of the steps it did not answer, those it met saying "not estimable" throughout).
 """
 
 from __future__ import annotations
@@ -122,13 +122,16 @@ def quiet_metrics(quiet, latency_s, true_s, estimable, tolerance_s: float) -> di
 
 
 def claim_step_metrics(time_s, true_s, held_s, estimable, changing, tolerance_s: float, stop_budget_s: float = 1.0,
-                       claim_budget_s: float = 5.0) -> dict:
+                       claim_budget_s: float = 5.0, blind_s: float = 0.0) -> dict:
     """How the claims behave after each step of the true latency by at least two tolerances (module docstring).
 
     A step's segment runs to the next change of the truth by at least half a tolerance. *Stopped*: no claim more
     than a tolerance off the truth from ``stop_budget_s`` after the step to the segment's end. *Answered*: a claim
     within the tolerance before ``claim_budget_s`` (or the segment's end), or else no claim and "changing" at every
     tick from ``stop_budget_s`` on until then. A segment shorter than ``stop_budget_s`` asks nothing of either.
+    Steps in the run's first ``blind_s`` are not judged: there the camera's first frames grow from age 0 to the
+    latency (the start of a stream, not a change of its latency), and an estimator that waits ``blind_s`` for a
+    history as long as its largest lag has seen nothing to compare the new latency with.
     """
     c = _columns(time_s=time_s, true_s=true_s, held_s=held_s, estimable=estimable, changing=changing)
     t, true = c["time_s"].astype(float), c["true_s"].astype(float)
@@ -136,8 +139,9 @@ def claim_step_metrics(time_s, true_s, held_s, estimable, changing, tolerance_s:
     right = within(c["held_s"], true, tolerance_s)
     jumps = np.abs(np.diff(true))
     boundaries = np.flatnonzero(jumps >= tolerance_s / 2 - 1e-9) + 1
-    steps = [int(b) for b in boundaries if jumps[b - 1] >= 2 * tolerance_s - 1e-9]
-    stopped, answered, judged = [], [], 0
+    steps = [int(b) for b in boundaries
+             if jumps[b - 1] >= 2 * tolerance_s - 1e-9 and t[b] >= t[0] + blind_s - 1e-9]
+    stopped, answered, blind, judged = [], [], [], 0
     for start in steps:
         later = boundaries[boundaries > start]
         stop = int(later[0]) if later.size else len(t)
@@ -150,6 +154,9 @@ def claim_step_metrics(time_s, true_s, held_s, estimable, changing, tolerance_s:
         span = np.arange(start, horizon[-1] + 1) if horizon.size else np.arange(start, start)
         answered.append(bool(np.any(claimed[span] & right[span]))
                         or bool(horizon.size and np.all(~claimed[horizon] & changing[horizon])))
+        # Unanswered, but "not estimable" at every tick from the step to the claim budget: no claim to stop and too
+        # little information to see that the latency moved (told apart in reports, still counted as unanswered).
+        blind.append(not answered[-1] and not np.any((claimed | changing)[span]))
     return {
         "steps": int(len(steps)),
         "steps_judged": judged,
@@ -159,4 +166,5 @@ def claim_step_metrics(time_s, true_s, held_s, estimable, changing, tolerance_s:
         "stopped": int(np.sum(stopped)),
         "answered": int(np.sum(answered)),
         "handled": int(np.sum(np.logical_and(stopped, answered))),
+        "unanswered_not_estimable": int(np.sum(blind)),
     }
