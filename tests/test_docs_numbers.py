@@ -158,6 +158,17 @@ def test_the_latency_pages_probe_advice_follows_the_committed_measurement():
     assert len(over) == 1 and over[0]["variant"] == "probe"
 
 
+def test_the_latency_page_says_most_unanswered_steps_were_unseen():
+    results = _latency_results()
+    text = _one_line((ROOT / "docs/latency.md").read_text(encoding="utf-8"))
+    assert "Most of those steps were *unseen*" in text
+    steps = [e["claim_steps"] for e in results["estimation"] if e.get("claim_steps")]
+    unanswered = sum(s["steps_judged"] - s["answered"] for s in steps)
+    assert unanswered and sum(s["unanswered_not_estimable"] for s in steps) > unanswered / 2
+    assert all(s["stopped"] == s["steps_judged"] for s in steps)  # "never claimed the old value past 1 s"
+    assert "Steps in a run's first second" in text and results["claim_rules"]["step_blind_s"] == 1.0
+
+
 def test_the_latency_page_says_the_deployed_method_never_claims_in_a_run():
     results = _latency_results()
     text = _one_line((ROOT / "docs/latency.md").read_text(encoding="utf-8"))

@@ -244,7 +244,7 @@ def fabricated_results(never_locked: bool = False, true_worse: bool = False, non
                 record["estimate"]["steps"] = {"changes": 3, "recovered_within_budget_fraction": 2 / 3,
                                                "median_recovery_s": 0.8, "never_recovered": 0, "within_fraction": 0.7}
                 record["estimate"]["claim_steps"] = {"steps": 3, "steps_judged": 2, "stopped": 2, "answered": 1,
-                                                     "handled": 1}
+                                                     "handled": 1, "unanswered_not_estimable": 1}
         records.append((spec, record))
     synthetic = {"straight_without_steering": {"ticks": 100, "estimable_fraction": 0.0, "wrong_when_estimable": 0,
                                                "final_held_s": 0.175},
@@ -529,4 +529,6 @@ def test_the_docs_claims_block_pools_tracks_and_seeds_from_the_results_file(tmp_
     # two seeds of 300 claims with 3 wrong each; the baseline's one claiming run, 10 of its 50 claims wrong
     assert "| ideal | PLM-Net told the estimate | `const:0.25` | 2 of 2 | 6 of 600 (1.0%) | - | 1 of 2 | 10 of 50 (20.0%) |" \
         in table
-    assert "| ideal | PLM-Net told the estimate | `frames:9-21:60@30` | 2 of 2 | 6 of 600 (1.0%) | 2 of 4 |" in table
+    # two seeds of 2 judged steps, 1 handled and 1 met with "not estimable" throughout each
+    assert "| ideal | PLM-Net told the estimate | `frames:9-21:60@30` | 2 of 2 | 6 of 600 (1.0%) | 2 of 4 (2 unseen) |" \
+        in table

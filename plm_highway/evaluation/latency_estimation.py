@@ -95,6 +95,9 @@ STEP_BUDGET_S = 1.0  # back within one frame period within 1 s of a step (report
 WRONG_CLAIMS_TARGET = 0.05  # at most 5% of the claims more than a frame off, in every condition
 STOP_BUDGET_S = 1.0  # after a step of two frames or more: no wrong claim from 1 s on ...
 CLAIM_BUDGET_S = 5.0  # ... and the new value claimed within 5 s, or "changing" said until then
+# Steps are judged from the moment the estimators start aligning (a history as long as the largest lag): before it the
+# camera's first frames grow from age 0 to the latency, the start of the stream rather than a change of its latency.
+STEP_BLIND_S = LatencyEstimatorConfig().max_latency_s
 # The baseline (plm_highway.latency.correlation): with its published durations it cannot claim before 150 s of valid
 # driving, five times a run's 30 s; with every duration divided by this factor it can claim from 15 s on.
 BASELINE_TIME_SCALE = 10.0
@@ -257,7 +260,7 @@ def claim_scores(t_s, true_s, held_s, estimable, changing, frame_s: float, spec:
     if not spec.latency.startswith("const:") or spec.variant == "jitter":
         scores["steps"] = step_metrics(t_s, true_s, held_s, frame_s, STEP_BUDGET_S)
         scores["claim_steps"] = claim_step_metrics(t_s, true_s, held_s, estimable, changing, frame_s, STOP_BUDGET_S,
-                                                   CLAIM_BUDGET_S)
+                                                   CLAIM_BUDGET_S, STEP_BLIND_S)
     return scores
 
 
@@ -589,7 +592,8 @@ def claims_summary(scores: list[dict]) -> dict:
     steps = [score["claim_steps"] for score in scores if "claim_steps" in score]
     if steps:
         out["claim_steps"] = {name: int(sum(value[name] for value in steps))
-                              for name in ("steps", "steps_judged", "stopped", "answered", "handled")}
+                              for name in ("steps", "steps_judged", "stopped", "answered", "handled",
+                                           "unanswered_not_estimable")}
     return out
 
 
@@ -670,7 +674,9 @@ def summarise(results: Results) -> dict:
 
     probe = {"probe_rad": PROBE_RAD, "probe_periods_s": list(LatencyEstimation().probe_periods_s)}
     return {"command": results.command, "suite": asdict(results.suite), "probe": probe,
-            "baseline_time_scale": BASELINE_TIME_SCALE, "estimation": estimation,
+            "baseline_time_scale": BASELINE_TIME_SCALE,
+            "claim_rules": {"settle_s": LatencyEstimatorConfig().settle_s, "step_blind_s": STEP_BLIND_S},
+            "estimation": estimation,
             "mitigation": mitigation, "ekf": results.ekf_rows, "synthetic": results.synthetic, "traces": traces,
             "targets": targets(estimation, mitigation, results.ekf_rows, results.synthetic)}
 
@@ -694,7 +700,8 @@ def targets(estimation: list[dict], mitigation: list[dict], ekf_rows: list[dict]
                                   "\"changing\" said until then",
                         "met": steps["handled"] == steps["steps_judged"],
                         "detail": f"{steps['handled']} of {steps['steps_judged']} steps handled (stopped: "
-                                  f"{steps['stopped']}; answered: {steps['answered']})"})
+                                  f"{steps['stopped']}; answered: {steps['answered']}; not answered while \"not "
+                                  f"estimable\" throughout: {steps['unanswered_not_estimable']})"})
     locked = {(e["conditions"], e["track"], e["setting"]): e["locked"] for e in estimation
               if e["role"] == "estimated" and not e["variant"]}
     for m in mitigation:

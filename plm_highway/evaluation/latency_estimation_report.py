@@ -82,7 +82,8 @@ def _steps(summary: dict) -> str:
     steps = (summary or {}).get("claim_steps")
     if not steps or not steps["steps_judged"]:
         return "-"
-    return f"{steps['handled']} of {steps['steps_judged']}"
+    blind = steps.get("unanswered_not_estimable", 0)
+    return f"{steps['handled']} of {steps['steps_judged']}" + (f" ({blind} unseen)" if blind else "")
 
 
 def claims_rows(results: dict) -> list[str]:
@@ -133,16 +134,21 @@ def render_markdown(results: dict) -> str:
         "|---|---|---|",
     ]
     lines += [f"| {t['target']} | {'met' if t['met'] else '**missed**'} | {t['detail']} |" for t in results["targets"]]
+    rules = results.get("claim_rules", {})
     lines += ["", "## Claims, beside a deployed method's", "",
               "A *claim* is a tick at which the estimator says \"estimated\": its interval (+-2 standard deviations) "
               "lies within a frame of the estimate, no far lag fits nearly as well, the estimate has held within half "
-              "a frame for the last second, and neither the window nor its newest samples contradict it. Otherwise it "
+              f"a frame for the last {rules.get('settle_s', math.nan):g} s, and neither the window nor its newest samples contradict it. Otherwise it "
               "says \"changing\" (the latency has just stepped, or the newest samples disagree with the last claim) "
               "or \"not estimable\" (too little information), and a consumer keeps the last claimed value or the "
               "prior. *Wrong*: more than a frame off the true age. Claims are pooled over the seeds' runs. *Steps "
               "handled*: of the steps of two frames or more followed by at least 1 s of the new latency, those after "
               "which no wrong claim was made from 1 s on and the new value was claimed within 5 s or \"changing\" "
-              "said until then.", "",
+              f"said until then; steps in a run's first {rules.get('step_blind_s', 0.0):g} s are not judged (the camera's first frames "
+              "grow from age 0 to the latency while the estimators wait for a history as long as their largest lag). "
+              "*Unseen*: of the steps not handled, those met with \"not estimable\" at every tick from the step to "
+              "the 5 s budget: no claim to withdraw, and too little information in the driving to see the latency "
+              "move (still counted as not handled).", "",
               "The baseline is openpilot's online lateral-lag method (`plm_highway/latency/correlation.py`, written "
               "from its published description: masked normalised cross-correlation of the car's lateral acceleration "
               "from its fast sensors with the one implied by the camera's lane heading, validity gating, block "

@@ -155,7 +155,9 @@ def latency_claims(root: Path) -> str:
         b_claims, b_wrong, b_runs, b_total = pooled([{**b, "seeds": []} for b in base])
         steps = [e["claim_steps"] for e in entries if e.get("claim_steps")]
         judged = sum(s["steps_judged"] for s in steps)
-        steps_text = f"{sum(s['handled'] for s in steps)} of {judged}" if judged else "-"
+        unseen = sum(s.get("unanswered_not_estimable", 0) for s in steps)
+        steps_text = (f"{sum(s['handled'] for s in steps)} of {judged}" + (f" ({unseen} unseen)" if unseen else "")
+                      if judged else "-")
         lines.append(f"| {conditions} | {roles[role]} | `{setting}` | {claimed_runs} of {runs} | "
                      f"{share(claims, wrong)} | {steps_text} | {b_runs} of {b_total} | {share(b_claims, b_wrong)} |")
     return "\n".join(lines)
