@@ -41,6 +41,7 @@ from gymnasium.vector import AutoresetMode, SyncVectorEnv
 from tqdm.auto import tqdm
 
 from plm_highway.evaluation.reproduce import conditions_named, default_settings, plan_cells
+from plm_highway.latency.profiles import check_specs
 from plm_highway.road.track import load_track, resolve_track
 from plm_highway.rollout.backends import LocalPool, worker_pool
 from plm_highway.rollout.cells import RunCell, run_cells, runs_under, worker_policy
@@ -66,17 +67,18 @@ def bench_sweep(n_envs: int = 16, steps: int = 100, policy: str = "plm", latency
     machine two torch threads at batch size 1 can take 20x longer than one)."""
     if not 1 <= repeats <= 100:
         raise ValueError(f"repeats {repeats}: must lie in [1, 100]")
-    # read once and shared by every side's cells; a bad one is refused before any model loads or the pool starts
+    # the track read once and shared by every side's cells; a bad latency or track is refused before any model loads
+    # or the pool starts (the latency is parsed where each run is made of it)
     track_spec = resolve_track(track)
-    profile = RunCell("check", "expert", track_spec, latency).latency
+    check_specs((latency,))
     load = os.getloadavg()[0]
     vision = make_policy(policy)
     default_kernels = make_policy(policy)
     default_kernels.model_policy.batch_invariant = False
-    cells = [RunCell(f"seed {seed}", vision, track_spec, profile, seed, max_steps=steps) for seed in range(n_envs)]
+    cells = [RunCell(f"seed {seed}", vision, track_spec, latency, seed, max_steps=steps) for seed in range(n_envs)]
 
     def serial(policy_object: VisionPolicy) -> np.ndarray:
-        return _steering(run_cells([RunCell(c.name, policy_object, track_spec, profile, c.seed, max_steps=steps)
+        return _steering(run_cells([RunCell(c.name, policy_object, track_spec, latency, c.seed, max_steps=steps)
                                     for c in cells], serial=True))
 
     pool_side = f"process pool ({workers} workers, batched), cold"
