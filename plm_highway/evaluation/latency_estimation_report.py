@@ -78,12 +78,16 @@ def _first_claim(summary: dict) -> str:
         f"{text}, {summary['claimed_runs']} of {summary['runs']} runs claimed"
 
 
-def _steps(summary: dict) -> str:
-    steps = (summary or {}).get("claim_steps")
+def steps_text(steps: dict | None) -> str:
+    """A claim-step count as "handled of judged (unseen)"; "-" where no step was judged."""
     if not steps or not steps["steps_judged"]:
         return "-"
-    blind = steps.get("unanswered_not_estimable", 0)
-    return f"{steps['handled']} of {steps['steps_judged']}" + (f" ({blind} unseen)" if blind else "")
+    unseen = steps.get("unanswered_not_estimable", 0)
+    return f"{steps['handled']} of {steps['steps_judged']}" + (f" ({unseen} unseen)" if unseen else "")
+
+
+def _steps(summary: dict) -> str:
+    return steps_text((summary or {}).get("claim_steps"))
 
 
 def claims_rows(results: dict) -> list[str]:
@@ -138,14 +142,14 @@ def render_markdown(results: dict) -> str:
     lines += ["", "## Claims, beside a deployed method's", "",
               "A *claim* is a tick at which the estimator says \"estimated\": its interval (+-2 standard deviations) "
               "lies within a frame of the estimate, no far lag fits nearly as well, the estimate has held within half "
-              f"a frame for the last {rules.get('settle_s', math.nan):g} s, and neither the window nor its newest samples contradict it. Otherwise it "
-              "says \"changing\" (the latency has just stepped, or the newest samples disagree with the last claim) "
+              f"a frame for the last {rules.get('settle_s', math.nan):g} s, and neither the window nor its newest "
+              "samples contradict it. Otherwise it says \"changing\" (the latency has just stepped, or the newest samples disagree with the last claim) "
               "or \"not estimable\" (too little information), and a consumer keeps the last claimed value or the "
               "prior. *Wrong*: more than a frame off the true age. Claims are pooled over the seeds' runs. *Steps "
               "handled*: of the steps of two frames or more followed by at least 1 s of the new latency, those after "
               "which no wrong claim was made from 1 s on and the new value was claimed within 5 s or \"changing\" "
-              f"said until then; steps in a run's first {rules.get('step_blind_s', 0.0):g} s are not judged (the camera's first frames "
-              "grow from age 0 to the latency while the estimators wait for a history as long as their largest lag). "
+              f"said until then; steps in a run's first {rules.get('step_blind_s', 0.0):g} s are not judged (the "
+              "camera's first frames grow from age 0 to the latency while the estimators wait for a history as long as their largest lag). "
               "*Unseen*: of the steps not handled, those met with \"not estimable\" at every tick from the step to "
               "the 5 s budget: no claim to withdraw, and too little information in the driving to see the latency "
               "move (still counted as not handled).", "",

@@ -141,7 +141,7 @@ def claim_step_metrics(time_s, true_s, held_s, estimable, changing, tolerance_s:
     boundaries = np.flatnonzero(jumps >= tolerance_s / 2 - 1e-9) + 1
     steps = [int(b) for b in boundaries
              if jumps[b - 1] >= 2 * tolerance_s - 1e-9 and t[b] >= t[0] + blind_s - 1e-9]
-    stopped, answered, blind, judged = [], [], [], 0
+    stopped, answered, unseen, judged = [], [], [], 0
     for start in steps:
         later = boundaries[boundaries > start]
         stop = int(later[0]) if later.size else len(t)
@@ -156,7 +156,7 @@ def claim_step_metrics(time_s, true_s, held_s, estimable, changing, tolerance_s:
                         or bool(horizon.size and np.all(~claimed[horizon] & changing[horizon])))
         # Unanswered, but "not estimable" at every tick from the step to the claim budget: no claim to stop and too
         # little information to see that the latency moved (told apart in reports, still counted as unanswered).
-        blind.append(not answered[-1] and not np.any((claimed | changing)[span]))
+        unseen.append(not answered[-1] and not np.any((claimed | changing)[span]))
     return {
         "steps": int(len(steps)),
         "steps_judged": judged,
@@ -166,5 +166,5 @@ def claim_step_metrics(time_s, true_s, held_s, estimable, changing, tolerance_s:
         "stopped": int(np.sum(stopped)),
         "answered": int(np.sum(answered)),
         "handled": int(np.sum(np.logical_and(stopped, answered))),
-        "unanswered_not_estimable": int(np.sum(blind)),
+        "unanswered_not_estimable": int(np.sum(unseen)),
     }

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from plm_highway.bench.models import format_closed_loop_table, format_runs
 from plm_highway.errors import BadInput
+from plm_highway.evaluation.latency_estimation_report import steps_text
 from plm_highway.evaluation.plm_vs_ekf_report import readme_table as comparison_table
 from plm_highway.evaluation.plm_vs_ekf_report import who_wins_lines
 from plm_highway.io import load_json
@@ -154,12 +155,10 @@ def latency_claims(root: Path) -> str:
         base = [e["baselines"]["scaled"] for e in entries if "scaled" in e.get("baselines", {})]
         b_claims, b_wrong, b_runs, b_total = pooled([{**b, "seeds": []} for b in base])
         steps = [e["claim_steps"] for e in entries if e.get("claim_steps")]
-        judged = sum(s["steps_judged"] for s in steps)
-        unseen = sum(s.get("unanswered_not_estimable", 0) for s in steps)
-        steps_text = (f"{sum(s['handled'] for s in steps)} of {judged}" + (f" ({unseen} unseen)" if unseen else "")
-                      if judged else "-")
+        pooled_steps = {name: sum(s.get(name, 0) for s in steps)
+                        for name in ("handled", "steps_judged", "unanswered_not_estimable")}
         lines.append(f"| {conditions} | {roles[role]} | `{setting}` | {claimed_runs} of {runs} | "
-                     f"{share(claims, wrong)} | {steps_text} | {b_runs} of {b_total} | {share(b_claims, b_wrong)} |")
+                     f"{share(claims, wrong)} | {steps_text(pooled_steps)} | {b_runs} of {b_total} | {share(b_claims, b_wrong)} |")
     return "\n".join(lines)
 
 
